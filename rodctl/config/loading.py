@@ -1,0 +1,176 @@
+"""Load a config: YAML file -> `--set` overrides -> one validation -> `ExperimentConfig`.
+
+Every failure becomes a `ConfigError` whose message names the file, the dotted field path and
+what was expected; the CLI prints it and exits with code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from rodctl.config.experiment import ExperimentConfig
+from rodctl.errors import UserError
+
+
+class ConfigError(UserError):
+    """A config that cannot be used. `str(err)` is the user-facing message."""
+
+
+def read_yaml(path: str | Path) -> dict[str, Any]:
+    """Read a YAML mapping from `path` with `yaml.safe_load`.
+
+    Raises:
+        ConfigError: the file is missing, unreadable, not YAML or not a mapping.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"{path}: no such file")
+    if not path.is_file():
+        raise ConfigError(f"{path}: not a file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read: {exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{path}: YAML syntax error{where}: {problem}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(
+            f"{path}: expected a mapping of config keys at the top level, got {type(data).__name__}"
+        )
+    return data
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """Parse one `--set a.b.c=value` into (["a", "b", "c"], value); value is a YAML scalar/flow.
+
+    Raises:
+        ConfigError: no `=`, an empty key segment, or a value that is not valid YAML.
+    """
+    key, sep, raw = text.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise ConfigError(f"--set {text!r}: expected KEY=VALUE with a dotted key, e.g. rod.length=0.6")
+    parts = key.split(".")
+    if any(not p.strip() for p in parts):
+        raise ConfigError(f"--set {text!r}: empty segment in the dotted key {key!r}")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError:
+        raise ConfigError(f"--set {text!r}: the value {raw!r} is not valid YAML") from None
+    return [p.strip() for p in parts], value
+
+
+def apply_override(data: dict[str, Any], parts: list[str], value: Any, text: str) -> None:
+    """Set `data[parts[0]][parts[1]]... = value`, creating mappings on the way; lists by index."""
+    node: Any = data
+    for i, part in enumerate(parts):
+        last = i == len(parts) - 1
+        where = ".".join(parts[: i + 1])
+        if isinstance(node, dict):
+            if last:
+                node[part] = value
+            else:
+                nxt = node.get(part)
+                if nxt is None:
+                    nxt = node[part] = {}
+                node = nxt
+        elif isinstance(node, list):
+            try:
+                idx = int(part)
+                node[idx]  # noqa: B018 - bounds check
+            except (ValueError, IndexError):
+                raise ConfigError(
+                    f"--set {text!r}: {where!r} indexes a list of {len(node)} items; "
+                    f"expected an integer index in [0, {len(node) - 1}]"
+                ) from None
+            if last:
+                node[idx] = value
+            else:
+                node = node[idx]
+        else:
+            raise ConfigError(
+                f"--set {text!r}: {'.'.join(parts[:i])!r} is a value ({node!r}), not a section"
+            )
+
+
+def _dotted(loc: tuple[Any, ...], data: Any) -> str:
+    """Turn a pydantic error location into the dotted path a user writes in YAML.
+
+    Discriminated unions and validators add location entries that are not keys in the input
+    (the union tag, e.g. ``controller.mfac.weights``); follow the input data and keep only the
+    entries that are really there, plus the last one (a missing key is, by definition, absent).
+    """
+    out: list[str] = []
+    node = data
+    for i, part in enumerate(loc):
+        last = i == len(loc) - 1
+        if isinstance(node, dict) and part in node:
+            out.append(str(part))
+            node = node[part]
+        elif isinstance(node, list | tuple) and isinstance(part, int) and 0 <= part < len(node):
+            out.append(str(part))
+            node = node[part]
+        elif last and not isinstance(part, int) and not str(part).startswith("function-"):
+            out.append(str(part))
+        elif last and isinstance(part, int):
+            out.append(str(part))
+    return ".".join(out) or "(top level)"
+
+
+def format_validation_error(exc: ValidationError, data: Any, source: str) -> str:
+    """One short paragraph naming each offending field, what was expected and what was given."""
+    lines = [f"{source}: invalid config"]
+    errors = exc.errors(include_url=False)
+    for err in errors[:8]:
+        path = _dotted(tuple(err["loc"]), data)
+        msg = err["msg"]
+        if msg.startswith("Value error, "):
+            msg = msg[len("Value error, ") :]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key (check the spelling; `rodctl config schema` lists every key)"
+        elif err["type"] == "missing":
+            msg = "required key is missing"
+        else:
+            given = err.get("input")
+            if not isinstance(given, dict | list) and err["type"] != "union_tag_invalid":
+                msg = f"{msg} (got {given!r})"
+        lines.append(f"  {path}: {msg}")
+    if len(errors) > 8:
+        lines.append(f"  ... and {len(errors) - 8} more")
+    return "\n".join(lines)
+
+
+def validate_config(data: dict[str, Any], source: str, model: type[BaseModel] = ExperimentConfig):
+    """Validate a raw mapping into `model`; `source` names it in error messages."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(format_validation_error(exc, data, source)) from None
+
+
+def load_config(path: str | Path | None, overrides: list[str] | None = None) -> ExperimentConfig:
+    """Load `path` (None: embedded defaults only), apply `--set` overrides, validate once."""
+    data: dict[str, Any] = read_yaml(path) if path is not None else {}
+    for text in overrides or []:
+        parts, value = parse_override(text)
+        apply_override(data, parts, value, text)
+    source = str(path) if path is not None else "(defaults)"
+    if overrides:
+        source += " with --set " + " ".join(overrides)
+    return validate_config(data, source)
+
+
+def dump_config(cfg: BaseModel) -> str:
+    """The resolved config as YAML, every default filled in; loads back to an equal config."""
+    return yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False, default_flow_style=None)

@@ -1,0 +1,31 @@
+"""The JacobianEstimator protocol: online (or offline) estimate of J in Delta s ~ J Delta r."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+
+class JacobianEstimator(Protocol):
+    """Estimates the deformation Jacobian J (p x q) from (Delta s, Delta r) pairs."""
+
+    @property
+    def J(self) -> np.ndarray:
+        """(p, q) current estimate."""
+        ...
+
+    def reset(self, J0: np.ndarray) -> None:
+        """Start from the initial estimate J0 (p, q), e.g. from probing least squares."""
+        ...
+
+    def update(self, ds: np.ndarray, dr: np.ndarray) -> np.ndarray:
+        """Fold in one measurement ds (p,) = s_k - s_{k-1} caused by dr (q,) = r_k - r_{k-1}.
+
+        Returns the updated (p, q) estimate. A move inside the dead zone leaves J unchanged.
+        """
+        ...
+
+    def info(self) -> dict[str, float]:
+        """Scalar diagnostics for the log (e.g. adaptive factor, innovation statistic)."""
+        ...

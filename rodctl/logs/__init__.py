@@ -1,0 +1,1 @@
+"""Sinks for step records: MCAP (Foxglove), Rerun. The only package that imports mcap/rerun."""

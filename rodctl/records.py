@@ -1,0 +1,142 @@
+"""Plain data that flows from the experiment loop to the sinks (MCAP, Rerun, summary, figures).
+
+Sinks see only these dataclasses, so `rodctl replay` can rebuild every output from a log file by
+feeding the same records the live loop fed. numpy only: no stage or sink library is imported here.
+
+Timing of one record k (k = 0 is the initial observation, before any move):
+    command u_k (pose increment) is applied -> the rod settles -> the camera sees c_k ->
+    s_k = f_s(c_k) -> the estimator updates with (Delta s_k, u_k) -> J_k -> T1_k = ||s* - s_k||.
+The command computed from record k is the `u` of record k + 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class RunHeader:
+    """What is fixed for a whole run; sinks receive it once, before the first step.
+
+    Attributes:
+        run_id: the run directory's name, also the Rerun recording id.
+        method: the method label used in summaries and comparisons.
+        config_yaml: the resolved config (every default filled in) as YAML text.
+        image_size: (width, height) of camera frames in pixels.
+        clamp_pose: (3,) pose of the clamped end, world frame.
+        home_pose: (3,) gripper pose at the start of the run, world frame.
+        target_centerline: (M, 2) ground-truth target centerline, world metres, clamp first.
+        target_pixels: (N, 2) the target centerline as the camera extracted it, pixels.
+        target_feature: (p,) s*, the feature of `target_pixels`.
+        target_pose: (3,) gripper pose that produced the target, world frame.
+        rod_length: rod length L (m).
+    """
+
+    run_id: str
+    method: str
+    config_yaml: str
+    image_size: tuple[int, int]
+    clamp_pose: np.ndarray
+    home_pose: np.ndarray
+    target_centerline: np.ndarray
+    target_pixels: np.ndarray
+    target_feature: np.ndarray
+    target_pose: np.ndarray
+    rod_length: float
+
+
+@dataclass
+class StepRecord:
+    """Everything one control step produced. Arrays carry their shapes in the field docs.
+
+    Attributes:
+        step: control step index k (probing steps included; 0 = initial observation).
+        sim_time: simulated time at the end of the step (s).
+        phase: "initial", "probe" or "control".
+        gripper: (3,) gripper pose [x, y, theta], world frame, after the move.
+        centerline: (M, 2) simulator ground truth, world metres, clamp end first.
+        extracted: (N, 2) centerline extracted from the camera image, pixels, clamp end first.
+        projected_truth: (N, 2) ground truth projected by the camera model, pixels.
+        u: (3,) pose increment [dx, dy, dtheta] applied in this step (after saturation/clipping).
+        u_raw: (3,) the command the controller asked for, before saturation and workspace clipping.
+        s: (p,) shape feature of `extracted`.
+        s_target: (p,) target feature s*.
+        T1: ||s* - s|| (paper's deformation metric).
+        J: (p, q) Jacobian estimate after this step's update.
+        J_singular_values: (min(p, q),) singular values of J, largest first.
+        pixel_error: mean distance (px) between `extracted` and the target centerline.
+        settled: whether the rod came to rest within the settle budget.
+        saturated: (3,) per-axis flags, True where the speed limit bit.
+        clipped: True when the workspace clipped or refused the commanded pose.
+        max_joint_gap: largest pivot-joint separation in the chain (m), a health figure.
+        kinetic_energy: rod kinetic energy when the step ended (J).
+        extraction_ok: False when the extractor reported a problem (occlusion, lost rod).
+        extraction_note: the extractor's message when `extraction_ok` is False, else "".
+        estimator_info: scalar diagnostics of the estimator (e.g. AKF alpha, innovation).
+        image: (H, W, 3) uint8 RGB camera frame, present only on frames chosen for logging.
+    """
+
+    step: int
+    sim_time: float
+    phase: str
+    gripper: np.ndarray
+    centerline: np.ndarray
+    extracted: np.ndarray
+    projected_truth: np.ndarray
+    u: np.ndarray
+    u_raw: np.ndarray
+    s: np.ndarray
+    s_target: np.ndarray
+    T1: float
+    J: np.ndarray
+    J_singular_values: np.ndarray
+    pixel_error: float
+    settled: bool = True
+    saturated: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
+    clipped: bool = False
+    max_joint_gap: float = 0.0
+    kinetic_energy: float = 0.0
+    extraction_ok: bool = True
+    extraction_note: str = ""
+    estimator_info: dict[str, float] = field(default_factory=dict)
+    image: np.ndarray | None = None
+
+
+@dataclass
+class RunSummary:
+    """The run's outcome; written as summary.json (contract in shared/design/architecture.md).
+
+    `outcome` is one of "converged", "stalled", "step_limit", "diverged", "interrupted", "failed".
+    """
+
+    status: str
+    outcome: str
+    method: str
+    steps: int
+    converged: bool
+    steps_to_converge: int | None
+    final_T1: float
+    final_pixel_error: float
+    wall_time_s: float
+    steps_per_s: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """The summary.json mapping: contract keys first, then `extra` merged in."""
+        out = {
+            "status": self.status,
+            "outcome": self.outcome,
+            "method": self.method,
+            "steps": self.steps,
+            "converged": self.converged,
+            "steps_to_converge": self.steps_to_converge,
+            "final_T1": self.final_T1,
+            "final_pixel_error": self.final_pixel_error,
+            "wall_time_s": self.wall_time_s,
+            "steps_per_s": self.steps_per_s,
+        }
+        out.update(self.extra)
+        return out

@@ -1,0 +1,156 @@
+"""Run directory lifecycle: unique id, resolved config, meta.json status, seeds.
+
+A run directory is ``<parent>/<YYYYmmdd-HHMMSS>_<name>/`` and is never overwritten: when two runs
+start in the same second, the later one gets a ``-2``, ``-3``… suffix. `meta.json` is rewritten
+atomically (write to a temporary file, then rename) so a crash never leaves it half-written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rodctl.config import ExperimentConfig, dump_config
+from rodctl.errors import UserError
+
+#: Every consumer of randomness, in a fixed order. Each gets its own independent stream derived
+#: from the config's one seed; append new names at the end so existing streams stay unchanged.
+SEED_CONSUMERS = ("targets", "camera", "data", "torch", "sim", "probing", "compare")
+
+#: Distributions whose versions meta.json records.
+_VERSIONED = ("rodctl", "numpy", "scipy", "torch", "pymunk", "rerun-sdk", "mcap", "pydantic",
+              "opencv-python-headless", "scikit-image")
+
+STATUSES = ("running", "completed", "failed", "interrupted")
+
+
+def seed_sequence(seed: int, consumer: str) -> np.random.SeedSequence:
+    """The SeedSequence of one named consumer, derived from the experiment seed."""
+    try:
+        index = SEED_CONSUMERS.index(consumer)
+    except ValueError:
+        raise KeyError(f"unknown seed consumer {consumer!r}; known: {SEED_CONSUMERS}") from None
+    return np.random.SeedSequence(seed, spawn_key=(index,))
+
+
+def rng(seed: int, consumer: str) -> np.random.Generator:
+    """An independent `numpy.random.Generator` for one named consumer."""
+    return np.random.Generator(np.random.PCG64(seed_sequence(seed, consumer)))
+
+
+def torch_seed(seed: int) -> int:
+    """The integer to pass to `torch.manual_seed`, derived like every other stream."""
+    return int(seed_sequence(seed, "torch").generate_state(1, dtype=np.uint64)[0] >> 1)
+
+
+def package_versions() -> dict[str, str | None]:
+    """Installed versions of the packages a result depends on (None where absent)."""
+    out: dict[str, str | None] = {"python": sys.version.split()[0]}
+    for dist in _VERSIONED:
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = None
+    return out
+
+
+def git_sha() -> str | None:
+    """The source tree's commit (with a ``-dirty`` suffix for uncommitted changes), if any."""
+    here = Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5
+        )
+        if sha.returncode != 0:
+            return None
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=here, capture_output=True, text=True, timeout=5,
+        )
+        return sha.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON to `path` via a temporary file and a rename, so readers never see half a file."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+@dataclass
+class RunDir:
+    """One run's output folder and its meta.json."""
+
+    path: Path
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def run_id(self) -> str:
+        """The folder name, e.g. ``20261123-101500_default``; also the Rerun recording id."""
+        return self.path.name
+
+    @classmethod
+    def create(
+        cls, parent: str | Path, cfg: ExperimentConfig, command: str, argv: list[str] | None = None
+    ) -> RunDir:
+        """Make a new, unique run directory under `parent` and write config.yaml and meta.json."""
+        parent = Path(parent)
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UserError(f"--out {parent}: cannot create the output folder: {exc}") from None
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        base = f"{stamp}_{cfg.name}"
+        for n in range(1, 10_000):
+            path = parent / (base if n == 1 else f"{base}-{n}")
+            try:
+                path.mkdir()
+                break
+            except FileExistsError:
+                continue
+            except OSError as exc:
+                raise UserError(f"--out {parent}: cannot create a run directory: {exc}") from None
+        else:  # pragma: no cover - 10k runs in one second
+            raise UserError(f"{parent}: too many runs named {base!r}")
+        (path / "config.yaml").write_text(dump_config(cfg), encoding="utf-8")
+        run = cls(path=path)
+        run.meta = {
+            "run_id": path.name,
+            "command": command,
+            "status": "running",
+            "argv": list(sys.argv if argv is None else argv),
+            "seed": cfg.seed,
+            "versions": package_versions(),
+            "git_sha": git_sha(),
+            "started_at": _now(),
+            "ended_at": None,
+        }
+        run.write_meta()
+        return run
+
+    def write_meta(self) -> None:
+        """Rewrite meta.json from `self.meta`."""
+        write_json_atomic(self.path / "meta.json", self.meta)
+
+    def finish(self, status: str, **extra: Any) -> None:
+        """Record the terminal status (completed, failed or interrupted) and the end time."""
+        if status not in STATUSES[1:]:
+            raise ValueError(f"terminal status must be one of {STATUSES[1:]}, got {status!r}")
+        self.meta.update(status=status, ended_at=_now(), **extra)
+        self.write_meta()

@@ -1,0 +1,1 @@
+"""rodctl.vision"""
