@@ -11,9 +11,11 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field
 
 class StrictModel(BaseModel):
-    """Base for all config models: unknown keys are errors, defaults are validated too."""
+    """Base for all config models: unknown keys, NaN and infinity are errors; defaults validated."""
 
-    model_config = ConfigDict(extra="forbid", validate_default=True, validate_assignment=True)
+    model_config = ConfigDict(
+        extra="forbid", validate_default=True, validate_assignment=True, allow_inf_nan=False
+    )
 
 
 #: A planar pose ``[x, y, theta]`` in the world frame (metres, radians, y up).

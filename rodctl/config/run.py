@@ -1,16 +1,76 @@
-"""Config of the experiment loop: step budget, targets and stopping criteria.
+"""Config of the experiment loop: target, probing, step budget and stopping criteria.
 
 Owned by `rodctl/experiment.py`.
 """
 
 from __future__ import annotations
 
-from pydantic import Field
+from typing import Literal
 
-from rodctl.config.base import StrictModel
+from pydantic import Field, PositiveFloat, PositiveInt, model_validator
+
+from rodctl.config.base import Pose, StrictModel
+
+Outcome = Literal["converged", "stalled", "step_limit", "diverged", "lost_tracking", "completed"]
+
+
+class TargetConfig(StrictModel):
+    """Where the target shape comes from. Targets are reachable by construction: the rod is driven
+    to a gripper pose, allowed to settle, and the camera's view of it becomes the target."""
+
+    pose: Pose | None = Field(
+        None,
+        description="Gripper pose that produces the target shape (world). None: sample one.",
+    )
+    min_offset: float = Field(
+        0.3, ge=0.0, description="Sampled targets: least normalised distance from home (see README)."
+    )
+    max_offset: float = Field(
+        1.0, gt=0.0, description="Sampled targets: largest normalised distance from home."
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> TargetConfig:
+        if self.min_offset > self.max_offset:
+            raise ValueError(
+                f"min_offset ({self.min_offset}) must not exceed max_offset ({self.max_offset})"
+            )
+        return self
 
 
 class RunConfig(StrictModel):
     """How long a run lasts and when it stops."""
 
-    max_steps: int = Field(200, ge=1, description="Step limit, probing steps included.")
+    max_steps: PositiveInt = Field(200, description="Step limit, probing steps included.")
+    target: TargetConfig = TargetConfig()
+    probe_size: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+        (0.005, 0.005, 0.03),
+        description="Size of the q + 1 probing moves that initialise J: [dx m, dy m, dtheta rad].",
+    )
+    pixel_tolerance: PositiveFloat = Field(
+        2.0,
+        description="Converged when the mean pixel distance to the target centerline is below this…",
+    )
+    t1_tolerance: PositiveFloat = Field(
+        0.05, description="…and T1 = ||s* - s|| is below this (feature units)."
+    )
+    stall_window: PositiveInt = Field(
+        15, description="Stalled when the pixel error has not improved for this many steps…"
+    )
+    stall_improvement: float = Field(
+        0.02,
+        ge=0.0,
+        lt=1.0,
+        description="…by at least this fraction of its value at the window's start…",
+    )
+    stall_gradient: PositiveFloat = Field(
+        0.05,
+        description="…while ||J^T e|| / (||J|| ||e||) is below this (the descent direction vanished).",
+    )
+    max_lost_frames: PositiveInt = Field(
+        3, description="Consecutive failed centerline extractions that end the run."
+    )
+    expect: Outcome | None = Field(
+        None,
+        description="Outcome this config is expected to reach (checked by the config test suite).",
+    )

@@ -1,0 +1,55 @@
+"""Every command's --help, through Typer's CliRunner and through a real subprocess."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from typer.testing import CliRunner
+
+from rodctl.cli import app
+
+runner = CliRunner()
+
+
+def _commands() -> list[list[str]]:
+    import typer.main
+
+    group = typer.main.get_command(app)
+    out = [[]]
+    for name, cmd in group.commands.items():
+        out.append([name])
+        for sub in getattr(cmd, "commands", {}):
+            out.append([name, sub])
+    return out
+
+
+COMMANDS = _commands()
+
+
+def test_expected_commands_exist():
+    names = {tuple(c) for c in COMMANDS}
+    assert ("config", "show") in names and ("config", "schema") in names
+
+
+@pytest.mark.parametrize("cmd", COMMANDS, ids=lambda c: " ".join(c) or "rodctl")
+def test_help_cli_runner(cmd):
+    result = runner.invoke(app, [*cmd, "--help"])
+    assert result.exit_code == 0, result.output
+    assert "Usage" in result.output
+
+
+@pytest.mark.parametrize("cmd", COMMANDS, ids=lambda c: " ".join(c) or "rodctl")
+def test_help_subprocess(cmd):
+    proc = subprocess.run(
+        [sys.executable, "-m", "rodctl", *cmd, "--help"], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "Usage" in proc.stdout
+
+
+def test_config_show_prints_resolved_yaml(repo):
+    result = runner.invoke(app, ["config", "show", str(repo / "configs/default.yaml")])
+    assert result.exit_code == 0
+    assert "rod:" in result.stdout and "bending_stiffness" in result.stdout

@@ -1,0 +1,178 @@
+"""Config loading: every shipped config validates; every kind of bad input is a clear exit-2 error."""
+
+from __future__ import annotations
+
+import json
+
+import jsonschema
+import pytest
+import yaml
+from paths import CONFIGS, REPO
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from typer.testing import CliRunner
+
+from rodctl.cli import app
+from rodctl.config import ConfigError, ExperimentConfig, dump_config, load_config, read_yaml
+
+runner = CliRunner()
+
+
+def test_configs_folder_is_not_empty():
+    assert CONFIGS, "configs/ must ship at least the default config"
+    assert REPO / "configs" / "default.yaml" in CONFIGS
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
+def test_every_shipped_config_validates(path):
+    cfg = load_config(path)
+    # The resolved dump loads back to the same config (round trip through YAML).
+    assert ExperimentConfig.model_validate(yaml.safe_load(dump_config(cfg))) == cfg
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
+def test_schema_validates_shipped_configs(path):
+    result = runner.invoke(app, ["config", "schema"])
+    assert result.exit_code == 0
+    schema = json.loads(result.stdout)
+    jsonschema.validate(read_yaml(path), schema)
+
+
+def test_schema_rejects_unknown_key():
+    schema = ExperimentConfig.model_json_schema()
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({"rod": {"lenght": 0.5}}, schema)
+
+
+def test_overrides_apply_as_yaml_scalars():
+    cfg = load_config(REPO / "configs/default.yaml", ["rod.length=0.6", "seed=7", "name=abc"])
+    assert cfg.rod.length == 0.6 and cfg.seed == 7 and cfg.name == "abc"
+    cfg = load_config(None, ["rod.clamp_pose=[0.1, 0.2, 0.3]"])
+    assert cfg.rod.clamp_pose == (0.1, 0.2, 0.3)
+
+
+def test_section_without_type_means_the_default_method():
+    cfg = load_config(None, ["controller.type=mfac"])
+    assert load_config(None).controller.type == cfg.controller.type
+
+
+def _fail(args, tmp_path=None):
+    result = runner.invoke(app, args)
+    out = result.stdout + (result.stderr or "")
+    assert result.exit_code == 2, out
+    assert "Traceback" not in out
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    return out
+
+
+def test_missing_file(tmp_path):
+    out = _fail(["config", "show", str(tmp_path / "nope.yaml")])
+    assert "nope.yaml" in out and "no such file" in out
+
+
+def test_yaml_syntax_error(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("rod:\n  length: [0.5\nseed: 1\n")
+    out = _fail(["config", "show", str(bad)])
+    assert "bad.yaml" in out and "YAML syntax error" in out and "line" in out
+
+
+def test_top_level_not_a_mapping(tmp_path):
+    bad = tmp_path / "list.yaml"
+    bad.write_text("- 1\n- 2\n")
+    out = _fail(["config", "show", str(bad)])
+    assert "list.yaml" in out and "mapping" in out
+
+
+def test_unknown_key(tmp_path):
+    bad = tmp_path / "typo.yaml"
+    bad.write_text("rod:\n  lenght: 0.5\n")
+    out = _fail(["config", "show", str(bad)])
+    assert "typo.yaml" in out and "rod.lenght" in out and "unknown key" in out
+
+
+def test_wrong_type(tmp_path):
+    bad = tmp_path / "type.yaml"
+    bad.write_text("seed: banana\n")
+    out = _fail(["config", "show", str(bad)])
+    assert "seed" in out and "integer" in out and "banana" in out
+
+
+@pytest.mark.parametrize(
+    ("override", "path"),
+    [
+        ("rod.length=-1", "rod.length"),
+        ("rod.segments=1", "rod.segments"),
+        ("camera.points=1", "camera.points"),
+        ("rod.workspace.x_limits=[1, 0]", "rod.workspace"),
+    ],
+)
+def test_out_of_range(override, path, repo):
+    out = _fail(["config", "show", str(repo / "configs/default.yaml"), "--set", override])
+    assert path in out and "default.yaml" in out
+
+
+def test_unknown_method_type(repo):
+    out = _fail(["config", "show", str(repo / "configs/default.yaml"), "--set", "controller.type=x"])
+    assert "controller" in out and "'x'" in out
+
+
+@pytest.mark.parametrize(
+    "override", ["rod.length", "=3", "rod..length=1", "rod.length=[1", "seed.x=1"]
+)
+def test_malformed_set(override, repo):
+    out = _fail(["config", "show", str(repo / "configs/default.yaml"), "--set", override])
+    assert "--set" in out or "seed" in out
+
+
+def test_config_error_is_a_user_error():
+    with pytest.raises(ConfigError):
+        load_config(None, ["rod.length=0"])
+
+
+# --- property-based: mutate valid configs, the CLI never prints a traceback -------------------
+
+def _leaf_paths(node, prefix=()):
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _leaf_paths(v, (*prefix, k))
+    elif isinstance(node, list):
+        yield prefix
+        for i, v in enumerate(node):
+            yield from _leaf_paths(v, (*prefix, str(i)))
+    else:
+        yield prefix
+
+
+_DEFAULT = load_config(None).model_dump(mode="json")
+_PATHS = sorted({".".join(p) for p in _leaf_paths(_DEFAULT) if p})
+
+_values = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(min_value=-(10**6), max_value=10**6),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=12),
+    st.lists(st.floats(allow_nan=False, width=32), max_size=4),
+    st.sampled_from(["[1, 2", "{a: 1}", "!!python/object:os.system", "'", "a: b: c"]),
+)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    path=st.one_of(st.sampled_from(_PATHS), st.text(min_size=0, max_size=10)),
+    value=_values,
+    raw=st.booleans(),
+)
+def test_mutated_configs_never_traceback(path, value, raw):
+    text = value if (raw and isinstance(value, str)) else yaml.safe_dump(value).strip()
+    text = text.removesuffix("\n...").strip()
+    result = runner.invoke(app, ["config", "show", str(REPO / "configs/default.yaml"),
+                                 "--set", f"{path}={text}"])
+    out = result.stdout + (result.stderr or "")
+    assert result.exit_code in (0, 2), out
+    assert "Traceback" not in out
+    if result.exit_code == 2:
+        assert out.startswith("error: ") or "error" in out.lower()
+    if result.exception is not None:
+        assert isinstance(result.exception, SystemExit), repr(result.exception)
