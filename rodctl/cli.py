@@ -71,6 +71,39 @@ def config_schema() -> None:
     typer.echo(json.dumps(ExperimentConfig.model_json_schema(), indent=2))
 
 
+OutOpt = Annotated[
+    str, typer.Option("--out", help="Parent folder of the run directory.", show_default=True)
+]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or table.")]
+
+
+@app.command()
+@user_errors
+def simulate(
+    config: ConfigArg,
+    set_: SetOpt = None,
+    out: OutOpt = "runs",
+    quiet: QuietOpt = False,
+) -> None:
+    """Run one shape-servoing experiment; print the run directory as the last line.
+
+    Exit code 0 when the run completed (converged or not: see summary.json), 1 when it
+    failed (diverged, lost the rod, crashed) or was interrupted, 2 on bad input.
+    """
+    from rodctl.display import print_summary, step_progress
+    from rodctl.simulate import simulate as run_simulation
+
+    cfg = load_config(config, set_ or [])
+    with step_progress(cfg.run.max_steps, enabled=not quiet) as on_step:
+        result = run_simulation(cfg, out, argv=sys.argv, on_step=on_step)
+    if not quiet:
+        print_summary(result.summary)
+    if result.error:
+        typer.echo(f"error: {result.error}", err=True)
+    typer.echo(str(result.run.path))
+    raise typer.Exit(code=result.exit_code)
+
+
 def main() -> None:
     """Console-script entry point."""
     app(prog_name="rodctl")

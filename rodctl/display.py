@@ -1,0 +1,62 @@
+"""Terminal output: the progress bar of a run and the summary table (rich).
+
+Progress goes to stderr so that stdout stays machine-readable (its last line is the run
+directory); rich disables animation by itself when stderr is not a terminal.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from rodctl.records import RunSummary, StepRecord
+
+stderr = Console(stderr=True)
+
+
+@contextmanager
+def step_progress(total: int, enabled: bool = True) -> Iterator[Callable[[StepRecord], None]]:
+    """A progress bar over control steps showing T1 and the pixel error; yields the callback."""
+    if not enabled:
+        yield lambda _rec: None
+        return
+    progress = Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("T1 {task.fields[t1]:.4f}  px err {task.fields[px]:.2f}"),
+        TimeElapsedColumn(),
+        console=stderr,
+        transient=False,
+    )
+    with progress:
+        task = progress.add_task("step", total=total, t1=float("nan"), px=float("nan"))
+
+        def on_step(rec: StepRecord) -> None:
+            progress.update(task, completed=rec.step, t1=rec.T1, px=rec.pixel_error,
+                            description=rec.phase)
+
+        yield on_step
+
+
+def summary_table(summary: RunSummary, title: str = "run summary") -> Table:
+    """The summary as a two-column table."""
+    table = Table(title=title, show_header=False)
+    table.add_column("key", style="bold")
+    table.add_column("value")
+    for key, value in summary.to_json().items():
+        if isinstance(value, float):
+            value = f"{value:.6g}"
+        elif isinstance(value, dict):
+            value = ", ".join(f"{k}={v}" for k, v in value.items())
+        table.add_row(key, str(value))
+    return table
+
+
+def print_summary(summary: RunSummary) -> None:
+    """Print the summary table to stderr."""
+    stderr.print(summary_table(summary))

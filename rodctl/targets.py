@@ -1,0 +1,63 @@
+"""Reachable target shapes, sampled from gripper poses.
+
+A target is made the only way that guarantees it is reachable: drive the rod to a gripper pose,
+let it settle, and take what the camera sees. How hard a target is is measured by how far its
+gripper pose is from the home pose, in normalised units (see `TARGET_SCALE`), so that "easy" and
+"hard" mean the same thing to every method in a comparison.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from rodctl.errors import UserError
+
+#: One normalised unit of target offset per axis, as a fraction of the rod length for x and y
+#: and in radians for theta: offset 1.0 is a 0.3 L translation or a 60 degree turn.
+TARGET_SCALE_FRACTION = (0.3, 0.3)
+TARGET_SCALE_THETA = np.pi / 3
+
+
+def target_scale(rod_length: float) -> np.ndarray:
+    """(3,) size of one normalised offset unit: [0.3 L, 0.3 L, pi/3]."""
+    fx, fy = TARGET_SCALE_FRACTION
+    return np.array([fx * rod_length, fy * rod_length, TARGET_SCALE_THETA])
+
+
+def difficulty(pose: np.ndarray, home: np.ndarray, rod_length: float) -> float:
+    """Normalised distance of a target gripper pose from the home pose."""
+    return float(np.linalg.norm((np.asarray(pose) - np.asarray(home)) / target_scale(rod_length)))
+
+
+def sample_target_pose(
+    rng: np.random.Generator,
+    home: np.ndarray,
+    rod_length: float,
+    allowed: Callable[[np.ndarray], bool],
+    min_offset: float,
+    max_offset: float,
+    max_tries: int = 10_000,
+) -> np.ndarray:
+    """A gripper pose at a normalised offset in [min_offset, max_offset] from `home`.
+
+    The direction is uniform on the unit sphere of normalised offsets and the radius uniform in
+    the band; candidates that `allowed` rejects (outside the workspace, unreachable) are redrawn.
+
+    Raises:
+        UserError: no allowed pose was found (the band does not fit the workspace).
+    """
+    scale = target_scale(rod_length)
+    for _ in range(max_tries):
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        radius = rng.uniform(min_offset, max_offset)
+        pose = np.asarray(home, dtype=float) + radius * direction * scale
+        if allowed(pose):
+            return pose
+    raise UserError(
+        f"run.target: no reachable gripper pose at offset [{min_offset}, {max_offset}] from the "
+        f"home pose {list(np.round(home, 4))} in {max_tries} tries; widen rod.workspace or lower "
+        "run.target.max_offset"
+    )
