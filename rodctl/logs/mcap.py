@@ -1,0 +1,511 @@
+"""The MCAP log: writing it during a run (`McapSink`) and reading it back (`read_mcap`).
+
+Why MCAP is the source of truth: it is one self-describing, indexed, compressed file that Foxglove
+opens without configuration and that `rodctl replay` turns back into the exact step records the
+loop produced (see `codec`), so every other output (run.rrd, figures) can be rebuilt from it.
+
+Layout (topic contract in shared/design/architecture.md):
+- `/rod/state`, `/camera/centerline`, `/control`: JSON-schema channels, one message per step,
+  contract fields exactly as named, extras after them; MCAP `sequence` = step.
+- `/world/rod`, `/world/target`, `/world/gripper` (foxglove.SceneUpdate), `/camera/image`
+  (foxglove.CompressedImage, PNG), `/log` (foxglove.Log): what people look at in Foxglove.
+- `/run/header`, `/run/summary`: one message each (RunHeader; summary.json + closing status).
+- metadata `rodctl.run`, `rodctl.config` (the resolved config, flattened to dotted keys),
+  `rodctl.end` (closing status); attachment `config.yaml`.
+
+Determinism: `log_time` = `publish_time` = simulated time in ns, attachment times 0, the library
+string carries no version or time, channels and schemas are registered in a fixed order, and JSON
+is written compactly with fixed key order: the same records give the same bytes.
+
+Crash safety: every `flush_every_steps` steps the open chunk is closed and the file flushed to
+the OS, so a run killed without warning (SIGKILL, power loss) loses at most those steps; the
+reader detects the missing footer and refuses the file unless asked to recover what is complete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+import yaml
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Message, Metadata
+from mcap.stream_reader import StreamReader
+from mcap.well_known import MessageEncoding, SchemaEncoding
+from mcap.writer import CompressionType, Writer
+
+from rodctl.config.logging import LoggingConfig
+from rodctl.errors import UserError
+from rodctl.logs import codec, schemas
+from rodctl.records import RunHeader, RunSummary, StepRecord
+
+MAGIC = b"\x89MCAP0\r\n"
+#: Written into the MCAP header; no version number, so reruns stay byte-identical.
+LIBRARY = "rodctl"
+
+_COMPRESSION = {
+    "zstd": CompressionType.ZSTD,
+    "lz4": CompressionType.LZ4,
+    "none": CompressionType.NONE,
+}
+
+#: (topic, schema) in registration order; the order is part of the byte-stable layout.
+CHANNELS: tuple[tuple[str, dict[str, Any]], ...] = (
+    (codec.TOPIC_HEADER, schemas.RUN_HEADER),
+    (codec.TOPIC_ROD_STATE, schemas.ROD_STATE),
+    (codec.TOPIC_CAMERA_CENTERLINE, schemas.CAMERA_CENTERLINE),
+    (codec.TOPIC_CONTROL, schemas.CONTROL),
+    (codec.TOPIC_ROD_SCENE, schemas.SCENE_UPDATE),
+    (codec.TOPIC_TARGET_SCENE, schemas.SCENE_UPDATE),
+    (codec.TOPIC_GRIPPER_SCENE, schemas.SCENE_UPDATE),
+    (codec.TOPIC_IMAGE, schemas.COMPRESSED_IMAGE),
+    (codec.TOPIC_LOG, schemas.LOG),
+    (codec.TOPIC_SUMMARY, schemas.RUN_SUMMARY),
+)
+
+# Colours (r, g, b) of the scene: rod blue, target green, gripper orange.
+_ROD_RGB = (0.1, 0.45, 0.95)
+_TARGET_RGB = (0.1, 0.75, 0.25)
+_GRIPPER_RGB = (1.0, 0.55, 0.0)
+
+
+def _dumps(msg: dict[str, Any]) -> bytes:
+    # allow_nan=False: codec already mapped non-finite values; a stray NaN is a bug, not data.
+    return json.dumps(msg, separators=(",", ":"), allow_nan=False).encode("utf-8")
+
+
+def _flatten(prefix: str, value: Any, out: dict[str, str]) -> None:
+    """Dotted-key str->str view of a nested mapping (MCAP metadata holds strings only)."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _flatten(f"{prefix}.{k}" if prefix else str(k), v, out)
+    else:
+        out[prefix] = json.dumps(value, default=str)
+
+
+def config_metadata(config_yaml: str) -> dict[str, str]:
+    """The resolved config as MCAP metadata: dotted keys, JSON-encoded values."""
+    try:
+        data = yaml.safe_load(config_yaml)
+    except yaml.YAMLError:
+        data = None
+    if not isinstance(data, dict):
+        return {"yaml": config_yaml}
+    out: dict[str, str] = {}
+    _flatten("", data, out)
+    return out
+
+
+def _color(rgb: tuple[float, float, float]) -> dict[str, float]:
+    return {"r": rgb[0], "g": rgb[1], "b": rgb[2], "a": 1.0}
+
+
+_IDENTITY_POSE = {"position": {"x": 0.0, "y": 0.0, "z": 0.0},
+                  "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
+
+
+def _entity(t_ns: int, entity_id: str, **primitives: list[Any]) -> dict[str, Any]:
+    ent: dict[str, Any] = {
+        "timestamp": codec.foxglove_time(t_ns),
+        "frame_id": "world",
+        "id": entity_id,
+        "lifetime": {"sec": 0, "nsec": 0},
+        "frame_locked": False,
+        "metadata": [],
+    }
+    for name in ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts",
+                 "models"):
+        ent[name] = primitives.get(name, [])
+    return ent
+
+
+def line_strip_scene(
+    t_ns: int, entity_id: str, points: np.ndarray, rgb: tuple[float, float, float], width: float
+) -> dict[str, Any]:
+    """A foxglove.SceneUpdate holding one line strip through (M, 2) world points (z = 0)."""
+    pts = np.nan_to_num(np.asarray(points, dtype=np.float64)).tolist()
+    line = {
+        "type": 0,  # LINE_STRIP
+        "pose": _IDENTITY_POSE,
+        "thickness": width,
+        "scale_invariant": False,
+        "points": [{"x": x, "y": y, "z": 0.0} for x, y in pts],
+        "color": _color(rgb),
+        "colors": [],
+        "indices": [],
+    }
+    return {"deletions": [], "entities": [_entity(t_ns, entity_id, lines=[line])]}
+
+
+def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, Any]:
+    """A foxglove.SceneUpdate with an arrow at the gripper pose, pointing along theta."""
+    x, y, th = (float(v) for v in np.nan_to_num(np.asarray(pose, dtype=np.float64))[:3])
+    size = 0.12 * rod_length if np.isfinite(rod_length) and rod_length > 0 else 0.05
+    arrow = {
+        "pose": {"position": {"x": x, "y": y, "z": 0.0},
+                 "orientation": {"x": 0.0, "y": 0.0, "z": float(np.sin(th / 2)),
+                                 "w": float(np.cos(th / 2))}},
+        "shaft_length": 0.7 * size,
+        "shaft_diameter": 0.08 * size,
+        "head_length": 0.3 * size,
+        "head_diameter": 0.2 * size,
+        "color": _color(_GRIPPER_RGB),
+    }
+    return {"deletions": [], "entities": [_entity(t_ns, "gripper", arrows=[arrow])]}
+
+
+class McapSink:
+    """Writes a run as run.mcap (see the module docstring for the layout).
+
+    Args:
+        path: the file to write (created or overwritten when `open` is called).
+        cfg: the logging config (compression, chunk size, flush interval, PNG level).
+    """
+
+    def __init__(self, path: str | Path, cfg: LoggingConfig | None = None) -> None:
+        self.path = Path(path)
+        self.cfg = cfg if cfg is not None else LoggingConfig()
+        self._file: IO[bytes] | None = None
+        self._writer: Writer | None = None
+        self._channels: dict[str, int] = {}
+        self._header: RunHeader | None = None
+        self._prev: StepRecord | None = None
+        self._steps = 0
+        self._last_ns = 0
+        self._closed = False
+
+    # ---------------------------------------------------------------------------- Sink protocol
+    def open(self, header: RunHeader) -> None:
+        """Create the file and write the header, config and target (log_time 0)."""
+        if self._writer is not None or self._closed:
+            raise RuntimeError("McapSink.open called twice")
+        self._header = header
+        self._file = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        w = Writer(
+            self._file,
+            chunk_size=self.cfg.mcap_chunk_size,
+            compression=_COMPRESSION[self.cfg.mcap_compression],
+        )
+        self._writer = w
+        w.start(profile="", library=LIBRARY)
+        schema_ids: dict[str, int] = {}
+        for topic, schema in CHANNELS:
+            name = schema["title"]
+            if name not in schema_ids:
+                schema_ids[name] = w.register_schema(
+                    name=name, encoding=SchemaEncoding.JSONSchema,
+                    data=schemas.schema_bytes(schema),
+                )
+            units = codec.UNITS.get(topic, {})
+            self._channels[topic] = w.register_channel(
+                topic=topic, message_encoding=MessageEncoding.JSON,
+                schema_id=schema_ids[name], metadata={f"unit.{k}": v for k, v in units.items()},
+            )
+        w.add_metadata("rodctl.run", {
+            "run_id": header.run_id,
+            "method": header.method,
+            "format_version": codec.FORMAT_VERSION,
+            "log_time": "simulated time (ns)",
+        })
+        w.add_metadata("rodctl.config", config_metadata(header.config_yaml))
+        w.add_attachment(create_time=0, log_time=0, name="config.yaml",
+                         media_type="application/yaml", data=header.config_yaml.encode("utf-8"))
+        self._add(codec.TOPIC_HEADER, 0, 0, codec.header_to_json(header))
+        self._add(codec.TOPIC_TARGET_SCENE, 0, 0, line_strip_scene(
+            0, "target", header.target_centerline, _TARGET_RGB, 0.004))
+        self._log(0, *codec.open_log_line(header))
+        self._flush()
+
+    def write(self, record: StepRecord) -> None:
+        """Append one step: the three contract messages, the scene, the frame, log lines."""
+        if self._writer is None or self._header is None:
+            raise RuntimeError("McapSink.write called before open (or after close)")
+        r = record
+        t = codec.time_ns(r.sim_time)
+        k = int(r.step)
+        self._last_ns = max(self._last_ns, t)
+        # Encode everything first, then hand it to the writer: an exception while encoding
+        # leaves the file untouched.
+        msgs = [
+            (codec.TOPIC_ROD_STATE, codec.rod_state_message(r)),
+            (codec.TOPIC_CAMERA_CENTERLINE, codec.camera_message(r)),
+            (codec.TOPIC_CONTROL, codec.control_message(r)),
+            (codec.TOPIC_ROD_SCENE, line_strip_scene(t, "rod", r.centerline, _ROD_RGB, 0.006)),
+            (codec.TOPIC_GRIPPER_SCENE, gripper_scene(t, r.gripper, self._header.rod_length)),
+        ]
+        if r.image is not None:
+            png = codec.PNG_CACHE.encode(r.image, self.cfg.png_compression)
+            msgs.append((codec.TOPIC_IMAGE, {
+                "timestamp": codec.foxglove_time(t),
+                "frame_id": "camera",
+                "data": codec.b64(png),
+                "format": "png",
+            }))
+        data = [(topic, _dumps(m)) for topic, m in msgs]
+        lines = codec.step_log_lines(self._prev, r)
+        for topic, payload in data:
+            self._writer.add_message(channel_id=self._channels[topic], log_time=t,
+                                     publish_time=t, sequence=k, data=payload)
+        for level, text in lines:
+            self._log(t, level, text, sequence=k)
+        self._prev = r
+        self._steps += 1
+        if self._steps % self.cfg.flush_every_steps == 0:
+            self._flush()
+
+    def close(self, summary: RunSummary | None, status: str) -> None:
+        """Write the summary and finish the file (footer, indexes). Idempotent.
+
+        Every finishing step is attempted even if an earlier one fails. Errors are raised for a
+        completed run; for a failed or interrupted one they become warnings, so that they never
+        mask the exception that ended the run.
+        """
+        if self._closed:
+            return
+        self._closed = True
+        errors: list[BaseException] = []
+        w, f = self._writer, self._file
+        self._writer = None
+        if w is not None:
+            t = self._last_ns
+            try:
+                self._add_with(w, codec.TOPIC_SUMMARY, t, self._steps,
+                               codec.summary_to_json(summary, status))
+                level, text = codec.close_log_line(summary, status, self._steps)
+                self._add_with(w, codec.TOPIC_LOG, t, self._steps, self._log_msg(t, level, text))
+                w.add_metadata("rodctl.end", {"status": status, "steps": str(self._steps)})
+            except Exception as exc:  # noqa: BLE001 - collected, see docstring
+                errors.append(exc)
+            try:
+                w.finish()
+            except Exception as exc:  # noqa: BLE001
+                errors.append(exc)
+        if f is not None:
+            try:
+                f.flush()
+                os.fsync(f.fileno())
+            except Exception as exc:  # noqa: BLE001
+                errors.append(exc)
+            finally:
+                f.close()
+        if errors:
+            if status == "completed":
+                raise errors[0]
+            warnings.warn(f"{self.path}: closing the MCAP log failed: {errors[0]!r}",
+                          RuntimeWarning, stacklevel=2)
+
+    # -------------------------------------------------------------------------------- helpers
+    def _add(self, topic: str, t_ns: int, seq: int, msg: dict[str, Any]) -> None:
+        assert self._writer is not None
+        self._add_with(self._writer, topic, t_ns, seq, msg)
+
+    def _add_with(self, w: Writer, topic: str, t_ns: int, seq: int, msg: dict[str, Any]) -> None:
+        w.add_message(channel_id=self._channels[topic], log_time=t_ns, publish_time=t_ns,
+                      sequence=seq, data=_dumps(msg))
+
+    @staticmethod
+    def _log_msg(t_ns: int, level: str, text: str) -> dict[str, Any]:
+        return {"timestamp": codec.foxglove_time(t_ns), "level": codec.LOG_LEVELS[level],
+                "message": text, "name": "rodctl", "file": "", "line": 0}
+
+    def _log(self, t_ns: int, level: str, text: str, sequence: int = 0) -> None:
+        self._add(codec.TOPIC_LOG, t_ns, sequence, self._log_msg(t_ns, level, text))
+
+    def _flush(self) -> None:
+        """Close the open chunk and push the bytes to the OS (kill-safe up to here)."""
+        assert self._writer is not None and self._file is not None
+        # mcap 1.6 (pinned) has no public "end chunk now"; its private finaliser is the one the
+        # writer itself calls when a chunk is full. Without it chunks still close at
+        # mcap_chunk_size, only less often.
+        end_chunk = getattr(self._writer, "_Writer__finalize_chunk", None)
+        if end_chunk is not None:
+            end_chunk()
+        self._file.flush()
+
+
+# ---------------------------------------------------------------------------------- reading
+_Raw = tuple[str, int, int, bytes]  # topic, sequence, log_time, data
+
+
+def _read_indexed(f: IO[bytes]) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
+    """Messages (file order) and metadata of a finished file, via its summary and indexes."""
+    reader = make_reader(f, validate_crcs=True)
+    if reader.get_summary() is None:
+        raise McapError("no summary section")
+    raw = [(ch.topic, m.sequence, m.log_time, m.data)
+           for _, ch, m in reader.iter_messages(log_time_order=False)]
+    meta = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    return raw, meta
+
+
+def _read_stream(f: IO[bytes]) -> tuple[list[_Raw], dict[str, dict[str, str]], str]:
+    """Every complete record of a file front to back, stopping at the first damaged one."""
+    raw: list[_Raw] = []
+    meta: dict[str, dict[str, str]] = {}
+    topics: dict[int, str] = {}
+    error = ""
+    records: Iterator[Any] = StreamReader(f, validate_crcs=True).records
+    while True:
+        try:
+            rec = next(records)
+        except StopIteration:
+            break
+        except Exception as exc:  # noqa: BLE001 - any damage ends the readable part
+            error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+            break
+        if isinstance(rec, Channel):
+            topics[rec.id] = rec.topic
+        elif isinstance(rec, Message):
+            if rec.channel_id in topics:
+                raw.append((topics[rec.channel_id], rec.sequence, rec.log_time, rec.data))
+        elif isinstance(rec, Metadata):
+            meta[rec.name] = dict(rec.metadata)
+    return raw, meta, error
+
+
+def _json(path: Path, topic: str, data: bytes) -> dict[str, Any]:
+    try:
+        msg = json.loads(data)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: malformed JSON message on {topic}: {exc}") from None
+    if not isinstance(msg, dict):
+        raise UserError(f"{path}: message on {topic} is not a JSON object")
+    return msg
+
+
+def read_mcap(path: str | Path, *, recover: bool = False, images: bool = True) -> codec.ReadRun:
+    """Read a rodctl run.mcap back into its header, step records and summary.
+
+    Args:
+        path: the MCAP file.
+        recover: accept a file whose writer never finished (killed run, power loss) and return
+            its complete steps with `complete=False` and a warning. Without it such a file raises.
+        images: decode the logged camera frames into `StepRecord.image` (PNG decoding costs a
+            few ms per frame); False leaves every `image` None.
+
+    Returns:
+        A `ReadRun` (records in step order).
+
+    Raises:
+        UserError: the file is missing, is not MCAP, is not a rodctl run log, is damaged, or is
+            incomplete and `recover` is False. The message names the file and the problem.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise UserError(f"{path}: no such file")
+    if not path.is_file():
+        raise UserError(f"{path}: not a file")
+    notes: list[str] = []
+    with open(path, "rb") as f:
+        head = f.read(len(MAGIC))
+        if head != MAGIC:
+            raise UserError(f"{path}: not an MCAP file (it does not start with the MCAP magic "
+                            f"bytes); expected a run.mcap written by rodctl")
+        size = f.seek(0, os.SEEK_END)
+        f.seek(max(0, size - len(MAGIC)))
+        complete = size >= 2 * len(MAGIC) and f.read(len(MAGIC)) == MAGIC
+        reason = "it has no footer"
+        if complete:
+            f.seek(0)
+            try:
+                raw, meta = _read_indexed(f)
+            except Exception as exc:  # noqa: BLE001 - any damage: fall back to streaming
+                complete = False
+                reason = f"its summary or indexes are unreadable ({type(exc).__name__}: {exc})"
+        if not complete:
+            f.seek(0)
+            raw, meta, error = _read_stream(f)
+            if error:
+                reason += f"; reading stopped at a damaged record ({error})"
+    run = _assemble(path, raw, meta, images, notes)
+    if not complete:
+        what = (f"{path}: incomplete MCAP file: its writer never finished (crash, kill or power "
+                f"loss): {reason}. {len(run.records)} complete steps are readable")
+        if not recover:
+            raise UserError(what + "; read it with recovery (rodctl replay --recover) to use "
+                            "them.")
+        notes.insert(0, what + ".")
+    run.complete = complete
+    return run
+
+
+def _assemble(path: Path, raw: list[_Raw], meta: dict[str, dict[str, str]], images: bool,
+              notes: list[str]) -> codec.ReadRun:
+    header_msgs = [d for topic, _, _, d in raw if topic == codec.TOPIC_HEADER]
+    if not header_msgs:
+        raise UserError(f"{path}: not a rodctl run log (no {codec.TOPIC_HEADER} message)"
+                        if raw or meta else f"{path}: the MCAP file holds no readable messages")
+    try:
+        header = codec.header_from_json(_json(path, codec.TOPIC_HEADER, header_msgs[0]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise UserError(f"{path}: malformed run header: {exc!r}") from None
+
+    per_step: dict[int, dict[str, dict[str, Any]]] = {}
+    order: list[int] = []
+    frames: dict[int, bytes] = {}
+    summary: dict[str, Any] | None = None
+    wanted = (codec.TOPIC_ROD_STATE, codec.TOPIC_CAMERA_CENTERLINE, codec.TOPIC_CONTROL)
+    for topic, seq, _, data in raw:
+        if topic in wanted:
+            msg = _json(path, topic, data)
+            step = msg.get("step")
+            if not isinstance(step, int):
+                raise UserError(f"{path}: message on {topic} without an integer `step`")
+            slot = per_step.get(step)
+            if slot is None:
+                slot = per_step[step] = {}
+                order.append(step)
+            if topic in slot:
+                notes.append(f"step {step}: duplicate {topic} message ignored")
+                continue
+            slot[topic] = msg
+        elif topic == codec.TOPIC_IMAGE and images:
+            frames.setdefault(seq, data)
+        elif topic == codec.TOPIC_SUMMARY:
+            summary = _json(path, topic, data)
+
+    records: list[StepRecord] = []
+    for step in sorted(order):
+        slot = per_step[step]
+        missing = [t for t in wanted if t not in slot]
+        if missing:
+            notes.append(f"step {step}: skipped, missing {', '.join(missing)}")
+            continue
+        image = None
+        if step in frames:
+            try:
+                image = codec.decode_png(
+                    _b64decode(_json(path, codec.TOPIC_IMAGE, frames[step])["data"]))
+            except (KeyError, ValueError) as exc:
+                notes.append(f"step {step}: camera frame unreadable ({exc}); left out")
+        try:
+            records.append(codec.record_from_messages(*(slot[t] for t in wanted), image))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise UserError(f"{path}: malformed step {step}: {exc!r}") from None
+
+    status = meta.get("rodctl.end", {}).get("status")
+    if summary is not None:
+        closing = summary.pop("closing_status", None)
+        status = status or closing
+        if len(summary) == 0:
+            summary = None
+    return codec.ReadRun(path=path, header=header, records=records, summary=summary,
+                         status=status, complete=True, warnings=notes)
+
+
+def _b64decode(text: Any) -> bytes:
+    import base64
+    import binascii
+
+    if not isinstance(text, str):
+        raise ValueError("image data is not base64 text")
+    try:
+        return base64.b64decode(text, validate=True)
+    except binascii.Error as exc:
+        raise ValueError(f"bad base64: {exc}") from None

@@ -1,0 +1,168 @@
+"""A realistic synthetic run (header + step records) without the simulator.
+
+Why: the sinks and the reader must be tested, benchmarked and looked at in Foxglove/Rerun
+independently of the physics, vision and control stages. The run here has the shapes and
+magnitudes of a real one — a 0.6 m rod clamped at the origin, a gripper that moves towards a
+target pose, 51-point world centerlines, 100-point pixel centerlines in a 640 x 480 eye-to-hand
+view, p = 6 features, a 6 x 3 Jacobian estimate — but its numbers mean nothing physically.
+Deterministic for a given seed (numpy Generator; no global RNG).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from rodctl.records import RunHeader, StepRecord
+
+_CONFIG_YAML = """\
+name: synthetic
+seed: {seed}
+rod:
+  length: 0.6
+  clamp_pose: [0.0, 0.0, 0.0]
+camera:
+  width: 640
+  height: 480
+  points: 100
+logging:
+  image_rate_hz: 5.0
+"""
+
+
+def _curve(clamp: np.ndarray, grip: np.ndarray, m: int) -> np.ndarray:
+    """(m, 2) cubic Hermite curve leaving the clamp along its theta and reaching the gripper
+    along the gripper's theta: a rod-like shape."""
+    p0, p1 = clamp[:2], grip[:2]
+    scale = np.linalg.norm(p1 - p0) + 1e-9
+    t0 = scale * np.array([np.cos(clamp[2]), np.sin(clamp[2])])
+    t1 = scale * np.array([np.cos(grip[2]), np.sin(grip[2])])
+    s = np.linspace(0.0, 1.0, m)[:, None]
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+    return h00 * p0 + h10 * t0 + h01 * p1 + h11 * t1
+
+
+def _resample(points: np.ndarray, n: int) -> np.ndarray:
+    """(n, 2) points equally spaced in arc length along a polyline."""
+    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])
+    t = np.linspace(0.0, arc[-1], n)
+    return np.stack([np.interp(t, arc, points[:, 0]), np.interp(t, arc, points[:, 1])], axis=1)
+
+
+class SyntheticRun:
+    """A fake run: `header` and `records(n)`.
+
+    Args:
+        seed: seed of the run's numbers.
+        image_every: a camera frame every this many steps (0 = none).
+        noisy_images: add sensor noise to frames (harder for PNG, like a real camera).
+        p: feature dimension.
+    """
+
+    width, height = 640, 480
+    focal = 700.0  # px per metre at the rod plane
+
+    def __init__(self, seed: int = 0, image_every: int = 5, noisy_images: bool = False,
+                 p: int = 6) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.seed = seed
+        self.image_every = image_every
+        self.noisy_images = noisy_images
+        self.p = p
+        self.clamp = np.array([0.0, 0.0, 0.0])
+        self.home = np.array([0.55, 0.0, 0.0])
+        self.target_pose = np.array([0.45, 0.18, 0.9])
+        self.W = self.rng.normal(size=(p, 100 * 2)) / 40.0
+        target_world = _curve(self.clamp, self.target_pose, 51)
+        target_px = _resample(self.project(target_world), 100)
+        self.s_target = self.feature(target_px)
+        self.header = RunHeader(
+            run_id=f"20261123-101500_synthetic-{seed}",
+            method="mfac-akf",
+            config_yaml=_CONFIG_YAML.format(seed=seed),
+            image_size=(self.width, self.height),
+            clamp_pose=self.clamp.copy(),
+            home_pose=self.home.copy(),
+            target_centerline=target_world,
+            target_pixels=target_px,
+            target_feature=self.s_target.copy(),
+            target_pose=self.target_pose.copy(),
+            rod_length=0.6,
+        )
+
+    def project(self, world: np.ndarray) -> np.ndarray:
+        """(M, 2) world metres -> (M, 2) pixels (u right, v down)."""
+        u = 120.0 + self.focal * world[:, 0]
+        v = 0.5 * self.height - self.focal * world[:, 1]
+        return np.stack([u, v], axis=1)
+
+    def feature(self, pixels: np.ndarray) -> np.ndarray:
+        """(p,) a linear 'feature' of the centred pixel centerline."""
+        return self.W @ ((pixels - [320.0, 240.0]) / 100.0).ravel()
+
+    def render(self, pixels: np.ndarray) -> np.ndarray:
+        """(H, W, 3) uint8 RGB frame: light background, dark rod, optional noise."""
+        img = np.full((self.height, self.width, 3), (235, 232, 225), dtype=np.uint8)
+        pts = np.round(pixels * 4).astype(np.int32).reshape(-1, 1, 2)
+        cv2.polylines(img, [pts], False, (40, 40, 45), thickness=7, lineType=cv2.LINE_AA,
+                      shift=2)
+        if self.noisy_images:
+            noise = self.rng.normal(0.0, 2.0, size=img.shape)
+            img = np.clip(img + noise, 0, 255).astype(np.uint8)
+        return img
+
+    def records(self, n: int) -> list[StepRecord]:
+        """The first `n` steps: initial observation, 3 probing steps, then control."""
+        out: list[StepRecord] = []
+        pose = self.home.copy()
+        J = self.rng.normal(size=(self.p, 3))
+        period = 0.2
+        for k in range(n):
+            phase = "initial" if k == 0 else ("probe" if k <= 3 else "control")
+            if k == 0:
+                u_raw = np.zeros(3)
+            elif phase == "probe":
+                u_raw = np.eye(3)[k - 1] * [0.01, 0.01, 0.05]
+            else:
+                u_raw = 0.25 * (self.target_pose - pose) + self.rng.normal(0, 1e-3, 3)
+            u = np.clip(u_raw, [-0.02, -0.02, -0.1], [0.02, 0.02, 0.1])
+            pose = pose + u
+            world = _curve(self.clamp, pose, 51)
+            truth_px = _resample(self.project(world), 100)
+            extracted = truth_px + self.rng.normal(0.0, 0.3, truth_px.shape)
+            s = self.feature(extracted)
+            J = J + self.rng.normal(0.0, 0.01, J.shape)
+            err = np.linalg.norm(extracted - self.header.target_pixels, axis=1).mean()
+            image = None
+            if self.image_every and k % self.image_every == 0:
+                image = self.render(truth_px)
+            out.append(StepRecord(
+                step=k,
+                sim_time=round(0.05 + k * period, 9),
+                phase=phase,
+                gripper=pose.copy(),
+                centerline=world,
+                extracted=extracted,
+                projected_truth=truth_px,
+                u=u,
+                u_raw=u_raw,
+                s=s,
+                s_target=self.s_target.copy(),
+                T1=float(np.linalg.norm(self.s_target - s)),
+                J=J.copy(),
+                J_singular_values=np.linalg.svd(J, compute_uv=False),
+                pixel_error=float(err),
+                settled=k % 17 != 9,
+                saturated=np.abs(u_raw) > [0.02, 0.02, 0.1],
+                clipped=bool(k == 7),
+                max_joint_gap=float(self.rng.uniform(0, 1e-5)),
+                kinetic_energy=float(self.rng.uniform(0, 1e-6)),
+                extraction_ok=k % 23 != 11,
+                extraction_note="" if k % 23 != 11 else "rod partly occluded",
+                estimator_info={"alpha": float(self.rng.uniform(0.9, 1.0)),
+                                "innovation": float(self.rng.normal())},
+                image=image,
+            ))
+        return out
