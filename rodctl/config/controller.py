@@ -16,7 +16,7 @@ from pydantic import Field, PositiveFloat, field_validator
 from rodctl.config.base import Pose, StrictModel
 
 #: Default MFAC weights (omega_1..omega_7), see `MfacControllerConfig`.
-DEFAULT_MFAC_WEIGHTS = (0.55, 0.001, 0.2, 0.05, 0.001, 0.098, 0.1)
+DEFAULT_MFAC_WEIGHTS = (0.55, 1e-4, 0.2, 0.05, 1e-4, 0.0998, 0.1)
 
 
 class MfacControllerConfig(StrictModel):
@@ -92,10 +92,10 @@ class QpControllerConfig(StrictModel):
 
     type: Literal["qp"] = "qp"
     gain: float = Field(
-        0.3, gt=0.0, le=1.0, description="lambda: the fraction of the error the step aims to remove."
+        0.3, gt=0.0, le=1.0, description="lambda: the fraction of the error one step aims at."
     )
     r_weights: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
-        (1.0, 1.0, 1.0), description="Diagonal of R: penalty on [dx, dy, dtheta] (feature^2/unit^2)."
+        (1.0, 1.0, 1.0), description="Diagonal of R: penalty on [dx, dy, dtheta] (feature^2/u^2)."
     )
 
 

@@ -1,0 +1,36 @@
+"""The Ma et al. 2022 baseline law: u = lambda J^+ sat(s* - s).
+
+A re-implementation from published descriptions (method-notes section 4; research/baselines.md
+section 3), not the authors' code. method-notes writes u = -lambda J^+ sat(s - s*); sat is odd,
+so that is the same law. Assumptions we made:
+- sat clips each feature-error component to +-`error_limit` (per component, not by norm);
+- J^+ is numpy's SVD pseudo-inverse with singular values below rcond * sigma_max dropped, so a
+  direction J barely observes does not ask for a huge move;
+- the per-axis speed saturation of u is the loop's, as for every law.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class PinvController:
+    """Saturated pseudo-inverse shape servo, stateless."""
+
+    def __init__(self, gain: float = 0.5, error_limit: float = 0.5, rcond: float = 1e-4) -> None:
+        """Args: gain: lambda in (0, 1]; error_limit: sat bound per feature; rcond: pinv cutoff."""
+        if not 0.0 < gain <= 1.0:
+            raise ValueError(f"gain must be in (0, 1], got {gain}")
+        if not error_limit > 0.0:
+            raise ValueError(f"error_limit must be positive, got {error_limit}")
+        self._gain, self._limit, self._rcond = float(gain), float(error_limit), float(rcond)
+
+    def reset(self) -> None:
+        """Nothing to forget: the law is memoryless."""
+
+    def command(
+        self, s: np.ndarray, s_target: np.ndarray, J: np.ndarray, r: np.ndarray
+    ) -> np.ndarray:
+        """u = lambda J^+ clip(s* - s, +-error_limit); s, s* (p,), J (p, q), r unused. (q,)."""
+        e = np.clip(np.asarray(s_target, float) - np.asarray(s, float), -self._limit, self._limit)
+        return self._gain * (np.linalg.pinv(np.asarray(J, float), rcond=self._rcond) @ e)

@@ -1,0 +1,108 @@
+"""The Aghajanzadeh et al. 2022 baseline law: a box-constrained least-squares step (a small QP).
+
+A re-implementation from published descriptions (method-notes section 4; research/baselines.md
+section 2.3), not the authors' code: the "optimal deformation control" paper was not available,
+so the step is our reconstruction
+
+    min_u 1/2 ||J u - lambda e||^2 + 1/2 u^T R u   s.t.   -max_step <= u <= max_step,
+
+with e = s* - s, R = diag(r_weights) and the loop's per-axis speed limits as bounds.
+Assumptions: a diagonal R, box bounds only (no workspace or stretch constraints), the bounds
+equal to the loop's saturation, so the loop's saturation never bites on this law.
+
+With q = 3 the QP is solved exactly by enumerating the 3^q active sets (each axis at its lower
+bound, free, or at its upper bound): the objective is strictly convex, so exactly one set
+satisfies the KKT conditions and its solution is the unique minimiser. No iterative solver, no
+tolerance to tune, a handful of 3 x 3 solves.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+
+def solve_box_qp(H: np.ndarray, g: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Exact minimiser of 1/2 u^T H u + g^T u subject to lower <= u <= upper.
+
+    Args:
+        H: (q, q) symmetric positive definite.
+        g: (q,) linear term.
+        lower: (q,) lower bounds.
+        upper: (q,) upper bounds, >= lower.
+
+    Returns:
+        (q,) the unique minimiser.
+
+    Raises:
+        ValueError: q > 8 (3^q active sets) or inconsistent bounds.
+    """
+    H = np.asarray(H, dtype=float)
+    g = np.asarray(g, dtype=float)
+    lo = np.asarray(lower, dtype=float)
+    hi = np.asarray(upper, dtype=float)
+    q = g.shape[0]
+    if q > 8:
+        raise ValueError(f"active-set enumeration is for small problems, got q = {q}")
+    if np.any(lo > hi):
+        raise ValueError("every lower bound must be <= its upper bound")
+    reach = float(np.maximum(np.abs(lo), np.abs(hi)).max())
+    tol = 1e-9 * (float(np.abs(H).max()) * reach + float(np.abs(g).max()))  # gradient scale
+    best: np.ndarray | None = None
+    best_val = np.inf
+    # States: 0 free, 1 at lower, 2 at upper. All-free first: the usual case.
+    for states in itertools.product((0, 1, 2), repeat=q):
+        st = np.array(states)
+        u = np.where(st == 1, lo, np.where(st == 2, hi, 0.0))
+        free = st == 0
+        if free.any():
+            rhs = -(g[free] + H[np.ix_(free, ~free)] @ u[~free])
+            u[free] = np.linalg.solve(H[np.ix_(free, free)], rhs)
+            span = hi[free] - lo[free]
+            slack = 1e-12 * (span + 1.0)
+            if np.any(u[free] < lo[free] - slack) or np.any(u[free] > hi[free] + slack):
+                continue
+        grad = H @ u + g
+        # KKT: at a lower bound the objective must rise going up (grad >= 0), at an upper one
+        # it must rise going down (grad <= 0).
+        if np.any(grad[st == 1] < -tol) or np.any(grad[st == 2] > tol):
+            continue
+        u = np.clip(u, lo, hi)
+        val = 0.5 * u @ H @ u + g @ u
+        if val < best_val:
+            best, best_val = u, val
+    if best is None:  # pragma: no cover - impossible for positive definite H
+        raise np.linalg.LinAlgError("no active set satisfied the KKT conditions")
+    return best
+
+
+class QpController:
+    """Box-bounded regularised least-squares step towards the target, stateless."""
+
+    def __init__(
+        self, max_step: np.ndarray, gain: float = 0.3, r_weights: np.ndarray = (1.0, 1.0, 1.0)
+    ) -> None:
+        """Args: max_step: (q,) per-axis bound; gain: lambda in (0, 1]; r_weights: (q,) diag R."""
+        self._max = np.asarray(max_step, dtype=float)
+        self._R = np.diag(np.asarray(r_weights, dtype=float))
+        if not np.all(self._max > 0.0):
+            raise ValueError(f"max_step must be positive, got {self._max.tolist()}")
+        if self._R.shape != (self._max.size, self._max.size) or not np.all(np.diag(self._R) > 0):
+            raise ValueError("r_weights must be q positive numbers")
+        if not 0.0 < gain <= 1.0:
+            raise ValueError(f"gain must be in (0, 1], got {gain}")
+        self._gain = float(gain)
+
+    def reset(self) -> None:
+        """Nothing to forget: the law is memoryless."""
+
+    def command(
+        self, s: np.ndarray, s_target: np.ndarray, J: np.ndarray, r: np.ndarray
+    ) -> np.ndarray:
+        """The QP step u (q,) from s, s* (p,) and J (p, q); r is unused."""
+        J = np.asarray(J, dtype=float)
+        e = np.asarray(s_target, dtype=float) - np.asarray(s, dtype=float)
+        H = J.T @ J + self._R
+        g = -self._gain * (J.T @ e)
+        return solve_box_qp(H, g, -self._max, self._max)

@@ -1,0 +1,69 @@
+"""A scripted gripper path: absolute world poses visited in order, the feature ignored.
+
+Used to drive the simulated rod along known paths (data collection, target generation,
+validation against ground truth), through the same loop as the servo laws.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class ScriptedController:
+    """Moves towards each waypoint by at most `max_step` per axis; `done` after the last.
+
+    The controller receives r relative to the run's home pose (the Controller protocol), and
+    the waypoints are absolute world poses, so it adds `home_pose` back.
+    """
+
+    def __init__(
+        self,
+        waypoints: np.ndarray,
+        *,
+        home_pose: np.ndarray,
+        max_step: np.ndarray,
+        tolerance: np.ndarray = (1e-4, 1e-4, 1e-3),
+    ) -> None:
+        """Args:
+        waypoints: (n, 3) absolute gripper poses [x, y, theta], world frame.
+        home_pose: (3,) gripper pose at the start of the run, world frame.
+        max_step: (3,) per-axis bound on one increment.
+        tolerance: (3,) per-axis distance at which a waypoint counts as reached.
+        """
+        self._wp = np.atleast_2d(np.asarray(waypoints, dtype=float))
+        if self._wp.ndim != 2 or self._wp.shape[1] != 3 or self._wp.shape[0] < 1:
+            raise ValueError(f"waypoints must be (n >= 1, 3), got {self._wp.shape}")
+        self._home = np.asarray(home_pose, dtype=float)
+        self._max = np.asarray(max_step, dtype=float)
+        self._tol = np.asarray(tolerance, dtype=float)
+        if not np.all(self._max > 0.0):
+            raise ValueError(f"max_step must be positive, got {self._max.tolist()}")
+        self.reset()
+
+    @property
+    def done(self) -> bool:
+        """True once the last waypoint has been reached."""
+        return self._index >= len(self._wp)
+
+    @property
+    def index(self) -> int:
+        """Index of the waypoint being approached (len(waypoints) when done)."""
+        return self._index
+
+    def reset(self) -> None:
+        """Start again from the first waypoint."""
+        self._index = 0
+
+    def command(
+        self, s: np.ndarray, s_target: np.ndarray, J: np.ndarray, r: np.ndarray
+    ) -> np.ndarray:
+        """Increment (3,) towards the current waypoint from r (3,) (relative to home).
+
+        s, s_target and J are ignored. Returns zeros once `done`.
+        """
+        pose = self._home + np.asarray(r, dtype=float)
+        while not self.done and np.all(np.abs(self._wp[self._index] - pose) <= self._tol):
+            self._index += 1
+        if self.done:
+            return np.zeros(3)
+        return np.clip(self._wp[self._index] - pose, -self._max, self._max)

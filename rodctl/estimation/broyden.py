@@ -1,0 +1,67 @@
+"""Broyden rank-1 Jacobian update: the online estimator of our Ma et al. 2022 baseline.
+
+A re-implementation from published descriptions (method-notes section 4; research/baselines.md
+section 6.2), not the authors' code. Assumptions we made, since the sources do not pin them:
+- the plain ("good") Broyden secant update J += gamma (ds - J dr) dr^T / (dr^T dr), no
+  forgetting-factor RLS variant and no reset rules;
+- a dead zone on ||dr|| (Euclidean over metres and radians) skips uninformative moves;
+- J_0 from the same probing least squares as every other online method.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class BroydenJacobian:
+    """Rank-1 secant update of J (p, q).
+
+    After an update with gamma = 1 the estimate reproduces the last pair exactly (J dr = ds) and
+    is unchanged on directions orthogonal to dr, so q independent moves recover a constant J.
+    """
+
+    def __init__(self, p: int, q: int, *, gamma: float = 1.0, dead_zone: float = 1e-4) -> None:
+        """Build the estimator at J = 0 until `reset`.
+
+        Args:
+            p: feature dimension.
+            q: command dimension.
+            gamma: step size in (0, 1] (method-notes: gamma).
+            dead_zone: skip updates with ||dr|| below this.
+        """
+        if not 0.0 < gamma <= 1.0:
+            raise ValueError(f"gamma must be in (0, 1], got {gamma}")
+        self.p, self.q = int(p), int(q)
+        self._gamma = float(gamma)
+        self._dead_zone = float(dead_zone)
+        self.reset(np.zeros((self.p, self.q)))
+
+    @property
+    def J(self) -> np.ndarray:
+        """(p, q) current estimate (a copy)."""
+        return self._J.copy()
+
+    def reset(self, J0: np.ndarray) -> None:
+        """Restart from J0 (p, q)."""
+        J0 = np.asarray(J0, dtype=float)
+        if J0.shape != (self.p, self.q):
+            raise ValueError(f"J0 must have shape {(self.p, self.q)}, got {J0.shape}")
+        self._J = J0.copy()
+        self._info = {"skipped": 0.0, "residual": 0.0}
+
+    def update(self, ds: np.ndarray, dr: np.ndarray) -> np.ndarray:
+        """J += gamma (ds - J dr) dr^T / (dr^T dr); ds (p,), dr (q,). Returns (p, q)."""
+        dr = np.asarray(dr, dtype=float)
+        ds = np.asarray(ds, dtype=float)
+        nn = float(dr @ dr)
+        if np.sqrt(nn) < self._dead_zone:
+            self._info = {"skipped": 1.0, "residual": 0.0}
+            return self._J.copy()
+        resid = ds - self._J @ dr
+        self._J = self._J + (self._gamma / nn) * np.outer(resid, dr)
+        self._info = {"skipped": 0.0, "residual": float(np.linalg.norm(resid))}
+        return self._J.copy()
+
+    def info(self) -> dict[str, float]:
+        """skipped (1.0 in the dead zone) and residual ||ds - J dr|| before the update."""
+        return dict(self._info)

@@ -1,0 +1,81 @@
+"""Sliding-window least-squares Jacobian: the alternative online estimator of the Ma baseline.
+
+A re-implementation from published descriptions (method-notes section 4), not the authors'
+code. Assumptions we made:
+- the window holds the last `window` informative pairs (moves outside the dead zone), all
+  weighted equally;
+- a ridge mu ||J - J_prev||^2 towards the previous estimate keeps the fit defined when the
+  window's moves do not span all q axes, which is the usual case near convergence, where a
+  controller keeps moving along one direction. Closed form:
+  J = (dS^T dR + mu J_prev)(dR^T dR + mu I)^-1.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+
+class WindowedLsJacobian:
+    """Least squares over the most recent `window` (dr, ds) pairs, ridge towards J_prev."""
+
+    def __init__(
+        self, p: int, q: int, *, window: int = 10, ridge: float = 1e-6, dead_zone: float = 1e-4
+    ) -> None:
+        """Build the estimator at J = 0 until `reset`.
+
+        Args:
+            p: feature dimension.
+            q: command dimension.
+            window: number of most recent informative pairs fitted.
+            ridge: mu >= 0 (command units squared); 0 falls back to plain least squares once
+                the window spans all axes and keeps J_prev until then.
+            dead_zone: skip updates with ||dr|| below this.
+        """
+        if window < 1:
+            raise ValueError(f"window must be >= 1, got {window}")
+        if ridge < 0.0:
+            raise ValueError(f"ridge must be >= 0, got {ridge}")
+        self.p, self.q = int(p), int(q)
+        self._window = int(window)
+        self._ridge = float(ridge)
+        self._dead_zone = float(dead_zone)
+        self.reset(np.zeros((self.p, self.q)))
+
+    @property
+    def J(self) -> np.ndarray:
+        """(p, q) current estimate (a copy)."""
+        return self._J.copy()
+
+    def reset(self, J0: np.ndarray) -> None:
+        """Restart from J0 (p, q) with an empty window."""
+        J0 = np.asarray(J0, dtype=float)
+        if J0.shape != (self.p, self.q):
+            raise ValueError(f"J0 must have shape {(self.p, self.q)}, got {J0.shape}")
+        self._J = J0.copy()
+        self._dR: deque[np.ndarray] = deque(maxlen=self._window)
+        self._dS: deque[np.ndarray] = deque(maxlen=self._window)
+        self._info = {"skipped": 0.0, "window": 0.0}
+
+    def update(self, ds: np.ndarray, dr: np.ndarray) -> np.ndarray:
+        """Add the pair ds (p,), dr (q,) to the window and refit. Returns (p, q)."""
+        dr = np.asarray(dr, dtype=float)
+        ds = np.asarray(ds, dtype=float)
+        if float(np.linalg.norm(dr)) < self._dead_zone:
+            self._info = {"skipped": 1.0, "window": float(len(self._dR))}
+            return self._J.copy()
+        self._dR.append(dr.copy())
+        self._dS.append(ds.copy())
+        R = np.asarray(self._dR)  # (w, q)
+        S = np.asarray(self._dS)  # (w, p)
+        A = R.T @ R + self._ridge * np.eye(self.q)  # (q, q)
+        B = S.T @ R + self._ridge * self._J  # (p, q)
+        if self._ridge > 0.0 or np.linalg.matrix_rank(A) == self.q:
+            self._J = np.linalg.solve(A, B.T).T
+        self._info = {"skipped": 0.0, "window": float(len(self._dR))}
+        return self._J.copy()
+
+    def info(self) -> dict[str, float]:
+        """skipped (1.0 in the dead zone) and the number of pairs in the window."""
+        return dict(self._info)
