@@ -6,7 +6,7 @@ Scales the defaults assume (say so when you change them): features are autoencod
 order 1, the gripper pose is in metres and radians, one control step moves at most about
 [0.01 m, 0.01 m, 0.05 rad], so a feature changes by ~0.1-1 per step and Jacobian entries are
 O(10-100). Every online method starts from a least-squares fit to q + 1 probing moves
-(method-notes section 1, "how J_0 starts"); `probe_size` sets their size.
+(method-notes section 1, "how J_0 starts"); their size is `run.probe_size`.
 """
 
 from __future__ import annotations
@@ -39,9 +39,6 @@ class AkfEstimatorConfig(StrictModel):
     """
 
     type: Literal["akf"] = "akf"
-    probe_size: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
-        DEFAULT_PROBE_SIZE, description=_PROBE_DOC
-    )
     p0: PositiveFloat = Field(10.0, description="Initial state covariance P_0 = p0 I (J units^2).")
     q0: PositiveFloat = Field(1e-2, description="Initial process noise Q_0 = q0 I (J units^2).")
     r0: PositiveFloat = Field(1e-4, description="Initial measurement noise R_0 = r0 I (feature^2).")
@@ -95,9 +92,6 @@ class BroydenEstimatorConfig(StrictModel):
     """
 
     type: Literal["broyden"] = "broyden"
-    probe_size: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
-        DEFAULT_PROBE_SIZE, description=_PROBE_DOC
-    )
     gamma: float = Field(
         1.0,
         gt=0.0,
@@ -114,9 +108,6 @@ class WindowedLsEstimatorConfig(StrictModel):
     """
 
     type: Literal["windowed_ls"] = "windowed_ls"
-    probe_size: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
-        DEFAULT_PROBE_SIZE, description=_PROBE_DOC
-    )
     window: int = Field(10, ge=1, description="Number of most recent informative pairs fitted.")
     ridge: float = Field(
         1e-6,

@@ -9,7 +9,7 @@ from rodctl.estimation.akf import AdaptiveKalmanJacobian
 from rodctl.estimation.asap import OfflineJacobian, asap_from_centerline, asap_jacobian
 from rodctl.estimation.base import JacobianEstimator
 from rodctl.estimation.broyden import BroydenJacobian
-from rodctl.estimation.factory import make_estimator, probing_size
+from rodctl.estimation.factory import make_estimator
 from rodctl.estimation.probing import fit_jacobian, probe_moves
 from rodctl.estimation.windowed_ls import WindowedLsJacobian
 
@@ -24,5 +24,4 @@ __all__ = [
     "fit_jacobian",
     "make_estimator",
     "probe_moves",
-    "probing_size",
 ]

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from rodctl.config.estimator import (
     AkfEstimatorConfig,
     BroydenEstimatorConfig,
@@ -21,7 +19,8 @@ from rodctl.estimation.windowed_ls import WindowedLsJacobian
 def make_estimator(cfg: EstimatorConfig, p: int, q: int) -> JacobianEstimator:
     """The estimator `cfg` describes, for a (p, q) Jacobian.
 
-    Online estimators start at J = 0; the loop probes (`probe_size`) and calls `reset(J0)`.
+    Online estimators start at J = 0; the loop probes (`run.probe_size`), then calls
+    `reset(J0)`.
     The offline estimator has no Jacobian until the loop calls `reset` with the ASAP model
     (`rodctl.estimation.asap.asap_from_centerline`) composed with the camera projection.
     """
@@ -48,9 +47,3 @@ def make_estimator(cfg: EstimatorConfig, p: int, q: int) -> JacobianEstimator:
     if isinstance(cfg, OfflineEstimatorConfig):
         return OfflineJacobian(p, q)
     raise TypeError(f"unknown estimator config {type(cfg).__name__}")
-
-
-def probing_size(cfg: EstimatorConfig) -> np.ndarray | None:
-    """(q,) probing move size for methods that start from probing, None for offline models."""
-    size = getattr(cfg, "probe_size", None)
-    return None if size is None else np.asarray(size, dtype=float)
