@@ -1,1 +1,19 @@
-"""rodctl.sim"""
+"""The simulated rod: a pymunk chain validated against the planar elastica.
+
+`RodSim` is what the experiment loop drives (gripper moves, settling, workspace safety,
+ground-truth centreline); `RodChain` is the bare physics, also built directly by the validation
+tests (free end, dead tip load); `rodctl.sim.elastica` holds the continuum reference solutions.
+"""
+
+from rodctl.sim.chain import RodChain, first_mode_rate, stable_dt_limit
+from rodctl.sim.rod import ApplyResult, RodHealth, RodSim, resample_polyline
+
+__all__ = [
+    "ApplyResult",
+    "RodChain",
+    "RodHealth",
+    "RodSim",
+    "first_mode_rate",
+    "resample_polyline",
+    "stable_dt_limit",
+]

@@ -1,0 +1,311 @@
+"""The pymunk chain itself: N rigid segments, pivot joints and rotary springs, one clamped end.
+
+Why a separate module from `rod.py`: the chain is the physics (a Hencky bar-chain discretisation
+of the inextensible planar elastica) and is also what the validation tests build directly, with a
+free end and a dead tip load for the cantilever; `RodSim` adds the gripper policy on top
+(workspace, speed limits, settling, divergence).
+
+Discretisation (see shared/reference/rod-validation.md and research/simulation.md §1.3):
+
+* segment i (i = 0..N-1) is a rigid body of length l = L/N, centre at (i + 1/2) l along the rod;
+* joint i between segments i-1 and i is a `PivotJoint` plus a `DampedRotarySpring` of stiffness
+  k = EI / l (the midpoint rule on the bending energy  ∫ EI/2 θ'^2 ds);
+* the clamp and the gripper hold the outer half-segment of their end, so their springs have
+  stiffness 2 EI / l (a half Voronoi cell). With EI / l there the error is first order in 1/N
+  (+3.4 % at N = 50 on the cantilever) instead of second order.
+
+Quasi-static speed-up (legitimate because only the SETTLED shape is used, and the static
+equilibrium of this chain does not depend on masses or inertias when no body force acts):
+
+* every segment gets a fictitious extra rotary inertia m·(g L)^2 (a radius of gyration g·L, like
+  a very thick Rayleigh beam). Kinetic energy is then dominated by rotation, which turns the
+  bending spectrum from ω ~ k^2 into ω ~ k: the ratio of the fastest to the slowest mode falls
+  from ~N^2 to ~N/π, so an explicit step settles in ~N steps instead of ~N^2. It also lifts the
+  explicit-spring stability limit from ~l^2 sqrt(ρA/EI) to ~l g L sqrt(ρA/EI);
+* global velocity damping (`space.damping`) is set to critically damp the first bending mode, so
+  every mode decays at least as fast as e^(-ω1 t). Chipmunk applies the spring impulse before it
+  scales velocities by damping**dt, which softens every spring by that factor; each stiffness is
+  divided by damping**dt to undo it (rod-validation.md, pitfall 2). Without a tip force the
+  settled shape would not even notice, with one it would.
+
+The gripper is a kinematic body driven by velocity, never teleported (pitfall 3). Readouts use
+`pymunk.batch` (one C call instead of a Python loop over bodies).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pymunk
+import pymunk.batch as pbatch
+
+_POS_ANGLE = pbatch.BodyFields.POSITION | pbatch.BodyFields.ANGLE
+_VEL = pbatch.BodyFields.VELOCITY | pbatch.BodyFields.ANGULAR_VELOCITY
+
+
+def segment_rotary_inertia(
+    length: float, mass_per_length: float, segments: int, inertia_radius: float
+) -> float:
+    """Rotary inertia of one segment: its own m l^2/12 plus the fictitious m (g L)^2.
+
+    Args:
+        length: rod length L (m).
+        mass_per_length: ρA (kg/m).
+        segments: N.
+        inertia_radius: g, the fictitious radius of gyration as a fraction of L.
+
+    Returns:
+        J (kg m^2).
+    """
+    seg = length / segments
+    mass = mass_per_length * seg
+    return mass * (seg * seg / 12.0 + (inertia_radius * length) ** 2)
+
+
+def stable_dt_limit(
+    length: float,
+    bending_stiffness: float,
+    mass_per_length: float,
+    segments: int,
+    inertia_radius: float,
+) -> float:
+    """The explicit-spring stability limit 2/ω_max of the zig-zag mode (s).
+
+    In the zig-zag mode neighbouring segments turn by ±φ about fixed centres, each spring sees
+    2φ and each segment two springs, so ω_max^2 = 4 k / J with k = EI/l (the clamp's 2k on one
+    spring gives the same 4k for the end segment).
+    """
+    seg = length / segments
+    j = segment_rotary_inertia(length, mass_per_length, segments, inertia_radius)
+    return 2.0 / math.sqrt(4.0 * (bending_stiffness / seg) / j)
+
+
+def first_mode_rate(
+    length: float,
+    bending_stiffness: float,
+    mass_per_length: float,
+    segments: int,
+    inertia_radius: float,
+    free_end: bool = False,
+) -> float:
+    """Angular frequency ω1 (rad/s) of the first bending mode of the straight chain.
+
+    With rotation-dominated inertia (rotary inertia per length j = J/l) the small-angle dynamics
+    is j θ_tt = EI θ_ss. Held at both ends (angles fixed, and the gripper's fixed position adds
+    ∫θ ds = 0) the first mode is sin(2π s/L); with a free end it is sin(π s / 2L).
+    """
+    seg = length / segments
+    j_per_length = segment_rotary_inertia(length, mass_per_length, segments, inertia_radius) / seg
+    wavenumber = math.pi / (2.0 * length) if free_end else 2.0 * math.pi / length
+    return wavenumber * math.sqrt(bending_stiffness / j_per_length)
+
+
+class RodChain:
+    """A planar elastic rod as a pymunk chain, clamped at one end, gripped or free at the other.
+
+    Deterministic: two chains built with the same arguments and driven the same way produce
+    bit-identical states (rebuild, never deepcopy a `pymunk.Space`: the solver's warm-start
+    impulses are not copied).
+
+    Args:
+        length: L (m).
+        bending_stiffness: EI (N m^2).
+        mass_per_length: ρA (kg/m).
+        segments: N.
+        clamp_pose: (3,) clamped end [x, y, theta], world; theta is the rod tangent there.
+        dt: fixed time step (s).
+        iterations: solver iterations per step.
+        damping_rate: c (1/s); velocities decay as e^(-c t) between impulses. 0 = undamped.
+        inertia_radius: g, fictitious radius of gyration of each segment as a fraction of L.
+        gripped: True: the far end is held by a kinematic gripper, initially at the straight
+            rod's end; False: the far end is free.
+        tip_force: (2,) dead load (N, world frame) on the free end, reapplied every step. Only
+            with `gripped=False`.
+    """
+
+    def __init__(
+        self,
+        length: float,
+        bending_stiffness: float,
+        mass_per_length: float,
+        segments: int,
+        clamp_pose: Sequence[float],
+        dt: float,
+        iterations: int,
+        damping_rate: float,
+        inertia_radius: float,
+        gripped: bool = True,
+        tip_force: Sequence[float] | None = None,
+    ) -> None:
+        if tip_force is not None and gripped:
+            raise ValueError("a tip force needs a free end (gripped=False)")
+        self.length = float(length)
+        self.segments = int(segments)
+        self.seg_length = self.length / self.segments
+        self.dt = float(dt)
+        self.clamp_pose = np.asarray(clamp_pose, dtype=float).copy()
+        self.tip_force = None if tip_force is None else (float(tip_force[0]), float(tip_force[1]))
+        self.steps = 0
+
+        n, seg = self.segments, self.seg_length
+        mass = mass_per_length * seg
+        inertia = segment_rotary_inertia(length, mass_per_length, segments, inertia_radius)
+        self.segment_mass = mass
+        self.segment_inertia = inertia
+
+        space = pymunk.Space()
+        space.iterations = int(iterations)
+        # Velocities are multiplied by damping**dt each step: damping = e^(-c) per second.
+        space.damping = math.exp(-damping_rate)
+        # Undo the spring softening by damping**dt (pitfall 2 of rod-validation.md).
+        soften = space.damping**self.dt
+        k_in = bending_stiffness / seg / soften
+        k_end = 2.0 * bending_stiffness / seg / soften
+
+        x0, y0, th0 = self.clamp_pose
+        ux, uy = math.cos(th0), math.sin(th0)
+        bodies = []
+        for i in range(n):
+            body = pymunk.Body(mass, inertia)
+            body.position = (x0 + (i + 0.5) * seg * ux, y0 + (i + 0.5) * seg * uy)
+            body.angle = th0
+            bodies.append(body)
+        space.add(*bodies)
+
+        half = seg / 2.0
+        constraints: list[pymunk.Constraint] = []
+        # Clamp: pivot at the clamp point + spring of 2EI/l; torque = (a.angle - b.angle - rest)k
+        # with a = static body (angle 0), so rest = -theta_clamp keeps segment 0 at theta_clamp.
+        constraints.append(pymunk.PivotJoint(space.static_body, bodies[0], (x0, y0), (-half, 0)))
+        constraints.append(pymunk.DampedRotarySpring(space.static_body, bodies[0], -th0, k_end, 0))
+        for i in range(1, n):
+            pivot = pymunk.PivotJoint(bodies[i - 1], bodies[i], (half, 0), (-half, 0))
+            pivot.collide_bodies = False
+            constraints.append(pivot)
+            constraints.append(pymunk.DampedRotarySpring(bodies[i - 1], bodies[i], 0, k_in, 0))
+        self.gripper: pymunk.Body | None = None
+        if gripped:
+            grip = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+            grip.position = (x0 + n * seg * ux, y0 + n * seg * uy)
+            grip.angle = th0
+            space.add(grip)
+            constraints.append(pymunk.PivotJoint(grip, bodies[-1], (0, 0), (half, 0)))
+            constraints.append(pymunk.DampedRotarySpring(bodies[-1], grip, 0, k_end, 0))
+            self.gripper = grip
+        space.add(*constraints)
+        self.space = space
+        self.bodies = bodies
+        self._pivots = [c for c in constraints if isinstance(c, pymunk.PivotJoint)]
+
+        # Batch readout: the buffer also holds the static body (a constraint is attached to it)
+        # and the gripper; find the segment rows by body id once (research/simulation.md §1.1).
+        self._buf = pbatch.Buffer()
+        pbatch.get_space_bodies(space, pbatch.BodyFields.BODY_ID, self._buf)
+        ids = np.frombuffer(self._buf.int_buf(), dtype=np.uintp).copy()
+        row_of = {int(v): r for r, v in enumerate(ids)}
+        self._rows = np.array([row_of[b.id] for b in bodies], dtype=np.intp)
+        self._nrows = len(ids)
+        first = int(self._rows[0])
+        self._contiguous = bool(np.array_equal(self._rows, np.arange(first, first + n)))
+
+    # ------------------------------------------------------------------ readouts
+    def _read(self, fields: pbatch.BodyFields) -> np.ndarray:
+        self._buf.clear()
+        pbatch.get_space_bodies(self.space, fields, self._buf)
+        data = np.frombuffer(self._buf.float_buf(), dtype=np.float64).reshape(self._nrows, 3)
+        if self._contiguous:
+            r0 = self._rows[0]
+            return data[r0 : r0 + self.segments].copy()
+        return data[self._rows]
+
+    def segment_states(self) -> np.ndarray:
+        """(N, 3) segment centres and angles [x, y, angle], world frame."""
+        return self._read(_POS_ANGLE)
+
+    def segment_velocities(self) -> np.ndarray:
+        """(N, 3) segment centre velocities and angular velocities [vx, vy, omega]."""
+        return self._read(_VEL)
+
+    def segment_ends(self) -> tuple[np.ndarray, np.ndarray]:
+        """Start and end point of every segment, each (N, 2), world frame."""
+        st = self.segment_states()
+        half = self.seg_length / 2.0
+        t = np.stack([np.cos(st[:, 2]), np.sin(st[:, 2])], axis=1) * half
+        return st[:, :2] - t, st[:, :2] + t
+
+    def joint_points(self) -> np.ndarray:
+        """(N+1, 2) centreline at the joints, clamp end first.
+
+        Interior joints are the mean of the two segment ends that meet there (they differ by
+        the joint gap, micrometres); the two ends are the outer ends of the end segments.
+        """
+        start, end = self.segment_ends()
+        pts = np.empty((self.segments + 1, 2))
+        pts[0] = start[0]
+        pts[1:-1] = 0.5 * (end[:-1] + start[1:])
+        pts[-1] = end[-1]
+        return pts
+
+    def joint_gaps(self) -> np.ndarray:
+        """(N+1,) or (N,) separation (m) of every pivot joint: clamp, interior, gripper."""
+        start, end = self.segment_ends()
+        gaps = [np.hypot(*(start[0] - self.clamp_pose[:2]))]
+        gaps.extend(np.hypot(*(end[:-1] - start[1:]).T))
+        if self.gripper is not None:
+            gaps.append(np.hypot(*(end[-1] - np.array(self.gripper.position))))
+        return np.asarray(gaps, dtype=float)
+
+    def max_speed(self) -> float:
+        """Largest speed (m/s) of any segment end: |v_centre| + |omega| l/2."""
+        vel = self.segment_velocities()
+        ends = np.hypot(vel[:, 0], vel[:, 1]) + np.abs(vel[:, 2]) * (self.seg_length / 2)
+        return float(np.max(ends))
+
+    def kinetic_energy(self) -> float:
+        """Kinetic energy (J) of the simulated chain, with the inflated rotary inertia."""
+        vel = self.segment_velocities()
+        lin = 0.5 * self.segment_mass * float(np.sum(vel[:, :2] ** 2))
+        rot = 0.5 * self.segment_inertia * float(np.sum(vel[:, 2] ** 2))
+        return lin + rot
+
+    def gripper_pose(self) -> np.ndarray:
+        """(3,) kinematic gripper pose [x, y, theta]; the free end's pose without a gripper."""
+        if self.gripper is None:
+            st = self.segment_states()[-1]
+            half = self.seg_length / 2.0
+            return np.array([st[0] + half * math.cos(st[2]), st[1] + half * math.sin(st[2]), st[2]])
+        p = self.gripper.position
+        return np.array([p.x, p.y, self.gripper.angle])
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, target: np.ndarray | None = None) -> None:
+        """Advance one time step; drive the gripper towards `target` [x, y, theta] by velocity.
+
+        The gripper's velocity is set so that it lands exactly on `target` at the end of the
+        step (kinematic bodies are integrated from their velocity). `target=None` holds it still.
+        """
+        grip = self.gripper
+        if grip is not None:
+            if target is None:
+                grip.velocity = (0.0, 0.0)
+                grip.angular_velocity = 0.0
+            else:
+                p = grip.position
+                inv = 1.0 / self.dt
+                grip.velocity = ((target[0] - p.x) * inv, (target[1] - p.y) * inv)
+                grip.angular_velocity = (target[2] - grip.angle) * inv
+        elif self.tip_force is not None:
+            # A dead load: fixed world direction, applied at the free end (forces reset each step).
+            tip = self.bodies[-1]
+            tip.apply_force_at_world_point(
+                self.tip_force, tip.local_to_world((self.seg_length / 2.0, 0.0))
+            )
+        self.space.step(self.dt)
+        self.steps += 1
+
+    def run(self, steps: int, target: np.ndarray | None = None) -> None:
+        """`steps` steps holding the gripper at `target` (None: hold it where it is)."""
+        for _ in range(steps):
+            self.step(target)

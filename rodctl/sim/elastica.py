@@ -1,0 +1,235 @@
+"""Reference solutions of the inextensible planar elastica, used to validate the chain.
+
+Why it lives in the package and not in tests: the tests, the benchmark and any later check
+("is this settled shape an equilibrium?") need the same oracles, and none of them may depend on
+the simulator they judge. Everything here is the continuum rod (no discretisation) solved to
+~1e-9 with scipy.
+
+* `circular_arc`: exact; a rod under a pure end moment M is an arc of curvature M/EI
+  (rod-validation.md, "Pure end moment").
+* `cantilever_tip_load`: shooting solve of θ'' = −α cos θ, θ(0) = 0, θ'(1) = 0, α = P L²/EI,
+  for a dead transverse tip load (reproduces Bisshopp & Drucker / Mattiasson's table).
+* `two_pose_equilibrium`: the rod held at both end poses — Kirchhoff statics
+  x' = cos θ, y' = sin θ, EI θ'' = n_x sin θ − n_y cos θ with constant internal force (n_x, n_y)
+  (research/simulation.md §2.4), solved by `scipy.integrate.solve_bvp` from a guess shape.
+  The problem has several equilibria; the one found is the one nearest the guess, so seed it with
+  the shape being judged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import solve_bvp, solve_ivp
+from scipy.optimize import brentq
+
+
+def _frame(pose: Sequence[float]) -> tuple[np.ndarray, float]:
+    pose = np.asarray(pose, dtype=float)
+    return pose[:2], float(pose[2])
+
+
+def circular_arc(
+    length: float,
+    curvature: float,
+    s: np.ndarray,
+    clamp_pose: Sequence[float] = (0.0, 0.0, 0.0),
+) -> np.ndarray:
+    """Points of a circular arc of constant curvature starting at `clamp_pose`.
+
+    Args:
+        length: rod length L (m); only used to check `s`.
+        curvature: κ = M/EI (1/m); positive turns left (counter-clockwise).
+        s: (M,) arc lengths in [0, L].
+        clamp_pose: (3,) start pose [x, y, theta].
+
+    Returns:
+        (M, 3) [x, y, theta] along the arc, world frame.
+    """
+    s = np.asarray(s, dtype=float)
+    if np.any(s < -1e-12) or np.any(s > length * (1 + 1e-12)):
+        raise ValueError("arc lengths must lie in [0, length]")
+    p0, th0 = _frame(clamp_pose)
+    theta = curvature * s
+    if abs(curvature) < 1e-12:
+        xl, yl = s, np.zeros_like(s)
+    else:
+        xl = np.sin(theta) / curvature
+        yl = (1.0 - np.cos(theta)) / curvature
+    c, sn = np.cos(th0), np.sin(th0)
+    return np.stack([p0[0] + c * xl - sn * yl, p0[1] + sn * xl + c * yl, th0 + theta], axis=1)
+
+
+@dataclass(frozen=True)
+class CantileverSolution:
+    """Tip-loaded cantilever, in units of L (clamp at the origin along +x, load along +y).
+
+    Attributes:
+        alpha: P L²/EI.
+        deflection: w/L, tip displacement along the load.
+        shortening: u/L, tip displacement along the rod's undeformed axis, towards the clamp.
+        tip_angle: θ(L) (rad).
+        curvature0: θ'(0) L, the clamp curvature (the shooting unknown).
+    """
+
+    alpha: float
+    deflection: float
+    shortening: float
+    tip_angle: float
+    curvature0: float
+
+    def shape(self, s: np.ndarray) -> np.ndarray:
+        """(M, 3) [x/L, y/L, theta] at normalised arc lengths `s` in [0, 1]."""
+        sol = _integrate_cantilever(self.alpha, self.curvature0, np.asarray(s, dtype=float))
+        return np.stack([sol[2], sol[3], sol[0]], axis=1)
+
+
+def _cantilever_rhs(alpha: float):
+    def rhs(_s: float, z: np.ndarray) -> list[float]:
+        th, k, _x, _y = z
+        return [k, -alpha * np.cos(th), np.cos(th), np.sin(th)]
+
+    return rhs
+
+
+def _integrate_cantilever(alpha: float, k0: float, s_eval: np.ndarray | None = None) -> np.ndarray:
+    sol = solve_ivp(
+        _cantilever_rhs(alpha),
+        (0.0, 1.0),
+        [0.0, k0, 0.0, 0.0],
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-13,
+        t_eval=s_eval,
+    )
+    return sol.y
+
+
+def cantilever_tip_load(alpha: float) -> CantileverSolution:
+    """Shooting solution of the cantilever under a dead transverse tip load.
+
+    Solves θ'' = −α cos θ on s ∈ [0, 1] with θ(0) = 0 and θ'(1) = 0 (moment-free tip) by root
+    finding on θ'(0) ∈ (0, α] (θ'(0) = α x(1) ≤ α).
+
+    Args:
+        alpha: P L²/EI ≥ 0.
+
+    Returns:
+        The tip deflection, shortening and angle, and the solution for `shape`.
+    """
+    if alpha < 0:
+        raise ValueError("alpha must be >= 0 (flip the load direction instead)")
+    if alpha == 0:
+        return CantileverSolution(0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def tip_moment(k0: float) -> float:
+        return float(_integrate_cantilever(alpha, k0)[1, -1])
+
+    k0 = brentq(tip_moment, 1e-9 * alpha, alpha, xtol=1e-14, rtol=1e-14)
+    th, _k, x, y = _integrate_cantilever(alpha, k0)[:, -1]
+    return CantileverSolution(float(alpha), float(y), float(1.0 - x), float(th), float(k0))
+
+
+@dataclass(frozen=True)
+class TwoPoseSolution:
+    """A rod held at two end poses (from `two_pose_equilibrium`).
+
+    Attributes:
+        success: whether solve_bvp converged to its tolerance.
+        s: (M,) arc lengths (m) of the returned points.
+        points: (M, 3) [x, y, theta] at `s`, world frame.
+        force: (2,) internal force (n_x, n_y) (N), constant along the rod.
+        message: solve_bvp's message.
+    """
+
+    success: bool
+    s: np.ndarray
+    points: np.ndarray
+    force: np.ndarray
+    message: str
+    _sol: object
+    _start: np.ndarray
+
+    def at(self, s: np.ndarray) -> np.ndarray:
+        """(M, 3) [x, y, theta] at arc lengths `s` (m), from the BVP's interpolant."""
+        length = float(self.s[-1])
+        z = self._sol.sol(np.asarray(s, dtype=float) / length)  # type: ignore[attr-defined]
+        return np.stack(
+            [self._start[0] + z[0] * length, self._start[1] + z[1] * length, z[2]], axis=1
+        )
+
+
+def two_pose_equilibrium(
+    length: float,
+    bending_stiffness: float,
+    start_pose: Sequence[float],
+    end_pose: Sequence[float],
+    guess: np.ndarray,
+    tol: float = 1e-8,
+) -> TwoPoseSolution:
+    """Equilibrium of a weightless rod whose two end poses are both prescribed.
+
+    Unknowns, in units of L and EI: x, y, θ, κ = θ' along s ∈ [0, 1] and the constant internal
+    force p = (n_x, n_y) L²/EI; equations x' = cos θ, y' = sin θ, θ' = κ, κ' = p_x sin θ − p_y cos θ
+    (moment balance m' + r' × n = 0, research/simulation.md §2.4); six boundary conditions fix
+    (x, y, θ) at both ends.
+
+    Args:
+        length: L (m).
+        bending_stiffness: EI (N m²), only to give `force` its units.
+        start_pose: (3,) clamped end [x, y, theta], world frame.
+        end_pose: (3,) other end [x, y, theta]; theta is the tangent pointing away from the start.
+        guess: (M, 2) or (M, 3) points along the rod (equal arc-length spacing, start first) of
+            the shape to start from — selects the equilibrium branch. Angles, if absent, are
+            taken from the chords.
+        tol: solve_bvp tolerance.
+
+    Returns:
+        The solution; check `success`.
+    """
+    guess = np.asarray(guess, dtype=float)
+    p0, th0 = _frame(start_pose)
+    p1, th1 = _frame(end_pose)
+    m = guess.shape[0]
+    s = np.linspace(0.0, 1.0, m)
+    xy = (guess[:, :2] - p0) / length
+    if guess.shape[1] >= 3:
+        theta = np.unwrap(guess[:, 2])
+    else:
+        d = np.diff(guess[:, :2], axis=0)
+        chord = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+        theta = np.interp(s, 0.5 * (s[1:] + s[:-1]), chord)
+    # Pin the guess's angles to the start angle, and the end angle to the guess's branch of 2π.
+    theta += th0 - theta[0]
+    th1 = th1 + 2 * np.pi * np.round((theta[-1] - th1) / (2 * np.pi))
+    kappa = np.gradient(theta, s)
+    dkappa = np.gradient(kappa, s)
+    # Least-squares guess of the force from κ' = p_x sin θ − p_y cos θ.
+    a = np.stack([np.sin(theta), -np.cos(theta)], axis=1)
+    p_guess = np.linalg.lstsq(a, dkappa, rcond=None)[0]
+
+    def rhs(_s: np.ndarray, z: np.ndarray, p: np.ndarray) -> np.ndarray:
+        th, k = z[2], z[3]
+        return np.vstack([np.cos(th), np.sin(th), k, p[0] * np.sin(th) - p[1] * np.cos(th)])
+
+    end = (p1 - p0) / length
+
+    def bc(za: np.ndarray, zb: np.ndarray, _p: np.ndarray) -> np.ndarray:
+        return np.array([za[0], za[1], za[2] - th0, zb[0] - end[0], zb[1] - end[1], zb[2] - th1])
+
+    z0 = np.vstack([xy[:, 0], xy[:, 1], theta, kappa])
+    sol = solve_bvp(rhs, bc, s, z0, p=p_guess, tol=tol, max_nodes=100_000)
+    z = sol.sol(s)
+    pts = np.stack([p0[0] + z[0] * length, p0[1] + z[1] * length, z[2]], axis=1)
+    force = np.asarray(sol.p, dtype=float) * bending_stiffness / length**2
+    return TwoPoseSolution(
+        success=bool(sol.status == 0),
+        s=s * length,
+        points=pts,
+        force=force,
+        message=str(sol.message),
+        _sol=sol,
+        _start=p0.copy(),
+    )
