@@ -172,8 +172,13 @@ def encode_png(image: np.ndarray, level: int = 1) -> bytes:
     if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
         raise ValueError(f"a frame must be (H, W, 3) or (H, W) uint8, got {img.shape} {img.dtype}")
     if img.ndim == 3:
-        img = img[:, :, ::-1]  # OpenCV writes BGR
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img), [cv2.IMWRITE_PNG_COMPRESSION, level])
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)  # OpenCV writes BGR
+    # Sub filter + run-length zlib strategy: measured 1.5 ms for a clean 640 x 480 render (4 KB)
+    # against 4-8 ms with OpenCV's adaptive filtering, at a similar size (benchmarks/bench_logging).
+    params = [cv2.IMWRITE_PNG_COMPRESSION, level,
+              cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB,
+              cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img), params)
     if not ok:  # pragma: no cover - OpenCV fails only on invalid input, checked above
         raise ValueError("PNG encoding failed")
     return buf.tobytes()

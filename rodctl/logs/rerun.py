@@ -1,0 +1,249 @@
+"""The Rerun recording of a run (run.rrd): what a person scrubs through after a run.
+
+Why a native recording next to the MCAP: Rerun's MCAP importer does not draw Foxglove scene
+updates and leaves JSON channels raw (shared/reference/research/ecosystem.md 2.7), so the rod, the
+camera view and the time series are logged here directly, with the same entity paths as the MCAP
+topics where they overlap.
+
+Entities (timelines `step` = control step k, `sim_time` = simulated seconds; no wall-clock
+`log_time`, so two recordings of the same records compare equal with
+`rerun rrd compare --unordered`; the .rrd bytes and chunk order are not reproducible, because
+Rerun batches rows into chunks on a background thread):
+- `/world/rod`, `/world/target` (static), `/world/clamp` (static), `/world/gripper`: the scene
+  in world metres with **y negated**: Rerun's 2D views are y-down while the world is y-up, so the
+  stored y is -y_world and the view shows the rod the right way up.
+- `/camera/image` (PNG frames, when logged), `/camera/centerline` (extracted),
+  `/camera/projected_truth`, `/camera/target` (static): pixels, already y-down.
+- `/control/T1`, `/control/pixel_error`, `/control/u/{x,y,theta}`: scalars.
+- `/log`: the same log lines as the MCAP's `/log`.
+The blueprint (2D scene, camera with the centerline over the image, T1, pixel error and the
+three command axes, the log) is embedded in the file.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from rodctl.config.logging import LoggingConfig
+from rodctl.logs import codec
+from rodctl.records import RunHeader, RunSummary, StepRecord
+
+APPLICATION_ID = "rodctl"
+
+_ROD = (25, 115, 240)
+_TARGET = (25, 190, 65)
+_GRIPPER = (255, 140, 0)
+_EXTRACTED = (255, 40, 40)
+_TRUTH = (40, 200, 255)
+_AXES = ("x", "y", "theta")
+_AXIS_COLORS = ((220, 50, 47), (38, 139, 210), (133, 153, 0))
+
+
+def flip_y(points: np.ndarray) -> np.ndarray:
+    """(M, 2) world points (y up) as stored in the recording (y down): (x, -y)."""
+    out = np.array(points, dtype=np.float64, copy=True).reshape(-1, 2)
+    out[:, 1] *= -1.0
+    return out
+
+
+def _empty_buffer() -> dict[str, list]:
+    return {key: [] for key in ("step", "sim_time", "rod", "origin", "vector", "centerline",
+                                "projected_truth", "T1", "pixel_error", "u")}
+
+
+def blueprint() -> rrb.Blueprint:
+    """The default layout: scene and camera on the left, time series and log on the right."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial2DView(origin="/world", name="scene (world m, y up)"),
+                rrb.Spatial2DView(origin="/camera", name="camera (px)"),
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin="/control", contents="/control/T1", name="T1"),
+                rrb.TimeSeriesView(origin="/control", contents="/control/pixel_error",
+                                   name="pixel error (px)"),
+                rrb.TimeSeriesView(origin="/control/u", name="command u (m, m, rad)"),
+                rrb.TextLogView(origin="/log", name="log"),
+            ),
+        ),
+        collapse_panels=True,
+    )
+
+
+class RerunSink:
+    """Writes a run as a Rerun recording (see the module docstring for the entities).
+
+    Args:
+        path: the .rrd file to write.
+        cfg: the logging config (flush interval, PNG level of frames).
+    """
+
+    def __init__(self, path: str | Path, cfg: LoggingConfig | None = None) -> None:
+        self.path = Path(path)
+        self.cfg = cfg if cfg is not None else LoggingConfig()
+        self._rec: rr.RecordingStream | None = None
+        self._header: RunHeader | None = None
+        self._prev: StepRecord | None = None
+        self._steps = 0
+        self._last_step = 0
+        self._last_time = 0.0
+        self._closed = False
+        self._buf = _empty_buffer()
+
+    # ---------------------------------------------------------------------------- Sink protocol
+    def open(self, header: RunHeader) -> None:
+        """Start the recording (id = run id), send the blueprint and the static scene."""
+        if self._rec is not None or self._closed:
+            raise RuntimeError("RerunSink.open called twice")
+        self._header = header
+        rec = rr.RecordingStream(APPLICATION_ID, recording_id=header.run_id)
+        rec.set_log_time_enabled(False)
+        rec.save(self.path, default_blueprint=blueprint())
+        self._rec = rec
+        rec.send_recording_name(header.run_id)
+        rec.send_property("rodctl", rr.AnyValues(
+            method=header.method, config_yaml=header.config_yaml,
+            rod_length_m=float(header.rod_length),
+            image_size=np.asarray(header.image_size, dtype=np.int64),
+        ))
+        rec.log("/world/target", rr.LineStrips2D([flip_y(header.target_centerline)],
+                                                 colors=[_TARGET], radii=0.003,
+                                                 labels=["target"]), static=True)
+        rec.log("/world/clamp", rr.Points2D(flip_y(header.clamp_pose[:2]), colors=[(0, 0, 0)],
+                                            radii=0.01, labels=["clamp"]), static=True)
+        rec.log("/camera/target", rr.LineStrips2D([header.target_pixels], colors=[_TARGET],
+                                                  radii=1.0), static=True)
+        rec.log("/world/rod", rr.LineStrips2D.from_fields(colors=[_ROD], radii=0.004),
+                static=True)
+        rec.log("/world/gripper", rr.Arrows2D.from_fields(colors=[_GRIPPER], radii=0.004),
+                static=True)
+        rec.log("/camera/centerline", rr.LineStrips2D.from_fields(colors=[_EXTRACTED],
+                                                                  radii=1.0), static=True)
+        rec.log("/camera/projected_truth", rr.LineStrips2D.from_fields(colors=[_TRUTH],
+                                                                       radii=0.7), static=True)
+        rec.log("/control/T1", rr.SeriesLines(names="T1", colors=[_ROD]), static=True)
+        rec.log("/control/pixel_error", rr.SeriesLines(names="pixel error", colors=[_EXTRACTED]),
+                static=True)
+        for axis, color in zip(_AXES, _AXIS_COLORS, strict=True):
+            rec.log(f"/control/u/{axis}", rr.SeriesLines(names=f"u_{axis}", colors=[color]),
+                    static=True)
+        rec.set_time("step", sequence=0)
+        rec.set_time("sim_time", duration=0.0)
+        level, text = codec.open_log_line(header)
+        rec.log("/log", rr.TextLog(text, level=level))
+
+    def write(self, record: StepRecord) -> None:
+        """Buffer one step; every `flush_every_steps` steps the buffer is sent as columns.
+
+        Sending columns (one call per entity per batch instead of one per entity per step) cuts
+        the Python-side cost of Rerun logging about fivefold; frames and log lines are rare and
+        are logged at once. What was sent reaches the file within Rerun's batching tick (0.2 s).
+        """
+        rec, header = self._rec, self._header
+        if rec is None or header is None:
+            raise RuntimeError("RerunSink.write called before open (or after close)")
+        r = record
+        k = int(r.step)
+        t = float(r.sim_time) if np.isfinite(r.sim_time) else self._last_time
+        self._last_step, self._last_time = k, t
+        lines = codec.step_log_lines(self._prev, r)
+        if r.image is not None or lines:
+            rec.set_time("step", sequence=k)
+            rec.set_time("sim_time", duration=t)
+            if r.image is not None:
+                png = codec.PNG_CACHE.encode(r.image, self.cfg.png_compression)
+                rec.log("/camera/image", rr.EncodedImage(contents=png, media_type="image/png"))
+            for level, text in lines:
+                rec.log("/log", rr.TextLog(text, level=level))
+        g = np.asarray(r.gripper, dtype=np.float64)
+        size = 0.12 * header.rod_length if header.rod_length > 0 else 0.05
+        b = self._buf
+        b["step"].append(k)
+        b["sim_time"].append(t)
+        b["rod"].append(flip_y(r.centerline))
+        b["origin"].append((g[0], -g[1]))
+        b["vector"].append((size * np.cos(g[2]), -size * np.sin(g[2])))
+        b["centerline"].append(np.asarray(r.extracted, dtype=np.float64))
+        b["projected_truth"].append(np.asarray(r.projected_truth, dtype=np.float64))
+        b["T1"].append(float(r.T1))
+        b["pixel_error"].append(float(r.pixel_error))
+        b["u"].append(np.asarray(r.u, dtype=np.float64)[:3])
+        self._prev = r
+        self._steps += 1
+        if len(b["step"]) >= self.cfg.flush_every_steps:
+            self._send()
+
+    def _send(self) -> None:
+        """Send the buffered steps as one column batch per entity."""
+        rec, b = self._rec, self._buf
+        n = len(b["step"])
+        if rec is None or n == 0:
+            return
+        idx = [rr.TimeColumn("step", sequence=np.asarray(b["step"], dtype=np.int64)),
+               rr.TimeColumn("sim_time", duration=np.asarray(b["sim_time"], dtype=np.float64))]
+        ones = [1] * n
+        rec.send_columns("/world/rod", idx,
+                         rr.LineStrips2D.columns(strips=b["rod"]).partition(ones))
+        rec.send_columns("/world/gripper", idx, rr.Arrows2D.columns(
+            origins=np.asarray(b["origin"]), vectors=np.asarray(b["vector"])).partition(ones))
+        for name in ("centerline", "projected_truth"):
+            rec.send_columns(f"/camera/{name}", idx,
+                             rr.LineStrips2D.columns(strips=b[name]).partition(ones))
+        rec.send_columns("/control/T1", idx, rr.Scalars.columns(scalars=b["T1"]))
+        rec.send_columns("/control/pixel_error", idx,
+                         rr.Scalars.columns(scalars=b["pixel_error"]))
+        u = np.asarray(b["u"], dtype=np.float64).reshape(n, 3)
+        for i, axis in enumerate(_AXES):
+            rec.send_columns(f"/control/u/{axis}", idx, rr.Scalars.columns(scalars=u[:, i]))
+        self._buf = _empty_buffer()
+
+    def close(self, summary: RunSummary | None, status: str) -> None:
+        """Log the closing line and finish the file (footer). Idempotent.
+
+        Errors are raised for a completed run and become warnings otherwise, so they never mask
+        the exception that ended the run.
+        """
+        if self._closed:
+            return
+        self._closed = True
+        rec, self._rec = self._rec, None
+        if rec is None:
+            return
+        errors: list[BaseException] = []
+        self._rec = rec  # _send needs it
+        try:
+            self._send()
+        except Exception as exc:  # noqa: BLE001 - collected, see docstring
+            errors.append(exc)
+        self._rec = None
+        try:
+            rec.set_time("step", sequence=self._last_step)
+            rec.set_time("sim_time", duration=self._last_time)
+            level, text = codec.close_log_line(summary, status, self._steps)
+            rec.log("/log", rr.TextLog(text, level=level))
+            if summary is not None:
+                rec.send_property("summary", rr.AnyValues(**{
+                    k: v for k, v in codec.sanitize(summary.to_json()).items()
+                    if isinstance(v, (int, float, str, bool))
+                }))
+        except Exception as exc:  # noqa: BLE001 - collected, see docstring
+            errors.append(exc)
+        try:
+            rec.flush()
+        except Exception as exc:  # noqa: BLE001
+            errors.append(exc)
+        try:
+            rec.disconnect()
+        except Exception as exc:  # noqa: BLE001
+            errors.append(exc)
+        if errors:
+            if status == "completed":
+                raise errors[0]
+            warnings.warn(f"{self.path}: closing the Rerun recording failed: {errors[0]!r}",
+                          RuntimeWarning, stacklevel=2)
