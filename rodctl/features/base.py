@@ -1,4 +1,9 @@
-"""The FeatureMap protocol: centerline (pixels) -> low-dimensional shape feature s."""
+"""The FeatureMap protocol: centerline (pixels) -> low-dimensional shape feature s.
+
+Besides the map itself a controller needs to know how big s is and in what units, so that gains,
+tolerances and dead zones can be set per feature without knowing which feature it is: `dim`,
+`units` and `scale` carry that.
+"""
 
 from __future__ import annotations
 
@@ -13,10 +18,18 @@ class FeatureMap(Protocol):
     Attributes:
         dim: the feature dimension p.
         points: the number N of centerline points it expects.
+        kind: the config `type` that builds it ("autoencoder", "bezier", "fourier", "nodes").
+        units: "px" when every component is in pixels, "latent" for a learned code.
+        scale: (p,) typical size of each component's variation (the training-set standard
+            deviation for a learned code; ones for pixel features). Dividing s by it makes the
+            components comparable.
     """
 
     dim: int
     points: int
+    kind: str
+    units: str
+    scale: np.ndarray
 
     def encode(self, centerline_px: np.ndarray) -> np.ndarray:
         """(N, 2) pixels, clamp end first -> (p,) float64 feature. Deterministic."""

@@ -1,0 +1,55 @@
+"""Node feature for the Aghajanzadeh et al. 2022 baseline: the pixels of a few rod points.
+
+That method servos the positions of chosen nodes of a discretised rod (method-notes section 4).
+Nodes are placed by normalised arc length rather than by index, so the feature means the same
+rod points whatever N the extractor uses. Interior points barely see the gripper angle
+(method-notes section 3 records a stall caused by exactly this), so the default includes the tip.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from rodctl.features.geometry import check_centerlines, resample_uniform
+
+
+class NodesFeatureMap:
+    """s = [u_1, v_1, u_2, v_2, ...] of the rod points at the given normalised arc lengths (px).
+
+    Args:
+        positions: normalised arc lengths in (0, 1] from the clamp (1 = gripper end).
+        points: centerline points N.
+
+    Attributes:
+        dim: p = 2 * len(positions).
+        points: N.
+        positions: (k,) the normalised arc lengths.
+        kind: "nodes".
+        units: "px".
+        scale: (p,) ones (pixel units).
+    """
+
+    kind = "nodes"
+    units = "px"
+
+    def __init__(self, positions: Sequence[float], points: int) -> None:
+        pos = np.asarray(positions, dtype=np.float64)
+        if pos.ndim != 1 or pos.size == 0 or np.any(pos <= 0.0) or np.any(pos > 1.0):
+            raise ValueError(f"positions must be a non-empty list in (0, 1], got {positions}")
+        if points < 2:
+            raise ValueError("a centerline needs at least 2 points")
+        self.positions = pos
+        self.points = points
+        self.dim = 2 * pos.size
+        self.scale = np.ones(self.dim)
+
+    def encode(self, centerline_px: np.ndarray) -> np.ndarray:
+        """(N, 2) pixels, clamp end first -> (p,) node pixels. Deterministic."""
+        return self.encode_batch(check_centerlines(centerline_px, self.points, batch=False))[0]
+
+    def encode_batch(self, centerlines_px: np.ndarray) -> np.ndarray:
+        """(B, N, 2) pixels -> (B, p)."""
+        arr = check_centerlines(centerlines_px, self.points, batch=True)
+        return resample_uniform(arr, self.positions).reshape(arr.shape[0], self.dim)
