@@ -77,7 +77,8 @@ def clip_psd(a: np.ndarray, floor: float) -> np.ndarray:
     w, v, info = _dsyevd(a, compute_v=1, lower=1)
     if info != 0:  # pragma: no cover - LAPACK failure on a finite symmetric matrix
         raise np.linalg.LinAlgError(f"eigendecomposition failed (LAPACK info={info})")
-    return (v * np.maximum(w, floor)) @ v.T
+    out = (v * np.maximum(w, floor)) @ v.T
+    return 0.5 * (out + out.T)  # exactly symmetric again after the round trip
 
 
 class AdaptiveKalmanJacobian:
