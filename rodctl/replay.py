@@ -23,8 +23,16 @@ from rodctl.errors import UserError
 from rodctl.logs.codec import ReadRun
 from rodctl.records import RunSummary, StepRecord
 
-__all__ = ["ReadRun", "Rebuilt", "compare_records", "mcap_path", "read_run", "rebuild",
-           "summary_rows", "format_summary"]
+__all__ = [
+    "ReadRun",
+    "Rebuilt",
+    "compare_records",
+    "mcap_path",
+    "read_run",
+    "rebuild",
+    "summary_rows",
+    "format_summary",
+]
 
 
 def mcap_path(path: str | Path) -> Path:
@@ -172,8 +180,11 @@ def summary_rows(run: ReadRun) -> list[tuple[str, str]]:
             rows.append((k, _fmt(v)))
     elif run.records:
         last = run.records[-1]
-        rows += [("last step", str(last.step)), ("final_T1", _fmt(float(last.T1))),
-                 ("final_pixel_error", _fmt(float(last.pixel_error)))]
+        rows += [
+            ("last step", str(last.step)),
+            ("final_T1", _fmt(float(last.T1))),
+            ("final_pixel_error", _fmt(float(last.pixel_error))),
+        ]
     return rows
 
 
@@ -197,8 +208,7 @@ def _same(a: Any, b: Any) -> bool:
         if x.shape != y.shape:
             return False
         if x.dtype.kind in "fiu" and y.dtype.kind in "fiu":
-            return bool(np.array_equal(x.astype(np.float64), y.astype(np.float64),
-                                       equal_nan=True))
+            return bool(np.array_equal(x.astype(np.float64), y.astype(np.float64), equal_nan=True))
         return bool(np.array_equal(x, y))
     if isinstance(a, bool | np.bool_) or isinstance(b, bool | np.bool_):
         return isinstance(a, bool | np.bool_) and isinstance(b, bool | np.bool_) and a == b
@@ -221,8 +231,7 @@ def compare_records(
         out.append(f"step count differs: logged {len(logged)}, fresh {len(fresh)}")
     for a, b in zip(logged, fresh, strict=False):
         for f in fields(StepRecord):
-            if f.name == "image" and not (images and a.image is not None
-                                          and b.image is not None):
+            if f.name == "image" and not (images and a.image is not None and b.image is not None):
                 continue
             x, y = getattr(a, f.name), getattr(b, f.name)
             if isinstance(x, dict) and isinstance(y, dict):

@@ -106,8 +106,10 @@ def _color(rgb: tuple[float, float, float]) -> dict[str, float]:
     return {"r": rgb[0], "g": rgb[1], "b": rgb[2], "a": 1.0}
 
 
-_IDENTITY_POSE = {"position": {"x": 0.0, "y": 0.0, "z": 0.0},
-                  "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
+_IDENTITY_POSE = {
+    "position": {"x": 0.0, "y": 0.0, "z": 0.0},
+    "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
+}
 
 
 def _entity(t_ns: int, entity_id: str, **primitives: list[Any]) -> dict[str, Any]:
@@ -119,8 +121,16 @@ def _entity(t_ns: int, entity_id: str, **primitives: list[Any]) -> dict[str, Any
         "frame_locked": False,
         "metadata": [],
     }
-    for name in ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts",
-                 "models"):
+    for name in (
+        "arrows",
+        "cubes",
+        "spheres",
+        "cylinders",
+        "lines",
+        "triangles",
+        "texts",
+        "models",
+    ):
         ent[name] = primitives.get(name, [])
     return ent
 
@@ -148,9 +158,15 @@ def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, A
     x, y, th = (float(v) for v in np.nan_to_num(np.asarray(pose, dtype=np.float64))[:3])
     size = 0.12 * rod_length if np.isfinite(rod_length) and rod_length > 0 else 0.05
     arrow = {
-        "pose": {"position": {"x": x, "y": y, "z": 0.0},
-                 "orientation": {"x": 0.0, "y": 0.0, "z": float(np.sin(th / 2)),
-                                 "w": float(np.cos(th / 2))}},
+        "pose": {
+            "position": {"x": x, "y": y, "z": 0.0},
+            "orientation": {
+                "x": 0.0,
+                "y": 0.0,
+                "z": float(np.sin(th / 2)),
+                "w": float(np.cos(th / 2)),
+            },
+        },
         "shaft_length": 0.7 * size,
         "shaft_diameter": 0.08 * size,
         "head_length": 0.3 * size,
@@ -199,26 +215,41 @@ class McapSink:
             name = schema["title"]
             if name not in schema_ids:
                 schema_ids[name] = w.register_schema(
-                    name=name, encoding=SchemaEncoding.JSONSchema,
+                    name=name,
+                    encoding=SchemaEncoding.JSONSchema,
                     data=schemas.schema_bytes(schema),
                 )
             units = codec.UNITS.get(topic, {})
             self._channels[topic] = w.register_channel(
-                topic=topic, message_encoding=MessageEncoding.JSON,
-                schema_id=schema_ids[name], metadata={f"unit.{k}": v for k, v in units.items()},
+                topic=topic,
+                message_encoding=MessageEncoding.JSON,
+                schema_id=schema_ids[name],
+                metadata={f"unit.{k}": v for k, v in units.items()},
             )
-        w.add_metadata("rodctl.run", {
-            "run_id": header.run_id,
-            "method": header.method,
-            "format_version": codec.FORMAT_VERSION,
-            "log_time": "simulated time (ns)",
-        })
+        w.add_metadata(
+            "rodctl.run",
+            {
+                "run_id": header.run_id,
+                "method": header.method,
+                "format_version": codec.FORMAT_VERSION,
+                "log_time": "simulated time (ns)",
+            },
+        )
         w.add_metadata("rodctl.config", config_metadata(header.config_yaml))
-        w.add_attachment(create_time=0, log_time=0, name="config.yaml",
-                         media_type="application/yaml", data=header.config_yaml.encode("utf-8"))
+        w.add_attachment(
+            create_time=0,
+            log_time=0,
+            name="config.yaml",
+            media_type="application/yaml",
+            data=header.config_yaml.encode("utf-8"),
+        )
         self._add(codec.TOPIC_HEADER, 0, 0, codec.header_to_json(header))
-        self._add(codec.TOPIC_TARGET_SCENE, 0, 0, line_strip_scene(
-            0, "target", header.target_centerline, _TARGET_RGB, 0.004))
+        self._add(
+            codec.TOPIC_TARGET_SCENE,
+            0,
+            0,
+            line_strip_scene(0, "target", header.target_centerline, _TARGET_RGB, 0.004),
+        )
         self._log(0, *codec.open_log_line(header))
         self._flush()
 
@@ -241,17 +272,27 @@ class McapSink:
         ]
         if r.image is not None:
             png = codec.PNG_CACHE.encode(r.image, self.cfg.png_compression)
-            msgs.append((codec.TOPIC_IMAGE, {
-                "timestamp": codec.foxglove_time(t),
-                "frame_id": "camera",
-                "data": codec.b64(png),
-                "format": "png",
-            }))
+            msgs.append(
+                (
+                    codec.TOPIC_IMAGE,
+                    {
+                        "timestamp": codec.foxglove_time(t),
+                        "frame_id": "camera",
+                        "data": codec.b64(png),
+                        "format": "png",
+                    },
+                )
+            )
         data = [(topic, _dumps(m)) for topic, m in msgs]
         lines = codec.step_log_lines(self._prev, r)
         for topic, payload in data:
-            self._writer.add_message(channel_id=self._channels[topic], log_time=t,
-                                     publish_time=t, sequence=k, data=payload)
+            self._writer.add_message(
+                channel_id=self._channels[topic],
+                log_time=t,
+                publish_time=t,
+                sequence=k,
+                data=payload,
+            )
         for level, text in lines:
             self._log(t, level, text, sequence=k)
         self._prev = r
@@ -275,8 +316,9 @@ class McapSink:
         if w is not None:
             t = self._last_ns
             try:
-                self._add_with(w, codec.TOPIC_SUMMARY, t, self._steps,
-                               codec.summary_to_json(summary, status))
+                self._add_with(
+                    w, codec.TOPIC_SUMMARY, t, self._steps, codec.summary_to_json(summary, status)
+                )
                 level, text = codec.close_log_line(summary, status, self._steps)
                 self._add_with(w, codec.TOPIC_LOG, t, self._steps, self._log_msg(t, level, text))
                 w.add_metadata("rodctl.end", {"status": status, "steps": str(self._steps)})
@@ -297,8 +339,11 @@ class McapSink:
         if errors:
             if status == "completed":
                 raise errors[0]
-            warnings.warn(f"{self.path}: closing the MCAP log failed: {errors[0]!r}",
-                          RuntimeWarning, stacklevel=2)
+            warnings.warn(
+                f"{self.path}: closing the MCAP log failed: {errors[0]!r}",
+                RuntimeWarning,
+                stacklevel=2,
+            )
 
     # -------------------------------------------------------------------------------- helpers
     def _add(self, topic: str, t_ns: int, seq: int, msg: dict[str, Any]) -> None:
@@ -306,13 +351,24 @@ class McapSink:
         self._add_with(self._writer, topic, t_ns, seq, msg)
 
     def _add_with(self, w: Writer, topic: str, t_ns: int, seq: int, msg: dict[str, Any]) -> None:
-        w.add_message(channel_id=self._channels[topic], log_time=t_ns, publish_time=t_ns,
-                      sequence=seq, data=_dumps(msg))
+        w.add_message(
+            channel_id=self._channels[topic],
+            log_time=t_ns,
+            publish_time=t_ns,
+            sequence=seq,
+            data=_dumps(msg),
+        )
 
     @staticmethod
     def _log_msg(t_ns: int, level: str, text: str) -> dict[str, Any]:
-        return {"timestamp": codec.foxglove_time(t_ns), "level": codec.LOG_LEVELS[level],
-                "message": text, "name": "rodctl", "file": "", "line": 0}
+        return {
+            "timestamp": codec.foxglove_time(t_ns),
+            "level": codec.LOG_LEVELS[level],
+            "message": text,
+            "name": "rodctl",
+            "file": "",
+            "line": 0,
+        }
 
     def _log(self, t_ns: int, level: str, text: str, sequence: int = 0) -> None:
         self._add(codec.TOPIC_LOG, t_ns, sequence, self._log_msg(t_ns, level, text))
@@ -338,8 +394,10 @@ def _read_indexed(f: IO[bytes]) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
     reader = make_reader(f, validate_crcs=True)
     if reader.get_summary() is None:
         raise McapError("no summary section")
-    raw = [(ch.topic, m.sequence, m.log_time, m.data)
-           for _, ch, m in reader.iter_messages(log_time_order=False)]
+    raw = [
+        (ch.topic, m.sequence, m.log_time, m.data)
+        for _, ch, m in reader.iter_messages(log_time_order=False)
+    ]
     meta = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     return raw, meta
 
@@ -405,8 +463,10 @@ def read_mcap(path: str | Path, *, recover: bool = False, images: bool = True) -
     with open(path, "rb") as f:
         head = f.read(len(MAGIC))
         if head != MAGIC:
-            raise UserError(f"{path}: not an MCAP file (it does not start with the MCAP magic "
-                            f"bytes); expected a run.mcap written by rodctl")
+            raise UserError(
+                f"{path}: not an MCAP file (it does not start with the MCAP magic "
+                f"bytes); expected a run.mcap written by rodctl"
+            )
         size = f.seek(0, os.SEEK_END)
         f.seek(max(0, size - len(MAGIC)))
         complete = size >= 2 * len(MAGIC) and f.read(len(MAGIC)) == MAGIC
@@ -425,22 +485,27 @@ def read_mcap(path: str | Path, *, recover: bool = False, images: bool = True) -
                 reason += f"; reading stopped at a damaged record ({error})"
     run = _assemble(path, raw, meta, images, notes)
     if not complete:
-        what = (f"{path}: incomplete MCAP file: its writer never finished (crash, kill or power "
-                f"loss): {reason}. {len(run.records)} complete steps are readable")
+        what = (
+            f"{path}: incomplete MCAP file: its writer never finished (crash, kill or power "
+            f"loss): {reason}. {len(run.records)} complete steps are readable"
+        )
         if not recover:
-            raise UserError(what + "; read it with recovery (rodctl replay --recover) to use "
-                            "them.")
+            raise UserError(what + "; read it with recovery (rodctl replay --recover) to use them.")
         notes.insert(0, what + ".")
     run.complete = complete
     return run
 
 
-def _assemble(path: Path, raw: list[_Raw], meta: dict[str, dict[str, str]], images: bool,
-              notes: list[str]) -> codec.ReadRun:
+def _assemble(
+    path: Path, raw: list[_Raw], meta: dict[str, dict[str, str]], images: bool, notes: list[str]
+) -> codec.ReadRun:
     header_msgs = [d for topic, _, _, d in raw if topic == codec.TOPIC_HEADER]
     if not header_msgs:
-        raise UserError(f"{path}: not a rodctl run log (no {codec.TOPIC_HEADER} message)"
-                        if raw or meta else f"{path}: the MCAP file holds no readable messages")
+        raise UserError(
+            f"{path}: not a rodctl run log (no {codec.TOPIC_HEADER} message)"
+            if raw or meta
+            else f"{path}: the MCAP file holds no readable messages"
+        )
     try:
         header = codec.header_from_json(_json(path, codec.TOPIC_HEADER, header_msgs[0]))
     except (KeyError, TypeError, ValueError) as exc:
@@ -481,7 +546,8 @@ def _assemble(path: Path, raw: list[_Raw], meta: dict[str, dict[str, str]], imag
         if step in frames:
             try:
                 image = codec.decode_png(
-                    _b64decode(_json(path, codec.TOPIC_IMAGE, frames[step])["data"]))
+                    _b64decode(_json(path, codec.TOPIC_IMAGE, frames[step])["data"])
+                )
             except (KeyError, ValueError) as exc:
                 notes.append(f"step {step}: camera frame unreadable ({exc}); left out")
         try:
@@ -495,8 +561,15 @@ def _assemble(path: Path, raw: list[_Raw], meta: dict[str, dict[str, str]], imag
         status = status or closing
         if len(summary) == 0:
             summary = None
-    return codec.ReadRun(path=path, header=header, records=records, summary=summary,
-                         status=status, complete=True, warnings=notes)
+    return codec.ReadRun(
+        path=path,
+        header=header,
+        records=records,
+        summary=summary,
+        status=status,
+        complete=True,
+        warnings=notes,
+    )
 
 
 def _b64decode(text: Any) -> bytes:

@@ -52,8 +52,21 @@ def flip_y(points: np.ndarray) -> np.ndarray:
 
 
 def _empty_buffer() -> dict[str, list]:
-    return {key: [] for key in ("step", "sim_time", "rod", "origin", "vector", "centerline",
-                                "projected_truth", "T1", "pixel_error", "u")}
+    return {
+        key: []
+        for key in (
+            "step",
+            "sim_time",
+            "rod",
+            "origin",
+            "vector",
+            "centerline",
+            "projected_truth",
+            "T1",
+            "pixel_error",
+            "u",
+        )
+    }
 
 
 def blueprint() -> rrb.Blueprint:
@@ -66,8 +79,9 @@ def blueprint() -> rrb.Blueprint:
             ),
             rrb.Vertical(
                 rrb.TimeSeriesView(origin="/control", contents="/control/T1", name="T1"),
-                rrb.TimeSeriesView(origin="/control", contents="/control/pixel_error",
-                                   name="pixel error (px)"),
+                rrb.TimeSeriesView(
+                    origin="/control", contents="/control/pixel_error", name="pixel error (px)"
+                ),
                 rrb.TimeSeriesView(origin="/control/u", name="command u (m, m, rad)"),
                 rrb.TextLogView(origin="/log", name="log"),
             ),
@@ -92,7 +106,7 @@ class RerunSink:
         self._prev: StepRecord | None = None
         self._steps = 0
         self._last_step = 0
-        self._last_time = 0.0
+        self._last_time = np.timedelta64(0, "ns")
         self._closed = False
         self._buf = _empty_buffer()
 
@@ -107,34 +121,60 @@ class RerunSink:
         rec.save(self.path, default_blueprint=blueprint())
         self._rec = rec
         rec.send_recording_name(header.run_id)
-        rec.send_property("rodctl", rr.AnyValues(
-            method=header.method, config_yaml=header.config_yaml,
-            rod_length_m=float(header.rod_length),
-            image_size=np.asarray(header.image_size, dtype=np.int64),
-        ))
-        rec.log("/world/target", rr.LineStrips2D([flip_y(header.target_centerline)],
-                                                 colors=[_TARGET], radii=0.003,
-                                                 labels=["target"]), static=True)
-        rec.log("/world/clamp", rr.Points2D(flip_y(header.clamp_pose[:2]), colors=[(0, 0, 0)],
-                                            radii=0.01, labels=["clamp"]), static=True)
-        rec.log("/camera/target", rr.LineStrips2D([header.target_pixels], colors=[_TARGET],
-                                                  radii=1.0), static=True)
-        rec.log("/world/rod", rr.LineStrips2D.from_fields(colors=[_ROD], radii=0.004),
-                static=True)
-        rec.log("/world/gripper", rr.Arrows2D.from_fields(colors=[_GRIPPER], radii=0.004),
-                static=True)
-        rec.log("/camera/centerline", rr.LineStrips2D.from_fields(colors=[_EXTRACTED],
-                                                                  radii=1.0), static=True)
-        rec.log("/camera/projected_truth", rr.LineStrips2D.from_fields(colors=[_TRUTH],
-                                                                       radii=0.7), static=True)
+        rec.send_property(
+            "rodctl",
+            rr.AnyValues(
+                method=header.method,
+                config_yaml=header.config_yaml,
+                rod_length_m=float(header.rod_length),
+                image_size=np.asarray(header.image_size, dtype=np.int64),
+            ),
+        )
+        rec.log(
+            "/world/target",
+            rr.LineStrips2D(
+                [flip_y(header.target_centerline)], colors=[_TARGET], radii=0.003, labels=["target"]
+            ),
+            static=True,
+        )
+        rec.log(
+            "/world/clamp",
+            rr.Points2D(
+                flip_y(header.clamp_pose[:2]), colors=[(0, 0, 0)], radii=0.01, labels=["clamp"]
+            ),
+            static=True,
+        )
+        rec.log(
+            "/camera/target",
+            rr.LineStrips2D([header.target_pixels], colors=[_TARGET], radii=1.0),
+            static=True,
+        )
+        rec.log("/world/rod", rr.LineStrips2D.from_fields(colors=[_ROD], radii=0.004), static=True)
+        rec.log(
+            "/world/gripper", rr.Arrows2D.from_fields(colors=[_GRIPPER], radii=0.004), static=True
+        )
+        rec.log(
+            "/camera/centerline",
+            rr.LineStrips2D.from_fields(colors=[_EXTRACTED], radii=1.0),
+            static=True,
+        )
+        rec.log(
+            "/camera/projected_truth",
+            rr.LineStrips2D.from_fields(colors=[_TRUTH], radii=0.7),
+            static=True,
+        )
         rec.log("/control/T1", rr.SeriesLines(names="T1", colors=[_ROD]), static=True)
-        rec.log("/control/pixel_error", rr.SeriesLines(names="pixel error", colors=[_EXTRACTED]),
-                static=True)
+        rec.log(
+            "/control/pixel_error",
+            rr.SeriesLines(names="pixel error", colors=[_EXTRACTED]),
+            static=True,
+        )
         for axis, color in zip(_AXES, _AXIS_COLORS, strict=True):
-            rec.log(f"/control/u/{axis}", rr.SeriesLines(names=f"u_{axis}", colors=[color]),
-                    static=True)
+            rec.log(
+                f"/control/u/{axis}", rr.SeriesLines(names=f"u_{axis}", colors=[color]), static=True
+            )
         rec.set_time("step", sequence=0)
-        rec.set_time("sim_time", duration=0.0)
+        rec.set_time("sim_time", duration=np.timedelta64(0, "ns"))
         level, text = codec.open_log_line(header)
         rec.log("/log", rr.TextLog(text, level=level))
 
@@ -150,7 +190,8 @@ class RerunSink:
             raise RuntimeError("RerunSink.write called before open (or after close)")
         r = record
         k = int(r.step)
-        t = float(r.sim_time) if np.isfinite(r.sim_time) else self._last_time
+        # Integer nanoseconds, as the MCAP's log_time (Rerun truncates float seconds).
+        t = np.timedelta64(codec.time_ns(r.sim_time), "ns")
         self._last_step, self._last_time = k, t
         lines = codec.step_log_lines(self._prev, r)
         if r.image is not None or lines:
@@ -185,19 +226,27 @@ class RerunSink:
         n = len(b["step"])
         if rec is None or n == 0:
             return
-        idx = [rr.TimeColumn("step", sequence=np.asarray(b["step"], dtype=np.int64)),
-               rr.TimeColumn("sim_time", duration=np.asarray(b["sim_time"], dtype=np.float64))]
+        idx = [
+            rr.TimeColumn("step", sequence=np.asarray(b["step"], dtype=np.int64)),
+            rr.TimeColumn("sim_time", duration=np.asarray(b["sim_time"], dtype="timedelta64[ns]")),
+        ]
         ones = [1] * n
-        rec.send_columns("/world/rod", idx,
-                         rr.LineStrips2D.columns(strips=b["rod"]).partition(ones))
-        rec.send_columns("/world/gripper", idx, rr.Arrows2D.columns(
-            origins=np.asarray(b["origin"]), vectors=np.asarray(b["vector"])).partition(ones))
+        rec.send_columns(
+            "/world/rod", idx, rr.LineStrips2D.columns(strips=b["rod"]).partition(ones)
+        )
+        rec.send_columns(
+            "/world/gripper",
+            idx,
+            rr.Arrows2D.columns(
+                origins=np.asarray(b["origin"]), vectors=np.asarray(b["vector"])
+            ).partition(ones),
+        )
         for name in ("centerline", "projected_truth"):
-            rec.send_columns(f"/camera/{name}", idx,
-                             rr.LineStrips2D.columns(strips=b[name]).partition(ones))
+            rec.send_columns(
+                f"/camera/{name}", idx, rr.LineStrips2D.columns(strips=b[name]).partition(ones)
+            )
         rec.send_columns("/control/T1", idx, rr.Scalars.columns(scalars=b["T1"]))
-        rec.send_columns("/control/pixel_error", idx,
-                         rr.Scalars.columns(scalars=b["pixel_error"]))
+        rec.send_columns("/control/pixel_error", idx, rr.Scalars.columns(scalars=b["pixel_error"]))
         u = np.asarray(b["u"], dtype=np.float64).reshape(n, 3)
         for i, axis in enumerate(_AXES):
             rec.send_columns(f"/control/u/{axis}", idx, rr.Scalars.columns(scalars=u[:, i]))
@@ -228,10 +277,16 @@ class RerunSink:
             level, text = codec.close_log_line(summary, status, self._steps)
             rec.log("/log", rr.TextLog(text, level=level))
             if summary is not None:
-                rec.send_property("summary", rr.AnyValues(**{
-                    k: v for k, v in codec.sanitize(summary.to_json()).items()
-                    if isinstance(v, (int, float, str, bool))
-                }))
+                rec.send_property(
+                    "summary",
+                    rr.AnyValues(
+                        **{
+                            k: v
+                            for k, v in codec.sanitize(summary.to_json()).items()
+                            if isinstance(v, (int, float, str, bool))
+                        }
+                    ),
+                )
         except Exception as exc:  # noqa: BLE001 - collected, see docstring
             errors.append(exc)
         try:
@@ -245,5 +300,8 @@ class RerunSink:
         if errors:
             if status == "completed":
                 raise errors[0]
-            warnings.warn(f"{self.path}: closing the Rerun recording failed: {errors[0]!r}",
-                          RuntimeWarning, stacklevel=2)
+            warnings.warn(
+                f"{self.path}: closing the Rerun recording failed: {errors[0]!r}",
+                RuntimeWarning,
+                stacklevel=2,
+            )

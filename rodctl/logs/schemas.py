@@ -98,8 +98,13 @@ RUN_HEADER: dict[str, Any] = {
         "run_id": {"type": "string"},
         "method": {"type": "string"},
         "config_yaml": {"type": "string"},
-        "image_size": {"type": "array", "items": {"type": "integer"}, "minItems": 2,
-                       "maxItems": 2, "description": "[width, height] (px)"},
+        "image_size": {
+            "type": "array",
+            "items": {"type": "integer"},
+            "minItems": 2,
+            "maxItems": 2,
+            "description": "[width, height] (px)",
+        },
         "clamp_pose": _vec(3, "Clamp pose [x, y, theta] (m, m, rad)."),
         "home_pose": _vec(3, "Gripper pose at the start (m, m, rad)."),
         "target_centerline": _points("Target centerline (m), clamp first."),
@@ -108,9 +113,20 @@ RUN_HEADER: dict[str, Any] = {
         "target_pose": _vec(3, "Gripper pose that produced the target (m, m, rad)."),
         "rod_length": {**_REAL, "description": "Rod length L (m)."},
     },
-    "required": ["format_version", "run_id", "method", "config_yaml", "image_size", "clamp_pose",
-                 "home_pose", "target_centerline", "target_pixels", "target_feature",
-                 "target_pose", "rod_length"],
+    "required": [
+        "format_version",
+        "run_id",
+        "method",
+        "config_yaml",
+        "image_size",
+        "clamp_pose",
+        "home_pose",
+        "target_centerline",
+        "target_pixels",
+        "target_feature",
+        "target_pose",
+        "rod_length",
+    ],
 }
 
 RUN_SUMMARY: dict[str, Any] = {
@@ -163,11 +179,14 @@ _LINE = {
     "title": "foxglove.LinePrimitive",
     "type": "object",
     "properties": {
-        "type": {"title": "foxglove.LineType", "oneOf": [
-            {"title": "LINE_STRIP", "const": 0},
-            {"title": "LINE_LOOP", "const": 1},
-            {"title": "LINE_LIST", "const": 2},
-        ]},
+        "type": {
+            "title": "foxglove.LineType",
+            "oneOf": [
+                {"title": "LINE_STRIP", "const": 0},
+                {"title": "LINE_LOOP", "const": 1},
+                {"title": "LINE_LIST", "const": 2},
+            ],
+        },
         "pose": _POSE,
         "thickness": {"type": "number"},
         "scale_invariant": {"type": "boolean"},
@@ -176,8 +195,16 @@ _LINE = {
         "colors": {"type": "array", "items": _COLOR},
         "indices": {"type": "array", "items": {"type": "integer", "minimum": 0}},
     },
-    "required": ["type", "pose", "thickness", "scale_invariant", "points", "color", "colors",
-                 "indices"],
+    "required": [
+        "type",
+        "pose",
+        "thickness",
+        "scale_invariant",
+        "points",
+        "color",
+        "colors",
+        "indices",
+    ],
 }
 _ARROW = {
     "title": "foxglove.ArrowPrimitive",
@@ -190,11 +217,18 @@ _ARROW = {
         "head_diameter": {"type": "number"},
         "color": _COLOR,
     },
-    "required": ["pose", "shaft_length", "shaft_diameter", "head_length", "head_diameter",
-                 "color"],
+    "required": ["pose", "shaft_length", "shaft_diameter", "head_length", "head_diameter", "color"],
 }
-_PRIMITIVE_LISTS = ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts",
-                    "models")
+_PRIMITIVE_LISTS = (
+    "arrows",
+    "cubes",
+    "spheres",
+    "cylinders",
+    "lines",
+    "triangles",
+    "texts",
+    "models",
+)
 _ENTITY = {
     "title": "foxglove.SceneEntity",
     "type": "object",
@@ -204,16 +238,28 @@ _ENTITY = {
         "id": {"type": "string"},
         "lifetime": _DURATION,
         "frame_locked": {"type": "boolean"},
-        "metadata": {"type": "array", "items": {
-            "title": "foxglove.KeyValuePair", "type": "object",
-            "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
-            "required": ["key", "value"]}},
+        "metadata": {
+            "type": "array",
+            "items": {
+                "title": "foxglove.KeyValuePair",
+                "type": "object",
+                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
+                "required": ["key", "value"],
+            },
+        },
         **{name: {"type": "array"} for name in _PRIMITIVE_LISTS},
         "arrows": {"type": "array", "items": _ARROW},
         "lines": {"type": "array", "items": _LINE},
     },
-    "required": ["timestamp", "frame_id", "id", "lifetime", "frame_locked", "metadata",
-                 *_PRIMITIVE_LISTS],
+    "required": [
+        "timestamp",
+        "frame_id",
+        "id",
+        "lifetime",
+        "frame_locked",
+        "metadata",
+        *_PRIMITIVE_LISTS,
+    ],
 }
 SCENE_UPDATE: dict[str, Any] = {
     "title": "foxglove.SceneUpdate",
@@ -245,10 +291,13 @@ LOG: dict[str, Any] = {
     "type": "object",
     "properties": {
         "timestamp": _TIME,
-        "level": {"title": "foxglove.LogLevel", "oneOf": [
-            {"title": t, "const": i}
-            for i, t in enumerate(("UNKNOWN", "DEBUG", "INFO", "WARNING", "ERROR", "FATAL"))
-        ]},
+        "level": {
+            "title": "foxglove.LogLevel",
+            "oneOf": [
+                {"title": t, "const": i}
+                for i, t in enumerate(("UNKNOWN", "DEBUG", "INFO", "WARNING", "ERROR", "FATAL"))
+            ],
+        },
         "message": {"type": "string"},
         "name": {"type": "string"},
         "file": {"type": "string"},
@@ -260,8 +309,16 @@ LOG: dict[str, Any] = {
 #: Every schema by name, as registered in the MCAP file.
 ALL: dict[str, dict[str, Any]] = {
     s["title"]: s
-    for s in (ROD_STATE, CAMERA_CENTERLINE, CONTROL, RUN_HEADER, RUN_SUMMARY, SCENE_UPDATE,
-              COMPRESSED_IMAGE, LOG)
+    for s in (
+        ROD_STATE,
+        CAMERA_CENTERLINE,
+        CONTROL,
+        RUN_HEADER,
+        RUN_SUMMARY,
+        SCENE_UPDATE,
+        COMPRESSED_IMAGE,
+        LOG,
+    )
 }
 
 

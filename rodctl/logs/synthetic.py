@@ -64,8 +64,9 @@ class SyntheticRun:
     width, height = 640, 480
     focal = 700.0  # px per metre at the rod plane
 
-    def __init__(self, seed: int = 0, image_every: int = 5, noisy_images: bool = False,
-                 p: int = 6) -> None:
+    def __init__(
+        self, seed: int = 0, image_every: int = 5, noisy_images: bool = False, p: int = 6
+    ) -> None:
         self.rng = np.random.default_rng(seed)
         self.seed = seed
         self.image_every = image_every
@@ -106,8 +107,7 @@ class SyntheticRun:
         """(H, W, 3) uint8 RGB frame: light background, dark rod, optional noise."""
         img = np.full((self.height, self.width, 3), (235, 232, 225), dtype=np.uint8)
         pts = np.round(pixels * 4).astype(np.int32).reshape(-1, 1, 2)
-        cv2.polylines(img, [pts], False, (40, 40, 45), thickness=7, lineType=cv2.LINE_AA,
-                      shift=2)
+        cv2.polylines(img, [pts], False, (40, 40, 45), thickness=7, lineType=cv2.LINE_AA, shift=2)
         if self.noisy_images:
             noise = self.rng.normal(0.0, 2.0, size=img.shape)
             img = np.clip(img + noise, 0, 255).astype(np.uint8)
@@ -138,31 +138,35 @@ class SyntheticRun:
             image = None
             if self.image_every and k % self.image_every == 0:
                 image = self.render(truth_px)
-            out.append(StepRecord(
-                step=k,
-                sim_time=round(0.05 + k * period, 9),
-                phase=phase,
-                gripper=pose.copy(),
-                centerline=world,
-                extracted=extracted,
-                projected_truth=truth_px,
-                u=u,
-                u_raw=u_raw,
-                s=s,
-                s_target=self.s_target.copy(),
-                T1=float(np.linalg.norm(self.s_target - s)),
-                J=J.copy(),
-                J_singular_values=np.linalg.svd(J, compute_uv=False),
-                pixel_error=float(err),
-                settled=k % 17 != 9,
-                saturated=np.abs(u_raw) > [0.02, 0.02, 0.1],
-                clipped=bool(k == 7),
-                max_joint_gap=float(self.rng.uniform(0, 1e-5)),
-                kinetic_energy=float(self.rng.uniform(0, 1e-6)),
-                extraction_ok=k % 23 != 11,
-                extraction_note="" if k % 23 != 11 else "rod partly occluded",
-                estimator_info={"alpha": float(self.rng.uniform(0.9, 1.0)),
-                                "innovation": float(self.rng.normal())},
-                image=image,
-            ))
+            out.append(
+                StepRecord(
+                    step=k,
+                    sim_time=round(0.05 + k * period, 9),
+                    phase=phase,
+                    gripper=pose.copy(),
+                    centerline=world,
+                    extracted=extracted,
+                    projected_truth=truth_px,
+                    u=u,
+                    u_raw=u_raw,
+                    s=s,
+                    s_target=self.s_target.copy(),
+                    T1=float(np.linalg.norm(self.s_target - s)),
+                    J=J.copy(),
+                    J_singular_values=np.linalg.svd(J, compute_uv=False),
+                    pixel_error=float(err),
+                    settled=k % 17 != 9,
+                    saturated=np.abs(u_raw) > [0.02, 0.02, 0.1],
+                    clipped=bool(k == 7),
+                    max_joint_gap=float(self.rng.uniform(0, 1e-5)),
+                    kinetic_energy=float(self.rng.uniform(0, 1e-6)),
+                    extraction_ok=k % 23 != 11,
+                    extraction_note="" if k % 23 != 11 else "rod partly occluded",
+                    estimator_info={
+                        "alpha": float(self.rng.uniform(0.9, 1.0)),
+                        "innovation": float(self.rng.normal()),
+                    },
+                    image=image,
+                )
+            )
         return out

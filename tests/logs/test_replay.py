@@ -1,0 +1,72 @@
+"""`rodctl.replay`: a run's other outputs rebuilt from its MCAP alone."""
+
+from __future__ import annotations
+
+import subprocess
+
+import pytest
+
+from rodctl.errors import UserError
+from rodctl.logs.mcap import McapSink
+from rodctl.logs.rerun import RerunSink
+from rodctl.replay import format_summary, read_run, rebuild, summary_object, summary_rows
+
+
+@pytest.fixture
+def run_dir(tmp_path, synthetic, helpers):
+    header, records = synthetic
+    d = tmp_path / "20261123-101500_synthetic"
+    d.mkdir()
+    summary = helpers.summary_of(records)
+    helpers.write_run(McapSink, d / "run.mcap", header, records, summary)
+    helpers.write_run(RerunSink, tmp_path / "live.rrd", header, records, summary)
+    return d
+
+
+def test_rebuild_writes_an_rrd_equal_to_the_live_one(run_dir, rerun_exe):
+    out = rebuild(run_dir)
+    assert out.rrd == run_dir / "run.rrd" and out.run.complete
+    for args in (
+        ["rrd", "verify", str(out.rrd)],
+        ["rrd", "compare", "--unordered", str(out.rrd), str(run_dir.parent / "live.rrd")],
+    ):
+        res = subprocess.run([rerun_exe, *args], capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0, res.stdout + res.stderr
+    names = sorted(p.name for p in out.figures)
+    assert names and all((run_dir / "figures" / n).stat().st_size > 1000 for n in names)
+
+
+def test_rebuild_from_a_file_into_another_folder(run_dir, tmp_path):
+    out = rebuild(run_dir / "run.mcap", tmp_path / "elsewhere", figures=False)
+    assert out.rrd == tmp_path / "elsewhere" / "run.rrd" and out.rrd.exists()
+    assert out.figures == [] and not (run_dir / "run.rrd").exists()
+
+
+def test_summary_table(run_dir, synthetic):
+    _, records = synthetic
+    run = read_run(run_dir)
+    rows = dict(summary_rows(run))
+    assert rows["status"] == "completed" and rows["steps logged"] == "30"
+    assert rows["final_T1"] == f"{records[-1].T1:.6g}" and rows["converged"] == "True"
+    text = format_summary(run)
+    assert run.header.run_id in text and "warning" not in text
+    s = summary_object(run.summary)
+    assert s.final_T1 == records[-1].T1 and s.extra["note"] == "synthetic"
+
+
+def test_incomplete_run_needs_recover(run_dir, synthetic):
+    data = (run_dir / "run.mcap").read_bytes()
+    (run_dir / "run.mcap").write_bytes(data[: len(data) // 2])
+    with pytest.raises(UserError, match="--recover"):
+        rebuild(run_dir)
+    out = rebuild(run_dir, recover=True, figures=False)
+    assert not out.run.complete and out.rrd.exists()
+    text = format_summary(out.run)
+    assert "no (recovered)" in text and "warning: " in text and "unknown" in text
+
+
+def test_bad_paths(tmp_path):
+    with pytest.raises(UserError, match="no run.mcap"):
+        read_run(tmp_path)
+    with pytest.raises(UserError, match="no such run directory or file"):
+        read_run(tmp_path / "missing")
