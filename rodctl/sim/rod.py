@@ -125,7 +125,6 @@ class RodSim:
         )
         self._max_step = np.asarray(cfg.max_step, dtype=float)
         self._move_steps = max(1, round(cfg.control_period / self.dt))
-        self._settle_budget = max(1, math.ceil(cfg.max_settle_time / self.dt))
         self._diverged = False
 
         if cfg.home_pose is not None:
@@ -339,9 +338,10 @@ class RodSim:
         """
         chain = self.chain
         tol = self.cfg.settle_speed_tol
+        budget = max(1, math.ceil(self.cfg.max_settle_time / self.dt - 1e-9))
         below = 0
         taken = 0
-        while taken < self._settle_budget:
+        while taken < budget:
             for _ in range(SETTLE_CHECK_EVERY):
                 chain.step(target)
             taken += SETTLE_CHECK_EVERY
