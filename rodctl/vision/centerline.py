@@ -1,0 +1,663 @@
+"""Image -> the rod's centerline: N points, ordered from the clamped end to the gripper.
+
+Why tracking instead of skeleton + graph: the clamp is fixed and calibrated, so its pixel and the
+rod's direction there are known. Starting there and walking along the rod gives the order clamp ->
+gripper by construction (no flip is possible), follows a self-crossing loop instead of short-cutting
+it (at a crossing the walker keeps its curvature and goes straight over), and touches only the
+pixels near the rod, so the cost does not grow with the image size. A skeleton has none of these
+properties for free: it must be pruned of spurs, it shortens at the ends by half the rod width, it
+merges at crossings, and ordering its pixels needs a graph walk in Python.
+
+How one step works: predict the next point a step ``h`` ahead on the circle through the last two
+chords (constant curvature), sample the image along the normal there (a cross-section), find the
+run of "rod" samples nearest to the prediction and its two 50 % edges by linear interpolation, and
+move the point to their midpoint. Where the run touches the window's border or is much wider than
+the rod, another stretch of rod crosses: the prediction is kept unchanged.
+
+Why colour coverage: the renderer knows the colours, so each pixel's rod coverage a (the fraction
+of the pixel the rod covers) is recovered by one affine map of its RGB value: a = w . rgb + b,
+with (w, b) solved so that the rod colour maps to 1 and every other scene colour to 0. Anti-aliased
+pixels are convex blends a * rod + (1 - a) * other, and the map is affine, so it returns the exact
+coverage a (exactly for up to three non-rod colours in general position, or for any number of
+greys, the default). Bilinear interpolation is linear too, so sampling RGB and then mapping equals
+mapping the whole image first: only the few hundred samples per frame are ever converted.
+
+Sub-pixel accuracy comes from the 50 % edges of the anti-aliased band; after the walk, every output
+point is refined again by a cross-section along the normal of the resampled curve (all points in
+one vectorised call). The rod's end: from the last point, sample along the predicted direction until
+the coverage falls below 50 %: that is the tip of the rod's round cap, half the band width beyond
+the centreline's end.
+
+Occlusion: when the walk stops early (far from the gripper's pixel, when it is given as a hint),
+the extractor searches ahead along the predicted path for the rod to reappear and bridges the gap
+with a straight segment, or, when the hidden stretch reaches the gripper, with a cubic Hermite
+curve that ends on the gripper's pose. Either way ``ok`` is False and ``bridged`` is True, so the
+loop can decide; with ``extract.on_gap = "fail"``, or when nothing can be bridged, the points are
+NaN. Without the hint (and without ``rod_length``), an occluder that hides the rod's last part is
+indistinguishable from the rod's end.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from rodctl.config.camera import CameraConfig
+from rodctl.errors import UserError
+from rodctl.vision.camera import Camera
+
+# Cross-section sample spacing (px) and the status codes of `_cross_sections`.
+_DT = 0.5
+# Walk: steps predicted per vectorised call, the largest correction (px) after which points
+# further ahead are not trusted, and the largest turn (rad) per step.
+_LOOKAHEAD = 6
+_TRUST_PX = 3.0
+_MAX_TURN = 0.8
+# A cross-section narrower than this fraction of the rod's band is the rod's tip.
+_NARROW = 0.75
+# A run wider than this fraction of the band is another stretch of rod touching it: ambiguous.
+_WIDE = 1.3
+# Runs wider than the band by more than this (px) are treated as merged with another stretch.
+_MERGE_PX = 1.5
+# Up to this many cross-sections are analysed in plain Python (numpy's per-call overhead
+# dominates for a handful of short rows); more go through the vectorised path. Both give the
+# same numbers (tests/vision/test_centerline.py checks it).
+_SCALAR_ROWS = 8
+_OK, _AMBIGUOUS, _LOST = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Extraction:
+    """The result of extracting one image.
+
+    Attributes:
+        points: (N, 2) float64 pixels (u, v), clamp end first; all NaN when the step failed.
+        ok: True when the whole rod was seen and traced; False otherwise (see `note`).
+        note: why `ok` is False ("" when ok).
+        bridged: True when part of the rod was hidden and the points bridge the gap; the points
+            are finite but only approximate there.
+    """
+
+    points: np.ndarray
+    ok: bool
+    note: str = ""
+    bridged: bool = False
+
+
+def resample_polyline(points: np.ndarray, n: int) -> np.ndarray:
+    """Resample a polyline at `n` points equally spaced in arc length, both ends kept.
+
+    Args:
+        points: (M, 2) polyline, M >= 2.
+        n: number of output points, n >= 2.
+
+    Returns:
+        (n, 2) float64 points.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    seg = np.hypot(*np.diff(pts, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if s[-1] <= 0:
+        return np.repeat(pts[:1], n, axis=0)
+    q = np.linspace(0.0, s[-1], n)
+    return np.column_stack([np.interp(q, s, pts[:, 0]), np.interp(q, s, pts[:, 1])])
+
+
+def polyline_length(points: np.ndarray) -> float:
+    """Total length of a (M, 2) polyline."""
+    return float(np.hypot(*np.diff(np.asarray(points, dtype=np.float64), axis=0).T).sum())
+
+
+def _unit_normals(points: np.ndarray) -> np.ndarray:
+    """(M, 2) unit normals (left of the direction of travel in image coordinates)."""
+    d = np.gradient(points, axis=0)
+    d /= np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+    return np.column_stack([-d[:, 1], d[:, 0]])
+
+
+def _rotate(d: np.ndarray, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+
+
+def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
+    return math.atan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1])
+
+
+def _hermite(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray, n: int) -> np.ndarray:
+    """(n, 2) cubic Hermite curve from p0 (unit direction d0) to p1 (unit direction d1)."""
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    scale = float(np.hypot(*(p1 - p0)))
+    h00, h10 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t
+    h01, h11 = -2 * t**3 + 3 * t**2, t**3 - t**2
+    return h00 * p0 + h10 * scale * d0 + h01 * p1 + h11 * scale * d1
+
+
+def _locate_row(
+    s: list[float], m: int, band: float | None, max_width: float
+) -> tuple[float, float, int]:
+    """Scalar twin of the vectorised analysis in `CenterlineExtractor._cross_sections`.
+
+    Args:
+        s: 2m + 1 coverage samples across the rod, spaced `_DT`, the prediction at index m.
+        m: half the number of samples.
+        band: the rod's band width (px) if known.
+        max_width: the width above which the section is ambiguous.
+
+    Returns:
+        (offset px, width px, status).
+    """
+    last = 2 * m
+    c = m
+    j = -1
+    if s[c] >= 0.5:
+        j = c
+    else:
+        for dd in range(1, c + 1):
+            if s[c - dd] >= 0.5:
+                j = c - dd
+                break
+            if s[c + dd] >= 0.5:
+                j = c + dd
+                break
+    if j < 0:
+        return 0.0, 0.0, _LOST
+    left = j - 1
+    while left >= 0 and s[left] >= 0.5:
+        left -= 1
+    right = j + 1
+    while right <= last and s[right] >= 0.5:
+        right += 1
+    lc = min(max(left, 0), last - 1)
+    rc = min(max(right, 1), last)
+    s0, s1 = s[lc], s[lc + 1]
+    t_left = (lc - m) * _DT + (0.5 - s0) / (s1 - s0 if s1 - s0 > 1e-6 else 1.0) * _DT
+    r0, r1 = s[rc - 1], s[rc]
+    t_right = (rc - 1 - m) * _DT + (r0 - 0.5) / (r0 - r1 if r0 - r1 > 1e-6 else 1.0) * _DT
+    width = t_right - t_left
+    offset = 0.5 * (t_left + t_right)
+    left_off, right_off = left < 0, right > last
+    touches = left_off or right_off
+    if band is not None:
+        if width > band + _MERGE_PX and not (left_off and right_off):
+            from_left = t_left + 0.5 * band
+            from_right = t_right - 0.5 * band
+            if left_off:
+                offset = from_right
+            elif right_off:
+                offset = from_left
+            else:
+                offset = from_left if abs(from_left) < abs(from_right) else from_right
+            width = band
+        touches = left_off and right_off
+    if touches or width > max_width:
+        return offset, width, (_AMBIGUOUS if s[c] >= 0.5 else _LOST)
+    return offset, width, _OK
+
+
+class CenterlineExtractor:
+    """Finds the rod in a camera image and returns its centerline as N ordered pixel points.
+
+    Args:
+        cfg: the camera config (`points`, `render` colours and width, `extract` options).
+        camera: the calibrated camera that took the images (used for the clamp's pixel and, with
+            ``extract.arc_length = "plane"``, to space the points equally on the rod's plane).
+        clamp_pose: (3,) world pose of the clamped end [x, y, theta].
+        rod_length: the rod's length (m), optional: when given, a traced rod whose length on the
+            plane differs from it by more than `length_tolerance` is reported as not ok.
+        length_tolerance: relative tolerance of that length check.
+
+    Raises:
+        UserError: the configured colours do not let the rod be told apart from the rest.
+    """
+
+    def __init__(
+        self,
+        cfg: CameraConfig,
+        camera: Camera,
+        clamp_pose: np.ndarray,
+        rod_length: float | None = None,
+        length_tolerance: float = 0.05,
+    ) -> None:
+        self.cfg = cfg
+        self.camera = camera
+        self.points = int(cfg.points)
+        self.rod_length = rod_length
+        self.length_tolerance = float(length_tolerance)
+        r, e = cfg.render, cfg.extract
+        self._start, self._start_dir = camera.project_pose_direction(np.asarray(clamp_pose))
+        self._line_px = float(r.rod_width_px)
+        # The visible band is wider than OpenCV's thickness (anti-aliasing, round-off); this is
+        # only a prior, replaced by the widths measured along the rod in each image.
+        self._band_prior = self._line_px + 2.0
+        self._step = float(e.step_px) if e.step_px is not None else self._line_px
+        self._half_track = 0.5 * self._band_prior + 4.0
+        self._half_refine = 0.5 * self._band_prior + 2.5
+        self._coverage_w, self._coverage_b = self._coverage_map()
+        self._bg_value = tuple(float(c) for c in r.background_color)
+        self._max_steps = int(4 * (camera.width + camera.height) / self._step) + 10
+
+    # ------------------------------------------------------------------ colour -> coverage
+    def _coverage_map(self) -> tuple[np.ndarray, float]:
+        """Solve (w, b) with w . rod + b = 1 and w . c + b = 0 for every other scene colour."""
+        r = self.cfg.render
+        others = [r.background_color]
+        if r.background == "checker":
+            others.append(r.checker_color)
+        if r.draw_gripper or r.draw_clamp:
+            others.append(r.fixture_color)
+        if r.occlusions or r.random_occlusions:
+            others.append(r.occluder_color)
+        colours = np.array([r.rod_color, *others], dtype=np.float64)
+        a = np.column_stack([colours, np.ones(len(colours))])
+        target = np.zeros(len(colours))
+        target[0] = 1.0
+        sol, *_ = np.linalg.lstsq(a, target, rcond=None)
+        got = a @ sol
+        if abs(got[0] - 1.0) > 0.1 or np.abs(got[1:]).max() > 0.1:
+            raise UserError(
+                "camera.render: the rod colour cannot be told apart from the other scene colours "
+                f"(rod {r.rod_color}, others {others}); make the rod the only chromatic colour "
+                "or use at most three other colours"
+            )
+        return sol[:3].astype(np.float32), float(sol[3])
+
+    def coverage(self, image: np.ndarray) -> np.ndarray:
+        """(H, W) float32 rod coverage in [0, 1] of a whole image (for plots and debugging).
+
+        Args:
+            image: (H, W, 3) uint8 RGB.
+        """
+        cov = image.astype(np.float32) @ self._coverage_w + self._coverage_b
+        return np.clip(cov, 0.0, 1.0)
+
+    def _sample(self, image: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """Rod coverage at (..., 2) pixel positions, bilinear; 0 outside the image (unclipped)."""
+        shape = pts.shape[:-1]
+        flat = pts.reshape(1, -1, 2).astype(np.float32)
+        rgb = cv2.remap(
+            image,
+            flat[..., 0],
+            flat[..., 1],
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=self._bg_value,
+        )
+        # not clipped to [0, 1]: only 50 % crossings are used, and clipping costs time
+        cov = rgb.reshape(-1, 3).astype(np.float32) @ self._coverage_w + self._coverage_b
+        return cov.reshape(shape)
+
+    # ------------------------------------------------------------------ cross-sections
+    def _cross_sections(
+        self,
+        image: np.ndarray,
+        centres: np.ndarray,
+        normals: np.ndarray,
+        half: float,
+        max_width: float,
+        band: float | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Locate the rod across K cross-sections.
+
+        Args:
+            image: (H, W, 3) uint8 RGB.
+            centres: (K, 2) predicted centre points (px).
+            normals: (K, 2) unit normals along which to sample.
+            half: half-length of each cross-section (px).
+            max_width: a run wider than this is another stretch of rod crossing: ambiguous.
+            band: the rod's band width, when known: a run wider than it (but below the
+                ambiguity limit) is located from its one edge that fits the prediction best.
+
+        Returns:
+            offsets (K,) along the normal from centre to the band's midpoint, widths (K,) of the
+            band between its 50 % edges, status (K,) one of _OK, _AMBIGUOUS, _LOST.
+        """
+        m = int(round(half / _DT))
+        t = np.arange(-m, m + 1) * _DT
+        c = m
+        k = len(centres)
+        s = self._sample(image, centres[:, None, :] + t[None, :, None] * normals[:, None, :])
+        if k <= _SCALAR_ROWS:
+            rows_out = [_locate_row(row, m, band, max_width) for row in s.tolist()]
+            off_w_st = np.array(rows_out, dtype=np.float64).reshape(k, 3)
+            return off_w_st[:, 0], off_w_st[:, 1], off_w_st[:, 2].astype(np.int64)
+        above = s >= 0.5
+        idx = np.arange(2 * m + 1)
+        dist = np.where(above, np.abs(idx - c), 10**6)
+        j = dist.argmin(axis=1)
+        lost = dist[np.arange(k), j] >= 10**6
+        below = ~above
+        left = np.where(below & (idx < j[:, None]), idx, -1).max(axis=1)
+        right = np.where(below & (idx > j[:, None]), idx, 2 * m + 1).min(axis=1)
+        touches = (left < 0) | (right > 2 * m)
+        rows = np.arange(k)
+        lc = np.clip(left, 0, 2 * m - 1)
+        rc = np.clip(right, 1, 2 * m)
+        s0, s1 = s[rows, lc], s[rows, lc + 1]
+        t_left = t[lc] + (0.5 - s0) / np.where(s1 - s0 > 1e-6, s1 - s0, 1.0) * _DT
+        r0, r1 = s[rows, rc - 1], s[rows, rc]
+        t_right = t[rc - 1] + (r0 - 0.5) / np.where(r0 - r1 > 1e-6, r0 - r1, 1.0) * _DT
+        width = t_right - t_left
+        offset = 0.5 * (t_left + t_right)
+        status = np.full(k, _OK)
+        # Wider than the rod but bounded on both sides: another stretch of rod touches ours on
+        # one side. The other edge is still ours: put the centre half a band inside the edge
+        # whose implied centre is nearer the prediction.
+        # A run that runs off one end of the window is located from its free edge alike.
+        if band is not None:
+            left_off, right_off = left < 0, right > 2 * m
+            merged = (width > band + _MERGE_PX) & ~(left_off & right_off)
+            from_left = t_left + 0.5 * band
+            from_right = t_right - 0.5 * band
+            nearer = np.where(np.abs(from_left) < np.abs(from_right), from_left, from_right)
+            one_sided = np.where(left_off, from_right, np.where(right_off, from_left, nearer))
+            offset = np.where(merged, one_sided, offset)
+            width = np.where(merged, band, width)
+            touches = left_off & right_off
+        wide = touches | (width > max_width)
+        status[wide] = _AMBIGUOUS
+        # Too wide and not even under the prediction: something beside the rod, not a crossing.
+        status[wide & ~above[:, c]] = _LOST
+        status[lost] = _LOST
+        return offset, width, status
+
+    # ------------------------------------------------------------------ the walk
+    def _inside(self, p: np.ndarray) -> bool:
+        return 0.0 <= p[0] <= self.camera.width - 1 and 0.0 <= p[1] <= self.camera.height - 1
+
+    def _walk(
+        self, image: np.ndarray, p: np.ndarray, d: np.ndarray, turn: float
+    ) -> tuple[list[np.ndarray], np.ndarray, float, list[float], str]:
+        """Track the rod from p (last chord direction d, turn per step) until it ends.
+
+        Each iteration predicts `_LOOKAHEAD` steps along the constant-curvature arc and samples
+        all their cross-sections in one `cv2.remap` call; it keeps the points up to the first
+        that needed a large correction or was ambiguous (a prediction that far ahead is no longer
+        trusted). Scalar Python on purpose: the arrays are tiny and numpy's per-call overhead
+        would dominate.
+
+        Returns:
+            (points visited after p, last chord direction, last turn per step, measured band
+            widths, "" or the reason the walk failed).
+        """
+        h = self._step
+        m = int(round(self._half_track / _DT))
+        t = np.arange(-m, m + 1) * _DT
+        px, py = float(p[0]), float(p[1])
+        heading = math.atan2(float(d[1]), float(d[0]))
+        out: list[np.ndarray] = []
+        widths: list[float] = []
+        w_max, h_max = self.camera.width - 1, self.camera.height - 1
+        for _ in range(self._max_steps):
+            recent = widths[-8:]
+            band = sorted(recent)[len(recent) // 2] if recent else self._band_prior
+            qs, ns = [], []
+            qx, qy = px, py
+            for i in range(1, _LOOKAHEAD + 1):
+                a = heading + turn * i
+                qx += h * math.cos(a)
+                qy += h * math.sin(a)
+                qs.append((qx, qy))
+                a_t = a + 0.5 * turn
+                ns.append((-math.sin(a_t), math.cos(a_t)))
+            qa, na = np.array(qs), np.array(ns)
+            rows = self._sample(image, qa[:, None, :] + t[None, :, None] * na[:, None, :])
+            accepted: list[tuple[float, float]] = []
+            any_ok = False
+            for i, row in enumerate(rows.tolist()):
+                off, wid, st = _locate_row(row, m, band, _WIDE * band)
+                # A band much narrower than the rod is its rounded tip seen off-centre (or a
+                # graze of another stretch): the walk has reached the end.
+                if st == _OK and wid < _NARROW * band:
+                    st = _LOST
+                if st == _LOST or (i > 0 and (st == _AMBIGUOUS or abs(off) > _TRUST_PX)):
+                    break  # beyond here the prediction is not trusted: re-predict
+                qx, qy = qs[i]
+                if not (0.0 <= qx <= w_max and 0.0 <= qy <= h_max):
+                    return (
+                        out,
+                        np.array([math.cos(heading), math.sin(heading)]),
+                        turn,
+                        widths,
+                        ("the rod leaves the image"),
+                    )
+                if st == _OK:
+                    qx += off * ns[i][0]
+                    qy += off * ns[i][1]
+                    widths.append(wid)
+                    any_ok = True
+                accepted.append((qx, qy))
+                if st == _OK and abs(off) > _TRUST_PX:
+                    break  # the first point was far off: re-predict from it
+            if not accepted:
+                break
+            if len(accepted) > 1:
+                ax, ay = accepted[-2]
+            else:
+                ax, ay = px, py
+            lx, ly = accepted[-1]
+            if math.hypot(lx - ax, ly - ay) < 1e-6:
+                break
+            new_heading = math.atan2(ly - ay, lx - ax)
+            if any_ok:
+                # turn per step = mean change of chord heading over the batch (it telescopes);
+                # where the rod was ambiguous (a crossing), the predicted turn is kept.
+                change = math.remainder(new_heading - heading, 2 * math.pi)
+                turn = min(max(change / len(accepted), -_MAX_TURN), _MAX_TURN)
+            heading = new_heading
+            out.extend(np.array(q) for q in accepted)
+            px, py = lx, ly
+        else:
+            return (
+                out,
+                np.array([math.cos(heading), math.sin(heading)]),
+                turn,
+                widths,
+                ("the walk along the rod did not end"),
+            )
+        return out, np.array([math.cos(heading), math.sin(heading)]), turn, widths, ""
+
+    def _arc(self, p: np.ndarray, d: np.ndarray, turn: float, t: np.ndarray) -> tuple:
+        """Points (K, 2) and unit directions (K, 2) at arc lengths t ahead of p on the predicted
+        constant-curvature arc (tangent at p = last chord d turned by half a step's turn)."""
+        k = turn / self._step
+        heading = math.atan2(d[1], d[0]) + 0.5 * turn + k * t
+        dirs = np.column_stack([np.cos(heading), np.sin(heading)])
+        if abs(k) < 1e-9:
+            pos = p[None, :] + t[:, None] * dirs[:1]
+        else:
+            h0 = heading[0] - k * t[0]
+            pos = p[None, :] + np.column_stack(
+                [(np.sin(heading) - math.sin(h0)) / k, (math.cos(h0) - np.cos(heading)) / k]
+            )
+        return pos, dirs
+
+    def _find_end(
+        self, image: np.ndarray, p: np.ndarray, d: np.ndarray, turn: float, cap: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The centreline's end and direction there: follow the predicted arc from p to the 50 %
+        crossing of coverage (the tip of the round cap), then step back by the cap radius."""
+        span = self._step * _LOOKAHEAD + self._band_prior + 2.0
+        t = np.arange(0.0, span, 0.25)
+        pos, dirs = self._arc(p, d, turn, t)
+        s = self._sample(image, pos)
+        drop = np.nonzero(s < 0.5)[0]
+        if len(drop) == 0 or drop[0] == 0:
+            return p.copy(), dirs[0]
+        i = drop[0]
+        t_cross = t[i - 1] + (s[i - 1] - 0.5) / max(s[i - 1] - s[i], 1e-6) * 0.25
+        t_end = np.array([t_cross - cap])
+        pos_end, dir_end = self._arc(p, d, turn, t_end)
+        return pos_end[0], dir_end[0]
+
+    def _reappear(
+        self, image: np.ndarray, p: np.ndarray, d: np.ndarray, turn: float, band: float
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Search ahead of p (along the predicted arc) for the rod to reappear after a gap."""
+        max_gap = self.cfg.extract.max_gap_px
+        if max_gap <= 0:
+            return None
+        h = self._step
+        dist = np.arange(h, max_gap + h, 0.5 * h)
+        ang = turn / h * dist  # heading change along the predicted constant-curvature arc
+        heading = math.atan2(d[1], d[0]) + ang
+        # positions by integrating the heading along the arc (cumulative sum of small steps)
+        dirs = np.column_stack([np.cos(heading), np.sin(heading)])
+        steps = np.diff(np.concatenate([[0.0], dist]))
+        pos = p[None, :] + np.cumsum(dirs * steps[:, None], axis=0)
+        normals = np.column_stack([-dirs[:, 1], dirs[:, 0]])
+        half = 0.5 * band + 4.0 + 0.25 * max_gap
+        off, wid, st = self._cross_sections(image, pos, normals, half, 1.6 * band)
+        good = np.nonzero((st == _OK) & (wid > 0.6 * band) & (wid < 1.6 * band))[0]
+        inside = np.array([self._inside(q) for q in pos])
+        good = good[inside[good]]
+        if len(good) == 0:
+            return None
+        i = good[0]
+        return pos[i] + off[i] * normals[i], dirs[i]
+
+    # ------------------------------------------------------------------ public
+    def extract(self, image: np.ndarray, gripper_pose: np.ndarray | None = None) -> Extraction:
+        """Extract the rod's centerline from one image.
+
+        Args:
+            image: (H, W, 3) uint8 RGB, as `Camera.render` makes it.
+            gripper_pose: (3,) gripper pose [x, y, theta] (world), optional. When given, the walk
+                must end near its pixel (otherwise the rod is occluded or lost) and a hidden last
+                stretch can be bridged onto it.
+
+        Returns:
+            The `Extraction`: N points clamp -> gripper, ok, note, bridged.
+        """
+        img = np.ascontiguousarray(image)
+        if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+            raise ValueError(f"image must be (H, W, 3) uint8, got {img.shape} {img.dtype}")
+        if img.shape[:2] != (self.camera.height, self.camera.width):
+            raise ValueError(
+                f"image is {img.shape[1]}x{img.shape[0]}, camera is "
+                f"{self.camera.width}x{self.camera.height}"
+            )
+        n_out = self.points
+        fail = np.full((n_out, 2), np.nan)
+        grip_px = grip_dir = None
+        if gripper_pose is not None:
+            grip_px, grip_dir = self.camera.project_pose_direction(np.asarray(gripper_pose))
+        on_gap = self.cfg.extract.on_gap
+
+        # --- walk from the clamp, bridging gaps while the rod keeps reappearing
+        p, d, turn = self._start.copy(), self._start_dir.copy(), 0.0
+        path = [p]
+        widths: list[float] = []
+        gaps: list[float] = []
+        note = ""
+        # Is the rod visible right at the clamp? If not, the start itself is hidden.
+        first = self._cross_sections(
+            img,
+            (p + 0.5 * self._step * d)[None],
+            np.array([[-d[1], d[0]]]),
+            self._half_track,
+            _WIDE * self._band_prior,
+        )[2][0]
+        end_dir = d
+        for _ in range(20):
+            if first == _LOST:
+                first = _OK
+                found = self._reappear(img, p, d, turn, self._band_prior)
+                if found is None:
+                    return Extraction(fail, False, "the rod is not visible at the clamp")
+                gaps.append(float(np.hypot(*(found[0] - p))))
+                p, d = found
+                path.append(p)
+            pts, d, turn, w, why = self._walk(img, p, d, turn)
+            path.extend(pts)
+            widths.extend(w)
+            if why:
+                return Extraction(fail, False, why)
+            p = path[-1]
+            band = float(np.median(widths)) if widths else self._band_prior
+            end, end_dir = self._find_end(img, p, d, turn, 0.5 * band)
+            near_gripper = grip_px is None or np.hypot(*(end - grip_px)) <= max(2.0 * band, 6.0)
+            if near_gripper:
+                break
+            found = self._reappear(img, p, d, turn, band)
+            if found is None:
+                # the hidden stretch runs to the gripper: bridge onto its pose, if short enough
+                gap = float(np.hypot(*(grip_px - end)))
+                if gap > self.cfg.extract.max_gap_px:
+                    return Extraction(
+                        fail, False, f"the rod is lost {gap:.0f} px before the gripper"
+                    )
+                path = self._trim_after(path, end, end_dir)
+                path.append(end)
+                path.extend(_hermite(end, end_dir, grip_px, grip_dir, 12)[1:])
+                gaps.append(gap)
+                end = grip_px
+                break
+            gaps.append(float(np.hypot(*(found[0] - p))))
+            p, d = found
+            path.append(p)
+        else:
+            return Extraction(fail, False, "too many gaps along the rod")
+        if not gaps:
+            path = self._trim_after(path, end, end_dir)
+            path.append(end)
+        line = np.array(path)
+        if len(line) < 3 or polyline_length(line) < 2 * self._step:
+            return Extraction(fail, False, "no rod found next to the clamp")
+
+        # --- refine every point across the band, on a resampled curve (one vectorised call)
+        line = self._refine(img, line, float(np.median(widths)) if widths else self._band_prior)
+        out = self._resample_out(line, n_out)
+        if not np.isfinite(out).all():
+            return Extraction(fail, False, "the traced rod leaves the plane's visible side")
+        if gaps:
+            note = f"occluded: bridged {len(gaps)} gap(s), {sum(gaps):.0f} px in all"
+            if on_gap == "fail":
+                return Extraction(fail, False, note)
+            return Extraction(out, False, note, bridged=True)
+        if self.rod_length is not None:
+            length = polyline_length(self.camera.unproject(out))
+            rel = length / self.rod_length - 1.0
+            if abs(rel) > self.length_tolerance:
+                return Extraction(
+                    out,
+                    False,
+                    f"traced length {length:.3f} m differs from the rod's {self.rod_length:.3f} m "
+                    f"by {100 * rel:+.0f} %: occluded or confused",
+                )
+        return Extraction(out, True, note)
+
+    @staticmethod
+    def _trim_after(path: list[np.ndarray], end: np.ndarray, d: np.ndarray) -> list[np.ndarray]:
+        """Drop the walk's last points that lie beyond `end` (they sat inside the rod's cap)."""
+        while len(path) > 1 and float(np.dot(path[-1] - end, d)) >= -1e-9:
+            path.pop()
+        return path
+
+    def _refine(self, image: np.ndarray, line: np.ndarray, band: float) -> np.ndarray:
+        """Move each point of a resampled copy of `line` to the band's midpoint (ends kept)."""
+        passes = self.cfg.extract.refine_passes
+        n = max(self.points, int(polyline_length(line) / 2.0) + 2)
+        for _ in range(passes):
+            pts = resample_polyline(line, n)
+            normals = _unit_normals(pts)
+            off, _, st = self._cross_sections(
+                image, pts[1:-1], normals[1:-1], self._half_refine, _WIDE * band, band
+            )
+            ok = (st == _OK) & (np.abs(off) < 2.0)
+            inner = pts[1:-1]
+            inner[ok] += off[ok, None] * normals[1:-1][ok]
+            line = pts
+        return line
+
+    def _resample_out(self, line: np.ndarray, n: int) -> np.ndarray:
+        """Resample to n points at equal arc length in the image or on the plane (config)."""
+        if self.cfg.extract.arc_length == "image":
+            return resample_polyline(line, n)
+        world = self.camera.unproject(line)
+        if not np.isfinite(world).all():
+            return np.full((n, 2), np.nan)
+        return self.camera.project(resample_polyline(world, n))
