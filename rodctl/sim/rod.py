@@ -79,11 +79,6 @@ class RodHealth:
     max_speed: float
 
 
-def _wrap_to(angle: float, reference: float) -> float:
-    """`angle` shifted by a multiple of 2π to lie within π of `reference`."""
-    return angle + 2 * math.pi * round((reference - angle) / (2 * math.pi))
-
-
 class RodSim:
     """A clamped elastic rod held by a kinematic gripper moving in (x, y, theta).
 
@@ -280,7 +275,9 @@ class RodSim:
         n = max(1, math.ceil(float(np.max(np.abs(delta) / self._max_step)) - 1e-9))
         total = ApplyResult(True, clipped, False, False, np.zeros(3), 0.0)
         for k in range(1, n + 1):
-            step = self._move(start + delta * (k / n))
+            # The increments lie between the start and an allowed pose (the workspace is convex),
+            # so they are not checked again.
+            step = self._move(start + delta * (k / n), check=False)
             total.settled = step.settled
             total.settle_time += step.settle_time
             total.sim_steps += step.sim_steps
@@ -290,10 +287,10 @@ class RodSim:
         total.u_applied = self.gripper_pose - start
         return total
 
-    def _move(self, target: np.ndarray) -> ApplyResult:
-        """Move to `target` (workspace-checked here) over one control period and settle."""
+    def _move(self, target: np.ndarray, check: bool = True) -> ApplyResult:
+        """Move to `target` over one control period and settle; `check`: apply the workspace."""
         start = self.gripper_pose
-        allowed, clipped = self.clip_pose(target)
+        allowed, clipped = self.clip_pose(target) if check else (target.copy(), False)
         refused = clipped and self.cfg.workspace.on_violation == "refuse"
         if self._diverged or refused:
             return ApplyResult(
@@ -304,8 +301,8 @@ class RodSim:
                 u_applied=np.zeros(3),
                 settle_time=0.0,
             )
-        # Keep theta on the same branch of 2π as the gripper (no full turns from wrapping).
-        allowed[2] = _wrap_to(float(allowed[2]), float(start[2]))
+        # No wrapping of theta to (-pi, pi]: for a rod the gripper angle is not periodic (a
+        # full turn winds the rod), so the workspace's theta_limits apply to it literally.
         chain = self.chain
         steps0 = chain.steps
         # Velocity-driven linear ramp of the gripper over the control period (pitfall 3).

@@ -96,9 +96,12 @@ def test_move_past_reach_is_clipped_and_recorded() -> None:
 
 
 def test_refuse_mode_does_not_move() -> None:
+    clip_mode_home = RodSim(RodConfig()).centerline()
     sim = RodSim(RodConfig(workspace=WorkspaceConfig(on_violation="refuse")))
     before = sim.gripper_pose
     line = sim.centerline()
+    # Building (straight rod, then the same path to home) is not affected by the mode.
+    np.testing.assert_array_equal(line, clip_mode_home)
     # Walk up to the y limit, then one step further.
     assert not sim.move_to(np.array([0.3, 0.349, before[2]])).refused
     at_edge = sim.gripper_pose
