@@ -19,6 +19,7 @@ Why it is written the way it is:
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
@@ -57,23 +58,27 @@ def igg3_factor(stat: float, c0: float, c1: float, floor: float) -> float:
     return floor
 
 
-def clip_psd(a: np.ndarray, floor: float) -> np.ndarray:
+def clip_psd(a: np.ndarray, floor: float, shifted_eye: np.ndarray | None = None) -> np.ndarray:
     """Symmetrise `a` and raise any eigenvalue below `floor` to `floor`.
 
     Args:
         a: (n, n) nearly symmetric matrix.
         floor: eigenvalue floor (> 0 keeps the result positive definite).
+        shifted_eye: optional precomputed `floor * I` (n, n), to save an allocation per call.
 
     Returns:
-        (n, n) symmetric matrix whose eigenvalues are all >= floor; equal to the symmetrised
-        input when they already were.
+        (n, n) symmetric matrix whose eigenvalues are all >= floor (to rounding, about
+        eps * ||a||); equal to the symmetrised input when they already were.
     """
     a = 0.5 * (a + a.T)
-    shifted = a - floor * np.eye(a.shape[0])
+    if shifted_eye is None:
+        shifted_eye = floor * np.eye(a.shape[0])
     # All eigenvalues > floor  <=>  a - floor I is positive definite: then nothing to clip.
-    _, info = _dpotrf(shifted, lower=1, clean=0, overwrite_a=1)
+    _, info = _dpotrf(a - shifted_eye, lower=1, clean=0, overwrite_a=1)
     if info == 0:
         return a
+    # A full eigendecomposition: clipping only the low eigenpairs (dsyevr with a range) is a
+    # little faster but leaves eigenvalues ~1e-11 * ||a|| below the floor; this stays ~1e-13.
     w, v, info = _dsyevd(a, compute_v=1, lower=1)
     if info != 0:  # pragma: no cover - LAPACK failure on a finite symmetric matrix
         raise np.linalg.LinAlgError(f"eigendecomposition failed (LAPACK info={info})")
@@ -160,6 +165,8 @@ class AdaptiveKalmanJacobian:
         self._eq32 = r_update == "eq32"
         self._q_min, self._r_min = float(q_min), float(r_min)
         self._dead_zone = float(dead_zone)
+        self._q_eye = self._q_min * np.eye(self._n)
+        self._r_eye = self._r_min * np.eye(self.p)
         self.reset(np.zeros((self.p, self.q)))
 
     @property
@@ -198,7 +205,7 @@ class AdaptiveKalmanJacobian:
         """Fold in ds (p,) = s_k - s_{k-1} caused by dr (q,) = u_k; return the (p, q) estimate."""
         u = np.asarray(dr, dtype=float)
         y = np.asarray(ds, dtype=float)
-        if float(np.sqrt(u @ u)) < self._dead_zone:
+        if math.sqrt(float(u @ u)) < self._dead_zone:
             self._info = {"alpha": 1.0, "innovation": 0.0, "skipped": 1.0}
             return self._J.copy()
         p, q, n = self.p, self.q, self._n
@@ -207,8 +214,8 @@ class AdaptiveKalmanJacobian:
         eps = y - self._J @ u  # eq. 31: z_k - C_k x_{k|k-1}
         PMt = P_pred.reshape(n, p, q) @ u  # (n, p) = P- M^T, M = I_p kron u^T (eq. 5)
         G = u @ PMt.reshape(p, q, p)  # (p, p) = M P- M^T (eq. 31)
-        trG = float(np.trace(G))
-        stat = float(np.sqrt(eps @ eps / trG)) if trG > 0.0 else 0.0  # eq. 30
+        trG = float(G.trace())
+        stat = math.sqrt(float(eps @ eps) / trG) if trG > 0.0 else 0.0  # eq. 30
         alpha = igg3_factor(stat, self._c0, self._c1, self._floor)  # eq. 29
         inv_a = 1.0 / alpha
 
@@ -225,12 +232,12 @@ class AdaptiveKalmanJacobian:
         self._k += 1
         b = self._b
         d = (1.0 - b) / (1.0 - b ** (self._k + 1))
-        R = (1.0 - d) * self._R + d * np.outer(eps, eps)  # eq. 33
+        R = (1.0 - d) * self._R + d * (eps[:, None] * eps)  # eq. 33
         if self._eq32:
             R -= d * G  # eq. 32: the unbiased form
-        self._R = clip_psd(R, self._r_min)
-        Q = (1.0 - d) * self._Q + d * (np.outer(Keps, Keps) + self._P - P_pred)  # eq. 32 (Q)
-        self._Q = clip_psd(Q, self._q_min)
+        self._R = clip_psd(R, self._r_min, self._r_eye)
+        Q = (1.0 - d) * self._Q + d * (Keps[:, None] * Keps + self._P - P_pred)  # eq. 32 (Q)
+        self._Q = clip_psd(Q, self._q_min, self._q_eye)
 
         self._info = {"alpha": alpha, "innovation": stat, "skipped": 0.0}
         return self._J.copy()
