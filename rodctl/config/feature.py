@@ -27,7 +27,7 @@ class EncoderDataConfig(StrictModel):
     """
 
     samples: int = Field(
-        100_000, ge=10, description="Centerlines to collect (the paper used 100,000)."
+        100_000, ge=2, description="Centerlines to collect (the paper used 100,000)."
     )
     chunk: int = Field(
         500,

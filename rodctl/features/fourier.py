@@ -9,10 +9,15 @@ like 1/k. Ours expands x(rho) and y(rho), rho in [0, 1] the normalised arc lengt
 
 i.e. the chord line between the ends plus the sine series of what remains (which vanishes at
 both ends, so its odd periodic extension is continuous with a continuous slope and the
-coefficients fall like 1/k^3). All 2 + H coefficients are fitted together by least squares. On
-the synthetic rod family of `rodctl.features.synthetic` this needs 4 harmonics for a mean error of
-0.25 px, where a plain cosine series needs more than 8 for 1 px. This is our choice, not the
-original paper's. Feature layout: [a_u, a_v, b_u, b_v, d1_u, d1_v, ...], p = 2(H + 2).
+coefficients fall like 1/k^3). All 2 + H coefficients are fitted together by least squares. This
+is our choice, not the original paper's. Feature layout: [a_u, a_v, b_u, b_v, d1_u, d1_v, ...],
+p = 2(H + 2).
+
+Truncation error (stated bounds, checked by `tests/features/test_geometric_maps.py` on the
+synthetic rod family of `rodctl.features.synthetic`: 300 px curves, C and S shapes whose tip turns
+by up to about 5 rad): H = 4 reconstructs with a mean error <= 0.3 px and a worst point <= 6 px;
+H = 8 with <= 0.06 px mean and <= 1.5 px worst. A plain cosine series needs more than 8 harmonics
+for a 1 px mean on the same shapes.
 """
 
 from __future__ import annotations

@@ -69,8 +69,15 @@ def make_feature_map_like(fmap):
     return make_feature_map(cfg.feature, points=N)
 
 
-@pytest.mark.parametrize("fmap", [BezierFeatureMap(1, N), BezierFeatureMap(5, N),
-                                  FourierFeatureMap(1, N), FourierFeatureMap(6, N)])
+@pytest.mark.parametrize(
+    "fmap",
+    [
+        BezierFeatureMap(1, N),
+        BezierFeatureMap(5, N),
+        FourierFeatureMap(1, N),
+        FourierFeatureMap(6, N),
+    ],
+)
 def test_straight_line_is_represented_exactly(fmap):
     line = straight_line()
     assert fmap.reconstruction_error(line[None]).max() < 1e-9
@@ -83,8 +90,9 @@ def test_bezier_end_control_points_are_the_rod_ends_for_a_line():
     np.testing.assert_allclose(ctrl[0], line[0], atol=1e-9)
     np.testing.assert_allclose(ctrl[-1], line[-1], atol=1e-9)
     # evenly spaced control points give uniform speed along a line
-    np.testing.assert_allclose(np.diff(ctrl, axis=0), np.tile((line[-1] - line[0]) / 3, (3, 1)),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        np.diff(ctrl, axis=0), np.tile((line[-1] - line[0]) / 3, (3, 1)), atol=1e-9
+    )
 
 
 def test_fourier_chord_terms_are_the_ends_for_a_line():
@@ -124,8 +132,9 @@ def test_bezier_is_exact_for_a_circle_in_the_limit_of_degree():
     assert BezierFeatureMap(8, N).reconstruction_error(arc).max() < 0.01
 
 
-@pytest.mark.parametrize("fmap", [BezierFeatureMap(4, N), FourierFeatureMap(4, N),
-                                  NodesFeatureMap([0.25, 0.6, 1.0], N)])
+@pytest.mark.parametrize(
+    "fmap", [BezierFeatureMap(4, N), FourierFeatureMap(4, N), NodesFeatureMap([0.25, 0.6, 1.0], N)]
+)
 def test_feature_does_not_depend_on_how_points_are_spread_along_the_rod(fmap):
     # the same curve sampled with uniform and with strongly non-uniform spacing
     params = np.array([[1.2, -0.8, 0.5]])

@@ -1,0 +1,416 @@
+"""The paper's shape feature (section VI-A): the latent code of a centerline autoencoder.
+
+Architecture: an MLP encoder 2N -> hidden... -> p with ReLU after every hidden layer and a linear
+latent, and a mirrored decoder (the paper: "RELU function is adopted in the Encoder and Decoder";
+layer widths are not printed, research/baselines.md section 4 proposes 128/64, which we use).
+
+Input normalisation is stored with the weights: a per-coordinate mean (2N,) and ONE scalar scale
+(the pooled standard deviation). A single scale, rather than one per coordinate, keeps the
+reconstruction loss proportional to the squared pixel error (so training minimises what is
+reported), and does not blow up the clamp-end coordinates, which barely vary.
+
+Inference runs in numpy with float64 copies of the weights, the normalisation folded into the
+first and last layers: a 200-128-64-6 forward pass is three small mat-vecs, a few microseconds,
+where one torch call costs tens of microseconds of overhead alone. `torch_encode` runs the same
+checkpoint through torch, and the tests check the two agree.
+
+A checkpoint is a plain dict of tensors, numbers and strings written by `torch.save`, loadable with
+`torch.load(..., weights_only=True)`. It carries a *fingerprint* of what the learned feature
+depends on: the rod geometry (length, clamp pose), the camera geometry, N and the architecture,
+but not noise levels, seeds or training settings. Loading it for a config whose fingerprint
+differs is a `UserError` naming the file and every differing field.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from rodctl.config.experiment import ExperimentConfig
+from rodctl.config.feature import AutoencoderFeatureConfig
+from rodctl.errors import UserError
+from rodctl.features.geometry import check_centerlines
+
+#: Identifies our checkpoints; bump VERSION when the layout changes.
+FORMAT = "rodctl.autoencoder"
+VERSION = 1
+
+#: The checkpoint packaged with rodctl and used when `feature.checkpoint` is None.
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "assets" / "encoder.pt"
+
+
+class AutoencoderNet(nn.Module):
+    """Encoder 2N -> hidden -> p (linear latent) and a mirrored decoder, ReLU in between.
+
+    Args:
+        inputs: 2N.
+        hidden: encoder hidden widths, e.g. [128, 64]; the decoder uses them reversed.
+        latent_dim: p.
+    """
+
+    def __init__(self, inputs: int, hidden: list[int], latent_dim: int) -> None:
+        super().__init__()
+        self.encoder = _mlp([inputs, *hidden, latent_dim])
+        self.decoder = _mlp([latent_dim, *reversed(hidden), inputs])
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, 2N) normalised inputs -> (B, 2N) normalised reconstruction."""
+        return self.decoder(self.encoder(x))
+
+
+def _mlp(widths: list[int]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(widths[:-1], widths[1:], strict=True)):
+        layers.append(nn.Linear(a, b))
+        if i < len(widths) - 2:
+            layers.append(nn.ReLU())
+    return nn.Sequential(*layers)
+
+
+def architecture_of(feature: AutoencoderFeatureConfig, points: int) -> dict[str, Any]:
+    """The architecture record of a checkpoint for `feature` on N = `points` centerlines."""
+    return {
+        "inputs": 2 * points,
+        "hidden": list(feature.hidden),
+        "latent_dim": feature.latent_dim,
+        "activation": "relu",
+    }
+
+
+def encoder_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
+    """What a trained encoder depends on, as plain JSON-able values.
+
+    Rod geometry (length, clamp pose); camera geometry as the image size, the plane-to-pixel
+    homography (which folds intrinsics and camera pose into 9 numbers, normalised so h33 = 1) and
+    how the extractor spaces its points; N; the architecture. Seeds, noise, rendering appearance,
+    data and training settings are left out: they change how good the encoder is, not what it
+    encodes.
+
+    Args:
+        cfg: an experiment config whose `feature` is an autoencoder.
+    """
+    from rodctl.vision.camera import Camera  # the camera model defines the geometry
+
+    if not isinstance(cfg.feature, AutoencoderFeatureConfig):
+        raise ValueError(f"feature.type is {cfg.feature.type!r}, not 'autoencoder'")
+    camera = Camera(cfg.camera, None)
+    return {
+        "points": cfg.camera.points,
+        "architecture": architecture_of(cfg.feature, cfg.camera.points),
+        "rod": {"length": cfg.rod.length, "clamp_pose": list(cfg.rod.clamp_pose)},
+        "camera": {
+            "width": cfg.camera.width,
+            "height": cfg.camera.height,
+            "homography": [float(v) for v in np.asarray(camera.homography).ravel()],
+            "arc_length": cfg.camera.extract.arc_length,
+        },
+    }
+
+
+def fingerprint_differences(stored: Any, expected: Any, prefix: str = "") -> list[str]:
+    """Human-readable differences between two fingerprints ('field: checkpoint X, config Y').
+
+    Numbers compare with a relative tolerance of 1e-9 (they went through JSON and YAML).
+    """
+    if isinstance(stored, dict) and isinstance(expected, dict):
+        out: list[str] = []
+        for key in sorted(set(stored) | set(expected), key=str):
+            name = f"{prefix}.{key}" if prefix else str(key)
+            if key not in stored:
+                out.append(f"{name}: absent from the checkpoint, config has {expected[key]!r}")
+            elif key not in expected:
+                out.append(f"{name}: checkpoint has {stored[key]!r}, absent from the config")
+            else:
+                out.extend(fingerprint_differences(stored[key], expected[key], name))
+        return out
+    if isinstance(stored, list | tuple) and isinstance(expected, list | tuple):
+        same = len(stored) == len(expected) and all(
+            not fingerprint_differences(a, b) for a, b in zip(stored, expected, strict=False)
+        )
+        numeric = all(
+            isinstance(v, int | float) and not isinstance(v, bool) for v in [*stored, *expected]
+        )
+        if not same and numeric and len(stored) == len(expected) and len(stored) > 4:
+            gap = max(abs(a - b) for a, b in zip(stored, expected, strict=True))
+            return [f"{prefix}: checkpoint and config differ (by up to {gap:.4g})"]
+    elif isinstance(stored, bool | str | None) or isinstance(expected, bool | str | None):
+        same = stored == expected
+    elif isinstance(stored, int | float) and isinstance(expected, int | float):
+        same = math.isclose(stored, expected, rel_tol=1e-9, abs_tol=1e-12)
+    else:
+        same = stored == expected
+    return [] if same else [f"{prefix}: checkpoint has {stored!r}, config has {expected!r}"]
+
+
+@dataclass
+class EncoderCheckpoint:
+    """A trained autoencoder with everything needed to use and to trust it.
+
+    Attributes:
+        state_dict: `AutoencoderNet` parameters (float32 tensors).
+        architecture: {"inputs": 2N, "hidden": [...], "latent_dim": p, "activation": "relu"}.
+        input_mean: (2N,) per-coordinate mean of the training centerlines, pixels.
+        input_scale: pooled standard deviation of the training centerlines, pixels.
+        latent_scale: (p,) standard deviation of each latent over the training set.
+        fingerprint: `encoder_fingerprint` of the config it was trained for.
+        config_yaml: the resolved config that trained it.
+        metrics: training figures (reconstruction errors in pixels, sizes, times).
+    """
+
+    state_dict: dict[str, torch.Tensor]
+    architecture: dict[str, Any]
+    input_mean: np.ndarray
+    input_scale: float
+    latent_scale: np.ndarray
+    fingerprint: dict[str, Any]
+    config_yaml: str = ""
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def points(self) -> int:
+        """N, the centerline points the encoder takes."""
+        return int(self.architecture["inputs"]) // 2
+
+    def network(self) -> AutoencoderNet:
+        """The torch module with these weights, in eval mode."""
+        arch = self.architecture
+        net = AutoencoderNet(int(arch["inputs"]), list(arch["hidden"]), int(arch["latent_dim"]))
+        net.load_state_dict(self.state_dict)
+        return net.eval()
+
+    def feature_map(self, source: str = "") -> AutoencoderFeatureMap:
+        """The numpy inference map of this checkpoint; `source` names it in messages."""
+        return AutoencoderFeatureMap(self, source=source)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The serialised form (tensors, numbers, strings): what `save` writes."""
+        return {
+            "format": FORMAT,
+            "version": VERSION,
+            "state_dict": {
+                k: v.detach().cpu().float().contiguous() for k, v in self.state_dict.items()
+            },
+            "architecture": self.architecture,
+            "input_mean": torch.as_tensor(self.input_mean, dtype=torch.float64),
+            "input_scale": float(self.input_scale),
+            "latent_scale": torch.as_tensor(self.latent_scale, dtype=torch.float64),
+            "fingerprint": self.fingerprint,
+            "config_yaml": self.config_yaml,
+            "metrics": self.metrics,
+        }
+
+    def save(self, path: str | Path) -> None:
+        """Write the checkpoint with `torch.save` (atomically: temporary file, then rename)."""
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        torch.save(self.to_dict(), tmp)
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> EncoderCheckpoint:
+        """Read and validate a checkpoint written by `save`.
+
+        Raises:
+            UserError: the file is missing, unreadable, not a rodctl encoder checkpoint, of
+                another format version, or internally inconsistent; the message names the file.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise UserError(f"{path}: encoder checkpoint not found")
+        try:
+            data = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001 - torch raises many types on a corrupt file
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+            raise UserError(
+                f"{path}: not a readable encoder checkpoint ({type(exc).__name__}: {first[:200]}); "
+                "re-create it with `rodctl train-encoder`"
+            ) from None
+        return cls.from_dict(data, source=str(path))
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str) -> EncoderCheckpoint:
+        """Validate the serialised form; `source` names it in errors (raises `UserError`)."""
+
+        def bad(why: str) -> UserError:
+            return UserError(
+                f"{source}: not a valid rodctl encoder checkpoint: {why}; "
+                "re-create it with `rodctl train-encoder`"
+            )
+
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise bad(f"expected a mapping with format={FORMAT!r}")
+        if data.get("version") != VERSION:
+            raise bad(f"format version {data.get('version')!r}, this rodctl reads {VERSION}")
+        keys = (
+            "state_dict",
+            "architecture",
+            "input_mean",
+            "input_scale",
+            "latent_scale",
+            "fingerprint",
+        )
+        missing = [k for k in keys if k not in data]
+        if missing:
+            raise bad(f"missing {', '.join(missing)}")
+        arch = data["architecture"]
+        try:
+            inputs, latent = int(arch["inputs"]), int(arch["latent_dim"])
+            hidden = [int(h) for h in arch["hidden"]]
+            net = AutoencoderNet(inputs, hidden, latent)
+            net.load_state_dict(data["state_dict"])
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise bad(f"weights do not match the recorded architecture ({exc})") from None
+        mean = np.asarray(data["input_mean"], dtype=np.float64)
+        lat = np.asarray(data["latent_scale"], dtype=np.float64)
+        scale = float(data["input_scale"])
+        if mean.shape != (inputs,) or lat.shape != (latent,) or not scale > 0.0:
+            raise bad("normalisation does not match the architecture")
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(lat)) and math.isfinite(scale)):
+            raise bad("normalisation holds non-finite values")
+        for name, tensor in data["state_dict"].items():
+            if not torch.all(torch.isfinite(tensor)):
+                raise bad(f"weight {name} holds non-finite values")
+        return cls(
+            state_dict=dict(data["state_dict"]),
+            architecture={
+                "inputs": inputs,
+                "hidden": hidden,
+                "latent_dim": latent,
+                "activation": str(arch.get("activation", "relu")),
+            },
+            input_mean=mean,
+            input_scale=scale,
+            latent_scale=lat,
+            fingerprint=dict(data["fingerprint"]),
+            config_yaml=str(data.get("config_yaml", "")),
+            metrics=dict(data.get("metrics", {})),
+        )
+
+    def check_compatible(self, expected: dict[str, Any], source: str) -> None:
+        """Raise `UserError` naming `source` and every field where the fingerprints differ."""
+        diffs = fingerprint_differences(self.fingerprint, expected)
+        if diffs:
+            raise UserError(
+                f"{source}: this encoder checkpoint was trained for a different setup:\n  "
+                + "\n  ".join(diffs)
+                + "\nTrain one for this config with `rodctl train-encoder CONFIG` and set "
+                "feature.checkpoint to its encoder.pt."
+            )
+
+
+def _numpy_layers(state_dict: dict[str, torch.Tensor], prefix: str) -> list[list[np.ndarray]]:
+    """[[W (out, in), b (out,)], ...] float64 copies of the Linear layers under `prefix`."""
+    layers: dict[int, list[np.ndarray]] = {}
+    for name, tensor in state_dict.items():
+        if not name.startswith(prefix + "."):
+            continue
+        _, index, kind = name.split(".")
+        slot = layers.setdefault(int(index), [np.empty(0), np.empty(0)])
+        slot[0 if kind == "weight" else 1] = tensor.detach().cpu().double().numpy().copy()
+    return [layers[i] for i in sorted(layers)]
+
+
+class AutoencoderFeatureMap:
+    """s = encoder(normalise(c)): the autoencoder latent, computed in numpy (float64).
+
+    Args:
+        checkpoint: the trained encoder.
+        source: where it came from (a path), for messages.
+
+    Attributes:
+        dim: latent dimension p.
+        points: N.
+        kind: "autoencoder".
+        units: "latent" (the latent has no physical unit).
+        scale: (p,) standard deviation of each latent over the training set; divide by it to
+            compare components or set thresholds in a unit-free way.
+        source: the checkpoint path.
+        checkpoint: the `EncoderCheckpoint` it was built from.
+    """
+
+    kind = "autoencoder"
+    units = "latent"
+
+    def __init__(self, checkpoint: EncoderCheckpoint, source: str = "") -> None:
+        self.checkpoint = checkpoint
+        self.source = source
+        self.points = checkpoint.points
+        self.dim = int(checkpoint.architecture["latent_dim"])
+        self.scale = np.asarray(checkpoint.latent_scale, dtype=np.float64).copy()
+        mean, s = checkpoint.input_mean, checkpoint.input_scale
+        enc = _numpy_layers(checkpoint.state_dict, "encoder")
+        dec = _numpy_layers(checkpoint.state_dict, "decoder")
+        # Fold x_n = (x - mean) / s into the first encoder layer:
+        # W x_n + b = (W/s) x + (b - W mean / s)
+        w0, b0 = enc[0]
+        enc[0] = [w0 / s, b0 - (w0 / s) @ mean]
+        # ... and x = s x_n + mean into the last decoder layer.
+        wl, bl = dec[-1]
+        dec[-1] = [wl * s, bl * s + mean]
+        self._enc = [(np.ascontiguousarray(w), np.ascontiguousarray(b)) for w, b in enc]
+        self._dec = [(np.ascontiguousarray(w), np.ascontiguousarray(b)) for w, b in dec]
+        self._enc_t = [(np.ascontiguousarray(w.T), b) for w, b in self._enc]
+        self._dec_t = [(np.ascontiguousarray(w.T), b) for w, b in self._dec]
+
+    def encode(self, centerline_px: np.ndarray) -> np.ndarray:
+        """(N, 2) pixels, clamp end first -> (p,) float64 latent. Deterministic."""
+        x = np.asarray(centerline_px, dtype=np.float64)
+        if x.shape != (self.points, 2):
+            check_centerlines(x, self.points, batch=False)  # raises with a clear message
+        x = x.reshape(-1)
+        last = len(self._enc) - 1
+        for i, (w, b) in enumerate(self._enc):
+            x = w @ x + b
+            if i < last:
+                np.maximum(x, 0.0, out=x)
+        return x
+
+    def encode_batch(self, centerlines_px: np.ndarray) -> np.ndarray:
+        """(B, N, 2) pixels -> (B, p)."""
+        arr = check_centerlines(centerlines_px, self.points, batch=True)
+        return _forward(arr.reshape(arr.shape[0], -1), self._enc_t)
+
+    def decode(self, s: np.ndarray) -> np.ndarray:
+        """Latent (p,) or (B, p) -> reconstructed centerline (N, 2) or (B, N, 2), pixels."""
+        s = np.asarray(s, dtype=np.float64)
+        flat = _forward(s.reshape(-1, self.dim), self._dec_t)
+        return flat.reshape(*s.shape[:-1], self.points, 2)
+
+    def reconstruction_error(self, centerlines_px: np.ndarray) -> np.ndarray:
+        """(B, N, 2) pixels -> (B, N) pixel distance of each point from its reconstruction."""
+        arr = check_centerlines(centerlines_px, self.points, batch=True)
+        return np.linalg.norm(self.decode(self.encode_batch(arr)) - arr, axis=-1)
+
+
+def _forward(x: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Batched MLP pass with ReLU between layers; `layers` hold transposed weights (in, out)."""
+    last = len(layers) - 1
+    for i, (wt, b) in enumerate(layers):
+        x = x @ wt + b
+        if i < last:
+            np.maximum(x, 0.0, out=x)
+    return x
+
+
+def torch_encode(checkpoint: EncoderCheckpoint, centerlines_px: np.ndarray) -> np.ndarray:
+    """The same encoding through torch (float32), as training computes it.
+
+    Args:
+        checkpoint: the trained encoder.
+        centerlines_px: (B, N, 2) pixels.
+
+    Returns:
+        (B, p) float64 latents.
+    """
+    arr = check_centerlines(centerlines_px, checkpoint.points, batch=True)
+    x = (arr.reshape(arr.shape[0], -1) - checkpoint.input_mean) / checkpoint.input_scale
+    net = checkpoint.network()
+    with torch.no_grad():
+        z = net.encoder(torch.as_tensor(x, dtype=torch.float32))
+    return z.double().numpy()

@@ -1,0 +1,242 @@
+"""Collecting training centerlines by driving the simulated rod and looking at it.
+
+The paper collects 100,000 centerlines "by controlling the robot to deform the object
+continuously" (section VI-A). We do the same in simulation: the gripper walks, one control step at
+a time (`rod.max_step` per axis at most), towards a gripper pose drawn uniformly from the
+workspace, and draws a new goal when it gets there. The workspace is a box intersected with a
+reach disc, which is convex, so the straight walk between two allowed poses stays allowed. Every
+settled step goes through the camera pipeline (render, then extract), exactly as in an
+experiment, and steps whose extraction is not ok are skipped, so the encoder learns the pixels it
+will be given, noise and extractor quirks included.
+
+The work is cut into chunks of `feature.data.chunk` samples. Each chunk is a fresh walk from the
+home pose with its own seed (`SeedSequence.spawn` of the config's "data" stream), so the dataset
+is the same whether one process or several collect it, and whole chunks serve as the validation
+split (consecutive shapes of one walk are near-duplicates).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rodctl.config import ExperimentConfig
+from rodctl.errors import UserError
+from rodctl.features.progress import progress_bar
+from rodctl.runs import seed_sequence
+
+#: A walk gives up after this many control steps per wanted sample (a broken setup, not bad luck).
+_MAX_ATTEMPTS_PER_SAMPLE = 20
+#: The walk has arrived when every axis is within this fraction of `rod.max_step` of its goal
+#: (the gripper pose is read back from the rod, so an exact match never comes).
+_ARRIVED = 0.5
+
+
+@dataclass
+class CenterlineDataset:
+    """Collected centerlines and where they came from.
+
+    Attributes:
+        centerlines: (M, N, 2) float32 extracted centerlines, pixels, clamp end first.
+        poses: (M, 3) gripper pose [x, y, theta] of each sample, world frame.
+        chunk: (M,) index of the walk each sample belongs to.
+        attempts: control steps taken in total (samples + skipped steps).
+    """
+
+    centerlines: np.ndarray
+    poses: np.ndarray
+    chunk: np.ndarray
+    attempts: int = 0
+
+    def __len__(self) -> int:
+        return int(self.centerlines.shape[0])
+
+    def save(self, path: str | Path, *, fingerprint: dict[str, Any]) -> None:
+        """Write an .npz (no pickles) holding the arrays and the setup they were collected for."""
+        import json
+
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez(
+            tmp,
+            centerlines=self.centerlines.astype(np.float32),
+            poses=self.poses.astype(np.float64),
+            chunk=self.chunk.astype(np.int32),
+            attempts=np.int64(self.attempts),
+            setup=np.array(json.dumps(dataset_setup(fingerprint), sort_keys=True)),
+        )
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: str | Path, *, expected: dict[str, Any] | None = None) -> CenterlineDataset:
+        """Read a dataset written by `save`.
+
+        Args:
+            path: the .npz file.
+            expected: an encoder fingerprint; when given, the dataset must have been collected
+                for the same rod, camera and N.
+
+        Raises:
+            UserError: missing or unreadable file, missing arrays, or another setup; the message
+                names the file.
+        """
+        import json
+
+        from rodctl.features.autoencoder import fingerprint_differences
+
+        path = Path(path)
+        if not path.is_file():
+            raise UserError(f"{path}: dataset not found")
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                data = {k: npz[k] for k in ("centerlines", "poses", "chunk", "attempts", "setup")}
+            setup = json.loads(str(data["setup"]))
+        except (OSError, ValueError, KeyError, EOFError) as exc:
+            raise UserError(f"{path}: not a readable centerline dataset ({exc})") from None
+        cl = data["centerlines"]
+        if (
+            cl.ndim != 3
+            or cl.shape[2] != 2
+            or len(data["poses"]) != len(cl)
+            or len(data["chunk"]) != len(cl)
+        ):
+            raise UserError(f"{path}: inconsistent dataset arrays (centerlines {cl.shape})")
+        if expected is not None:
+            diffs = fingerprint_differences(setup, dataset_setup(expected))
+            if diffs:
+                raise UserError(
+                    f"{path}: this dataset was collected for a different setup:\n  "
+                    + "\n  ".join(d.replace("checkpoint", "dataset") for d in diffs)
+                )
+        return cls(cl, data["poses"], data["chunk"], int(data["attempts"]))
+
+
+def dataset_setup(fingerprint: dict[str, Any]) -> dict[str, Any]:
+    """The part of an encoder fingerprint a dataset depends on (all but the architecture)."""
+    return {k: v for k, v in fingerprint.items() if k != "architecture"}
+
+
+def chunk_sizes(samples: int, chunk: int) -> list[int]:
+    """Split `samples` into walks of `chunk` samples, the last one shorter."""
+    full, rest = divmod(samples, chunk)
+    return [chunk] * full + ([rest] if rest else [])
+
+
+def sample_goal(gen: np.random.Generator, sim: Any, cfg: ExperimentConfig) -> np.ndarray:
+    """A gripper pose uniform over the allowed workspace (box, angle limits and reach)."""
+    ws = cfg.rod.workspace
+    lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]])
+    hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]])
+    for _ in range(10_000):
+        pose = gen.uniform(lo, hi)
+        if not sim.clip_pose(pose)[1]:
+            return pose
+    raise UserError("rod.workspace: no gripper pose in the box is within reach of the clamp")
+
+
+def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dict[str, Any]:
+    """One seeded walk that yields `count` extracted centerlines (runs in a worker process).
+
+    Args:
+        cfg_json: the experiment config as JSON (cheap to send to a process).
+        count: samples wanted.
+        seed: this walk's seed; its children seed the goals and the camera noise.
+
+    Returns:
+        {"centerlines": (count, N, 2) float32, "poses": (count, 3), "attempts": int}.
+
+    Raises:
+        RuntimeError: the walk needed more than 20 control steps per sample.
+    """
+    from rodctl.sim import RodSim
+    from rodctl.vision import Camera, CenterlineExtractor
+
+    cfg = ExperimentConfig.model_validate_json(cfg_json)
+    walk_seed, camera_seed = seed.spawn(2)
+    gen = np.random.Generator(np.random.PCG64(walk_seed))
+    clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
+    camera = Camera(cfg.camera, np.random.Generator(np.random.PCG64(camera_seed)))
+    extractor = CenterlineExtractor(cfg.camera, camera, clamp)
+    max_step = np.asarray(cfg.rod.max_step, dtype=float)
+
+    sim = RodSim(cfg.rod)
+    goal = sample_goal(gen, sim, cfg)
+    points = np.empty((count, cfg.camera.points, 2), dtype=np.float32)
+    poses = np.empty((count, 3))
+    n = attempts = 0
+    while n < count:
+        attempts += 1
+        if attempts > _MAX_ATTEMPTS_PER_SAMPLE * count + 100:
+            raise RuntimeError(
+                f"data collection: {attempts} control steps gave only {n} usable centerlines; "
+                "the simulator or the extractor fails on most shapes"
+            )
+        delta = goal - np.asarray(sim.gripper_pose, dtype=float)
+        if np.max(np.abs(delta) / max_step) < _ARRIVED:
+            goal = sample_goal(gen, sim, cfg)
+            continue
+        res = sim.apply(np.clip(delta, -max_step, max_step))
+        if res.diverged:
+            sim = RodSim(cfg.rod)
+            goal = sample_goal(gen, sim, cfg)
+            continue
+        if res.refused:
+            goal = sample_goal(gen, sim, cfg)
+            continue
+        if not res.settled:
+            continue
+        pose = np.asarray(sim.gripper_pose, dtype=float)
+        image = camera.render(sim.centerline(), pose, clamp)
+        ext = extractor.extract(image, pose)
+        if not ext.ok:
+            continue
+        points[n] = ext.points
+        poses[n] = pose
+        n += 1
+    return {"centerlines": points, "poses": poses, "attempts": attempts}
+
+
+def _collect_task(args: tuple[str, int, np.random.SeedSequence]) -> dict[str, Any]:
+    return collect_chunk(*args)
+
+
+def collect_dataset(cfg: ExperimentConfig, *, progress: bool = True) -> CenterlineDataset:
+    """Collect `cfg.feature.data.samples` centerlines through the simulator and the camera.
+
+    Uses `cfg.feature.data.workers` processes (spawned, so that no torch or OpenMP state is
+    forked); the result does not depend on that number.
+
+    Args:
+        cfg: the experiment config; `cfg.feature` must be an autoencoder.
+        progress: show a rich progress bar.
+
+    Returns:
+        The dataset, chunks in order.
+    """
+    data_cfg = cfg.feature.data  # type: ignore[union-attr]
+    sizes = chunk_sizes(data_cfg.samples, data_cfg.chunk)
+    seeds = seed_sequence(cfg.seed, "data").spawn(len(sizes))
+    cfg_json = cfg.model_dump_json()
+    tasks = [(cfg_json, size, s) for size, s in zip(sizes, seeds, strict=True)]
+    results: list[dict[str, Any]] = []
+    with progress_bar(progress, "collecting", data_cfg.samples) as advance:
+        if data_cfg.workers == 1 or len(tasks) == 1:
+            for task in tasks:
+                results.append(_collect_task(task))
+                advance(n=task[1])
+        else:
+            ctx = multiprocessing.get_context("spawn")
+            with ctx.Pool(min(data_cfg.workers, len(tasks))) as pool:
+                for task, res in zip(tasks, pool.imap(_collect_task, tasks), strict=True):
+                    results.append(res)
+                    advance(n=task[1])
+    return CenterlineDataset(
+        centerlines=np.concatenate([r["centerlines"] for r in results]),
+        poses=np.concatenate([r["poses"] for r in results]),
+        chunk=np.concatenate([np.full(s, i, dtype=np.int32) for i, s in enumerate(sizes)]),
+        attempts=int(sum(r["attempts"] for r in results)),
+    )
