@@ -118,8 +118,6 @@ class RodSim:
             damping_rate=2.0 * cfg.damping * self.omega1,
             inertia_radius=cfg.inertia_radius,
         )
-        self._max_step = np.asarray(cfg.max_step, dtype=float)
-        self._move_steps = max(1, round(cfg.control_period / self.dt))
         self._diverged = False
 
         if cfg.home_pose is not None:
@@ -144,6 +142,15 @@ class RodSim:
             )
 
     # ------------------------------------------------------------------ state
+    @property
+    def _max_step(self) -> np.ndarray:
+        return np.asarray(self.cfg.max_step, dtype=float)
+
+    @property
+    def _move_steps(self) -> int:
+        """Physics steps per control period (the gripper's ramp)."""
+        return max(1, round(self.cfg.control_period / self.dt))
+
     @property
     def home_pose(self) -> np.ndarray:
         """(3,) resolved home pose [x, y, theta], world frame."""
