@@ -26,8 +26,11 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import threading
 import warnings
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
@@ -73,6 +76,47 @@ CHANNELS: tuple[tuple[str, dict[str, Any]], ...] = (
 _ROD_RGB = (0.1, 0.45, 0.95)
 _TARGET_RGB = (0.1, 0.75, 0.25)
 _GRIPPER_RGB = (1.0, 0.55, 0.0)
+
+
+_DEFERRED = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back while the MCAP writer updates its state.
+
+    The loop turns both signals into exceptions (`rodctl.simulate.interrupts_as_exceptions`);
+    raised half-way through `Writer.add_message` or a chunk's finalisation, such an exception
+    could leave a chunk written without its index, so the finished file would silently lack
+    messages. Inside this block a signal is only noted; when the block ends the previous
+    handlers are restored and the noted signal is handed to its handler (or re-raised with the
+    default action), i.e. between two steps. Only the main thread can swap handlers; elsewhere
+    this is a no-op. Costs a few microseconds.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[tuple[int, Any]] = []
+
+    def hold(signum: int, frame: Any) -> None:
+        pending.append((signum, frame))
+
+    previous: dict[int, Any] = {}
+    for sig in _DEFERRED:
+        if signal.getsignal(sig) is not None:  # None: a handler not installed from Python
+            previous[sig] = signal.signal(sig, hold)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if pending:
+            signum, frame = pending[0]
+            handler = previous[signum]
+            if callable(handler):
+                handler(signum, frame)
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(signum)
 
 
 def _dumps(msg: dict[str, Any]) -> bytes:
@@ -285,20 +329,21 @@ class McapSink:
             )
         data = [(topic, _dumps(m)) for topic, m in msgs]
         lines = codec.step_log_lines(self._prev, r)
-        for topic, payload in data:
-            self._writer.add_message(
-                channel_id=self._channels[topic],
-                log_time=t,
-                publish_time=t,
-                sequence=k,
-                data=payload,
-            )
-        for level, text in lines:
-            self._log(t, level, text, sequence=k)
-        self._prev = r
-        self._steps += 1
-        if self._steps % self.cfg.flush_every_steps == 0:
-            self._flush()
+        with signals_deferred():
+            for topic, payload in data:
+                self._writer.add_message(
+                    channel_id=self._channels[topic],
+                    log_time=t,
+                    publish_time=t,
+                    sequence=k,
+                    data=payload,
+                )
+            for level, text in lines:
+                self._log(t, level, text, sequence=k)
+            self._prev = r
+            self._steps += 1
+            if self._steps % self.cfg.flush_every_steps == 0:
+                self._flush()
 
     def close(self, summary: RunSummary | None, status: str) -> None:
         """Write the summary and finish the file (footer, indexes). Idempotent.
@@ -325,7 +370,8 @@ class McapSink:
             except Exception as exc:  # noqa: BLE001 - collected, see docstring
                 errors.append(exc)
             try:
-                w.finish()
+                with signals_deferred():
+                    w.finish()
             except Exception as exc:  # noqa: BLE001
                 errors.append(exc)
         if f is not None:
@@ -398,6 +444,12 @@ def _read_indexed(f: IO[bytes]) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
         (ch.topic, m.sequence, m.log_time, m.data)
         for _, ch, m in reader.iter_messages(log_time_order=False)
     ]
+    stats = reader.get_summary().statistics
+    if stats is not None and stats.message_count != len(raw):
+        # A chunk written without its index: the indexes cannot be trusted to be complete.
+        raise McapError(
+            f"the indexes list {len(raw)} messages, the statistics {stats.message_count}"
+        )
     meta = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     return raw, meta
 

@@ -229,3 +229,25 @@ def test_close_is_idempotent_and_safe_before_open(tmp_path, synthetic):
     assert read_mcap(tmp_path / "twice.mcap").status == "completed"
     with pytest.raises(RuntimeError):
         sink.write(records[1])
+
+
+def test_signals_arriving_during_a_step_are_delivered_after_it():
+    from rodctl.logs.mcap import signals_deferred
+
+    class Stop(Exception):
+        pass
+
+    def on_term(signum, frame):
+        raise Stop
+
+    old = signal.signal(signal.SIGTERM, on_term)
+    reached = []
+    try:
+        with pytest.raises(Stop):
+            with signals_deferred():
+                os.kill(os.getpid(), signal.SIGTERM)
+                reached.append("rest of the step")
+            reached.append("after the step")  # pragma: no cover - the signal lands first
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    assert reached == ["rest of the step"]
