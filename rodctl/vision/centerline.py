@@ -562,6 +562,7 @@ class CenterlineExtractor:
             _WIDE * self._band_prior,
         )[2][0]
         end_dir = d
+        closed = False  # True once the path has been bridged onto the gripper's pixel
         for _ in range(20):
             if first == _LOST:
                 first = _OK
@@ -579,10 +580,19 @@ class CenterlineExtractor:
             p = path[-1]
             band = float(np.median(widths)) if widths else self._band_prior
             end, end_dir = self._find_end(img, p, d, turn, 0.5 * band)
-            near_gripper = grip_px is None or np.hypot(*(end - grip_px)) <= max(2.0 * band, 6.0)
-            if near_gripper:
+            if grip_px is not None:
+                complete = np.hypot(*(end - grip_px)) <= max(2.0 * band, 6.0)
+            elif self.rod_length is not None:
+                # no hint: a trace clearly shorter than the rod may continue after a gap
+                seen = polyline_length(self.camera.unproject(np.array([*path, end])))
+                complete = seen >= self.rod_length * (1.0 - self.length_tolerance)
+            else:
+                complete = True
+            if complete:
                 break
             found = self._reappear(img, p, d, turn, band)
+            if found is None and grip_px is None:
+                break  # nothing more to see; the length check below reports it
             if found is None:
                 # the hidden stretch runs to the gripper: bridge onto its pose, if short enough
                 gap = float(np.hypot(*(grip_px - end)))
@@ -594,14 +604,14 @@ class CenterlineExtractor:
                 path.append(end)
                 path.extend(_hermite(end, end_dir, grip_px, grip_dir, 12)[1:])
                 gaps.append(gap)
-                end = grip_px
+                closed = True
                 break
             gaps.append(float(np.hypot(*(found[0] - p))))
             p, d = found
             path.append(p)
         else:
             return Extraction(fail, False, "too many gaps along the rod")
-        if not gaps:
+        if not closed:
             path = self._trim_after(path, end, end_dir)
             path.append(end)
         line = np.array(path)
