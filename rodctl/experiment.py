@@ -340,7 +340,9 @@ class Experiment:
             elif scripted:
                 if getattr(controller, "done", False) and res.settled:
                     outcome = "completed"
-            elif rec.pixel_error < cfg.run.pixel_tolerance and rec.T1 < cfg.run.t1_tolerance:
+            elif rec.pixel_error < cfg.run.pixel_tolerance and (
+                cfg.run.t1_tolerance is None or rec.T1 < cfg.run.t1_tolerance
+            ):
                 outcome = "converged"
                 steps_to_converge = k
             else:

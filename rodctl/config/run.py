@@ -48,11 +48,13 @@ class RunConfig(StrictModel):
         description="Size of the q + 1 probing moves that initialise J: [dx m, dy m, dtheta rad].",
     )
     pixel_tolerance: PositiveFloat = Field(
-        2.0,
+        1.0,
         description="Converged when the mean pixel distance to the target centerline is below this…",
     )
-    t1_tolerance: PositiveFloat = Field(
-        0.05, description="…and T1 = ||s* - s|| is below this (feature units)."
+    t1_tolerance: PositiveFloat | None = Field(
+        None,
+        description="…and T1 = ||s* - s|| is below this (feature units; None: pixel error only, "
+        "the common criterion when features of different methods are compared).",
     )
     stall_window: PositiveInt = Field(
         15, description="Stalled when the pixel error has not improved for this many steps…"
