@@ -40,6 +40,6 @@ class LoggingConfig(StrictModel):
     flush_every_steps: int = Field(
         10,
         ge=1,
-        description="Close the MCAP chunk and flush both files to the OS every this many steps; "
-        "a run killed without warning loses at most these steps.",
+        description="Every this many steps, close the MCAP chunk and flush it to the OS, and send "
+        "the buffered Rerun rows; a run killed without warning loses at most these steps.",
     )
