@@ -74,7 +74,7 @@ def main() -> None:
         ("Broyden update", lambda i: broyden.update(dss[i], us[i])),
         ("windowed LS update (W=10)", lambda i: wls.update(dss[i], us[i])),
         ("pinv law", lambda i: pinv.command(s[i], s_star, J, r[i])),
-        ("box QP law (exact, 27 sets)", lambda i: qp.command(s[i], s_star, J, r[i])),
+        ("box QP law (exact active set)", lambda i: qp.command(s[i], s_star, J, r[i])),
     ]
     print(f"p={P} q={Q}, {n} steps x {reps} repeats, microseconds per call (median / best)")
     for name, fn in rows:
