@@ -25,11 +25,11 @@ class MfacControllerConfig(StrictModel):
     Weights omega_1..omega_7 weigh: error, feature amplitude, feature rate, feature acceleration,
     distance from home, speed, acceleration. They must be positive and sum to 1.
 
-    Default (0.55, 0.001, 0.2, 0.05, 0.001, 0.098, 0.1): one step removes about
+    Default (0.55, 1e-4, 0.2, 0.05, 1e-4, 0.0998, 0.1): one step removes about
     omega_1 / (omega_1 + ... + omega_4) ~ 0.69 of the linearised error (fast), omega_3 and
     omega_7 smooth it. omega_2 and omega_5 are tiny because at rest omega_1 J^T e =
     omega_2 J^T s + omega_5 r (method-notes section 2): they leave a steady-state error of order
-    (omega_2/omega_1) ||s|| ~ 2e-3 for order-1 features. omega_6 and omega_7 act in command
+    (omega_2/omega_1) ||s|| ~ 2e-4 for order-1 features. omega_6 and omega_7 act in command
     units (m^2) against J^T J ~ 1e2-1e4 in feature units, so at ~0.1 they damp only directions
     J barely observes (singular values below ~1), which is where a noisy estimate would
     otherwise ask for large moves.
