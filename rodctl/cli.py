@@ -104,6 +104,106 @@ def simulate(
     raise typer.Exit(code=result.exit_code)
 
 
+@app.command()
+@user_errors
+def replay(
+    path: Annotated[str, typer.Argument(help="A run directory or its run.mcap.")],
+    verify: Annotated[
+        bool, typer.Option("--verify", help="Re-run the simulation and compare every step.")
+    ] = False,
+    recover: Annotated[
+        bool, typer.Option("--recover", help="Read an unfinished MCAP up to its last whole step.")
+    ] = False,
+    out: Annotated[
+        str | None, typer.Option("--out", help="Write run.rrd and figures here instead.")
+    ] = None,
+    figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Redraw figures.")] = True,
+    open_viewer: Annotated[
+        bool, typer.Option("--open", help="Open the rebuilt run.rrd in the Rerun viewer.")
+    ] = False,
+) -> None:
+    """Rebuild run.rrd and the figures from a run's MCAP alone and print its summary.
+
+    With --verify, also re-run the simulation from the embedded config and check every
+    logged step bit for bit; exit 1 at the first mismatch. Prints the output folder last.
+    """
+    from rodctl.replay import format_summary, rebuild
+    from rodctl.replay import verify as verify_run
+
+    result = rebuild(path, out, recover=recover, figures=figures)
+    typer.echo(format_summary(result.run), err=True)
+    for note in result.notes:
+        typer.echo(f"note: {note}", err=True)
+    code = 0
+    if verify:
+        diffs = verify_run(result.run)
+        if diffs:
+            typer.echo(f"verify: FAILED, first mismatch: {diffs[0]} "
+                       f"({len(diffs)} differences in all)", err=True)
+            code = 1
+        else:
+            typer.echo(f"verify: OK, {len(result.run.records)} steps identical", err=True)
+    if open_viewer:
+        _open_rerun(result.rrd)
+    typer.echo(str(result.rrd.parent if result.rrd else result.run.path.parent))
+    raise typer.Exit(code=code)
+
+
+def _open_rerun(rrd) -> None:
+    """Launch the Rerun viewer on `rrd` when a viewer and a display are available."""
+    import os
+    import shutil
+    import subprocess
+
+    exe = shutil.which("rerun")
+    if exe is None or not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        typer.echo("note: no Rerun viewer or display here; open the file with `rerun "
+                   f"{rrd}` on a desktop", err=True)
+        return
+    subprocess.Popen([exe, str(rrd)], start_new_session=True)
+
+
+@app.command("train-encoder")
+@user_errors
+def train_encoder(
+    config: ConfigArg,
+    set_: SetOpt = None,
+    out: OutOpt = "runs",
+    dataset: Annotated[
+        str | None,
+        typer.Option("--dataset", help="Train on a dataset.npz from an earlier run instead."),
+    ] = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Collect rod centerlines through the camera and train the autoencoder feature.
+
+    Writes dataset.npz, encoder.pt (weights + normalisation + config + metrics) and
+    metrics.json into a new run directory; prints it as the last line. Use the checkpoint
+    with --set feature.checkpoint=RUN_DIR/encoder.pt.
+    """
+    from pathlib import Path
+
+    from rodctl.features.training import train_encoder as train
+    from rodctl.runs import RunDir
+
+    cfg = load_config(config, set_ or [])
+    if dataset is not None and not Path(dataset).is_file():
+        raise UserError(f"--dataset {dataset}: no such file")
+    run = RunDir.create(out, cfg, command="train-encoder", argv=sys.argv)
+    try:
+        metrics = train(cfg, run, dataset=Path(dataset) if dataset else None, progress=not quiet)
+    except BaseException as exc:
+        status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+        run.finish(status, error=f"{type(exc).__name__}: {exc}")
+        raise
+    run.finish("completed")
+    if not quiet:
+        keys = [k for k in metrics if "px" in k or k.endswith("_s")]
+        for k in keys:
+            typer.echo(f"{k}: {metrics[k]}", err=True)
+    typer.echo(str(run.path))
+
+
 def main() -> None:
     """Console-script entry point."""
     app(prog_name="rodctl")

@@ -109,7 +109,9 @@ class Experiment:
         self.clamp_pose = np.asarray(cfg.rod.clamp_pose, dtype=float)
         self.max_step = np.asarray(cfg.rod.max_step, dtype=float)
         self.camera = Camera(cfg.camera, rng(cfg.seed, "camera"))
-        self.extractor = CenterlineExtractor(cfg.camera, self.camera, self.clamp_pose)
+        self.extractor = CenterlineExtractor(
+            cfg.camera, self.camera, self.clamp_pose, rod_length=cfg.rod.length
+        )
         self.features = make_feature_map(cfg.feature, points=cfg.camera.points)
         self.method = method_label(cfg)
 
@@ -279,34 +281,36 @@ class Experiment:
         probe_steps = 0
 
         # Probing: q + 1 small moves and a least-squares fit give J_0 (method-notes section 1).
+        # J_0 is fitted before the last probe's record is made: a record never changes once a
+        # sink has it (replay --verify compares the log with a rerun bit for bit).
         if not scripted:
+            moves = probe_moves(Q, np.asarray(cfg.run.probe_size))
             dS, dR = [], []
-            for du in probe_moves(Q, np.asarray(cfg.run.probe_size)):
+            for i, du in enumerate(moves):
                 if k >= cfg.run.max_steps:
                     break
                 k += 1
                 res = move(du)
                 obs = self.observe(sim)
                 if res.diverged:
-                    emit(make_record(k, "probe", obs, s, res.u_applied, du, res), obs)
                     outcome = "diverged"
-                    break
-                if obs.ok:
+                elif obs.ok:
                     s_new = self.encode(obs.extracted)
                     dS.append(s_new - s)
                     dR.append(res.u_applied)
                     s = s_new
+                if outcome is None and i == len(moves) - 1:
+                    if len(dR) < Q:
+                        outcome = "lost_tracking"
+                    else:
+                        t = time.perf_counter()
+                        J = fit_jacobian(np.array(dS), np.array(dR))
+                        estimator.reset(J)
+                        self.times.control += time.perf_counter() - t
                 emit(make_record(k, "probe", obs, s, res.u_applied, du, res), obs)
+                if outcome is not None:
+                    break
             probe_steps = k
-            if outcome is None:
-                if len(dR) < Q:
-                    raise UserError("probing: too few usable probe moves to fit the initial Jacobian")
-                t = time.perf_counter()
-                J = fit_jacobian(np.array(dS), np.array(dR))
-                estimator.reset(J)
-                self.times.control += time.perf_counter() - t
-                self.records[-1].J = J.copy()
-                self.records[-1].J_singular_values = np.linalg.svd(J, compute_uv=False)
 
         # Control.
         lost = 0

@@ -241,3 +241,24 @@ def compare_records(
             if not same:
                 out.append(f"step {a.step}: {f.name} differs")
     return out
+
+
+def verify(run: ReadRun, *, progress: bool = False) -> list[str]:
+    """Re-run the simulation from the log's embedded config; every difference from the log.
+
+    The run is deterministic (one seed, rebuilt simulator, no wall clock in any record), so a
+    rerun with the same code must reproduce every logged step bit for bit. An empty list means
+    it did. The embedded config must still validate with this version of rodctl.
+    """
+    from rodctl.config import validate_config
+    from rodctl.experiment import Experiment
+
+    data = yaml.safe_load(run.header.config_yaml)
+    cfg = validate_config(data, f"{run.path} (embedded config.yaml)")
+    exp = Experiment(cfg, run_id=run.header.run_id)
+    logged = run.records
+    exp.run()
+    fresh = exp.records
+    if not run.complete:
+        fresh = fresh[: len(logged)]
+    return compare_records(logged, fresh)
