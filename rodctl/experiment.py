@@ -25,6 +25,7 @@ from rodctl.config import ExperimentConfig, dump_config
 from rodctl.control import make_controller
 from rodctl.errors import UserError
 from rodctl.estimation import make_estimator
+from rodctl.estimation.asap import asap_from_centerline
 from rodctl.estimation.probing import fit_jacobian, probe_moves
 from rodctl.features import make_feature_map
 from rodctl.logs.base import Sink
@@ -177,6 +178,21 @@ class Experiment:
             )
         raise UserError("run.target: 20 sampled targets in a row were unusable; check the config")
 
+    def offline_jacobian(self, rest_pixels: np.ndarray) -> np.ndarray:
+        """The ASAP model Jacobian of the servoed nodes' pixels w.r.t. the gripper pose.
+
+        The rest shape is what the camera sees at the start, mapped onto the rod's plane with
+        the calibrated camera (the method knows no more about the rod than its image); the
+        model gives d(node positions)/d(gripper pose) in world units, and the camera's
+        projection Jacobian at each node turns it into pixels (the `nodes` feature's units).
+        """
+        est = self.cfg.estimator
+        rest = self.camera.unproject(rest_pixels)
+        J_world, nodes = asap_from_centerline(rest, est.nodes, est.servoed)
+        proj = self.camera.projection_jacobian(nodes)  # (n, 2, 2)
+        n = nodes.shape[0]
+        return np.einsum("nij,njq->niq", proj, J_world.reshape(n, 2, Q)).reshape(2 * n, Q)
+
     # --- the loop ----------------------------------------------------------------------------
 
     def run(
@@ -273,6 +289,10 @@ class Experiment:
         if not obs.ok:
             raise UserError(f"initial frame: the rod's centerline could not be extracted ({obs.note})")
         s = self.encode(obs.extracted)
+        offline = cfg.estimator.type == "offline"
+        if offline:
+            J = self.offline_jacobian(obs.extracted)
+            estimator.reset(J)
         zero = np.zeros(Q)
         emit(make_record(0, "initial", obs, s, zero, zero), obs)
         k = 0
@@ -283,7 +303,7 @@ class Experiment:
         # Probing: q + 1 small moves and a least-squares fit give J_0 (method-notes section 1).
         # J_0 is fitted before the last probe's record is made: a record never changes once a
         # sink has it (replay --verify compares the log with a rerun bit for bit).
-        if not scripted:
+        if not (scripted or offline):
             moves = probe_moves(Q, np.asarray(cfg.run.probe_size))
             dS, dR = [], []
             for i, du in enumerate(moves):

@@ -47,3 +47,16 @@ class ExperimentConfig(StrictModel):
                 default = cls.model_fields[name].default_factory()  # type: ignore[misc]
                 data[name] = {"type": default.type, **section}
         return data
+
+    @model_validator(mode="after")
+    def _offline_servoes_the_feature_nodes(self) -> ExperimentConfig:
+        """The offline (ASAP) Jacobian is of the servoed nodes: the feature must observe them."""
+        if self.estimator.type == "offline":
+            servoed = list(self.estimator.servoed)
+            if self.feature.type != "nodes" or list(self.feature.positions) != servoed:
+                raise ValueError(
+                    "estimator.type=offline models the servoed nodes estimator.servoed="
+                    f"{servoed}; the feature must be those nodes: feature.type=nodes with "
+                    f"feature.positions={servoed}"
+                )
+        return self

@@ -143,6 +143,24 @@ class Camera:
         out[w <= 0] = np.nan
         return out
 
+    def projection_jacobian(self, points_world: np.ndarray) -> np.ndarray:
+        """Derivative of `project` at plane points: d(u, v)/d(x, y), exact for the homography.
+
+        With (a, b, w) = H (x, y, 1): u = a/w, v = b/w, so du/dx = (H00 - u H20)/w, etc.
+
+        Args:
+            points_world: (M, 2) world points (x, y) in metres.
+
+        Returns:
+            (M, 2, 2) Jacobians, rows (u, v), columns (x, y), in pixels per metre.
+        """
+        pts = _as_points(points_world, "points_world")
+        h = self.homography
+        w = pts[:, 0] * h[2, 0] + pts[:, 1] * h[2, 1] + h[2, 2]
+        uv = self.project(pts)
+        jac = h[None, :2, :2] - uv[:, :, None] * h[None, 2:3, :2]
+        return jac / w[:, None, None]
+
     def project_pose_direction(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixel position and unit image direction of a planar pose's tangent.
 

@@ -110,3 +110,18 @@ def test_config_rejects_unknown_keys_and_bad_values() -> None:
         CameraConfig(render={"occlusions": [(10, 10, 5, 20)]})
     cfg = ExperimentConfig.model_validate({"camera": {"tilt_deg": 20, "render": {"blur_sigma": 1}}})
     assert cfg.camera.tilt_deg == 20 and cfg.camera.points == 100
+
+
+def test_projection_jacobian_matches_finite_differences():
+    from rodctl.config.camera import CameraConfig
+    from rodctl.vision import Camera
+
+    cam = Camera(CameraConfig())
+    pts = np.random.default_rng(3).uniform([-0.2, -0.4], [0.7, 0.4], size=(20, 2))
+    jac = cam.projection_jacobian(pts)
+    h = 1e-6
+    for i in range(2):
+        d = np.zeros(2)
+        d[i] = h
+        fd = (cam.project(pts + d) - cam.project(pts - d)) / (2 * h)
+        np.testing.assert_allclose(jac[:, :, i], fd, rtol=1e-6, atol=1e-4)
