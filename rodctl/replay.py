@@ -83,9 +83,10 @@ def summary_object(summary: dict[str, Any] | None) -> RunSummary | None:
     if not summary:
         return None
     keys = [f.name for f in fields(RunSummary) if f.name != "extra"]
-    if any(k not in summary for k in keys):
+    # Wall-clock figures are not logged (RunSummary.INVOCATION_KEYS): unknown from the log.
+    values = {k: math.nan for k in RunSummary.INVOCATION_KEYS if k in keys} | dict(summary)
+    if any(k not in values for k in keys):
         return None
-    values = dict(summary)
     for k in ("final_T1", "final_pixel_error", "wall_time_s", "steps_per_s"):
         v = values[k]
         values[k] = math.nan if v is None else float(v)

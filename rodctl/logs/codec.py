@@ -206,10 +206,13 @@ def b64(data: bytes) -> str:
 
 # -------------------------------------------------------------------------------------- header
 def header_to_json(h: RunHeader) -> dict[str, Any]:
-    """The RunHeader as a JSON object (exact)."""
+    """The RunHeader as a JSON object (exact), less the run id.
+
+    The run id names the run directory and carries its start time; leaving it out of the log
+    keeps two runs of one config byte-identical. Readers take it from the file's folder.
+    """
     return {
         "format_version": FORMAT_VERSION,
-        "run_id": h.run_id,
         "method": h.method,
         "config_yaml": h.config_yaml,
         "image_size": [int(h.image_size[0]), int(h.image_size[1])],
@@ -223,11 +226,11 @@ def header_to_json(h: RunHeader) -> dict[str, Any]:
     }
 
 
-def header_from_json(d: dict[str, Any]) -> RunHeader:
-    """Inverse of `header_to_json`."""
+def header_from_json(d: dict[str, Any], run_id: str) -> RunHeader:
+    """Inverse of `header_to_json`; `run_id` is the name of the run's folder."""
     w, h = d["image_size"]
     return RunHeader(
-        run_id=str(d["run_id"]),
+        run_id=run_id,
         method=str(d["method"]),
         config_yaml=str(d["config_yaml"]),
         image_size=(int(w), int(h)),
@@ -262,7 +265,7 @@ def summary_to_json(summary: RunSummary | None, status: str) -> dict[str, Any]:
     """The /run/summary message: summary.json's mapping plus the sink's closing status."""
     out: dict[str, Any] = {"closing_status": status}
     if summary is not None:
-        out.update(sanitize(summary.to_json()))
+        out.update(sanitize(summary.to_log_json()))
     return out
 
 
@@ -371,7 +374,7 @@ def step_log_lines(prev: StepRecord | None, r: StepRecord) -> list[tuple[str, st
 
 def open_log_line(h: RunHeader) -> tuple[str, str]:
     """The first log line of a run."""
-    return ("INFO", f"run {h.run_id} started: method {h.method}")
+    return ("INFO", f"run started: method {h.method}")
 
 
 def close_log_line(summary: RunSummary | None, status: str, steps: int) -> tuple[str, str]:

@@ -273,7 +273,6 @@ class McapSink:
         w.add_metadata(
             "rodctl.run",
             {
-                "run_id": header.run_id,
                 "method": header.method,
                 "format_version": codec.FORMAT_VERSION,
                 "log_time": "simulated time (ns)",
@@ -559,7 +558,9 @@ def _assemble(
             else f"{path}: the MCAP file holds no readable messages"
         )
     try:
-        header = codec.header_from_json(_json(path, codec.TOPIC_HEADER, header_msgs[0]))
+        header = codec.header_from_json(
+            _json(path, codec.TOPIC_HEADER, header_msgs[0]), run_id=path.resolve().parent.name
+        )
     except (KeyError, TypeError, ValueError) as exc:
         raise UserError(f"{path}: malformed run header: {exc!r}") from None
 

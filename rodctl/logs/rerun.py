@@ -120,7 +120,8 @@ class RerunSink:
         rec.set_log_time_enabled(False)
         rec.save(self.path, default_blueprint=blueprint())
         self._rec = rec
-        rec.send_recording_name(header.run_id)
+        # No recording name: it would only repeat the id, and the id (which carries the start
+        # time) is the one thing allowed to differ between two runs of one config.
         rec.send_property(
             "rodctl",
             rr.AnyValues(
@@ -282,7 +283,7 @@ class RerunSink:
                     rr.AnyValues(
                         **{
                             k: v
-                            for k, v in codec.sanitize(summary.to_json()).items()
+                            for k, v in codec.sanitize(summary.to_log_json()).items()
                             if isinstance(v, (int, float, str, bool))
                         }
                     ),

@@ -95,7 +95,6 @@ RUN_HEADER: dict[str, Any] = {
     "type": "object",
     "properties": {
         "format_version": {"type": "string"},
-        "run_id": {"type": "string"},
         "method": {"type": "string"},
         "config_yaml": {"type": "string"},
         "image_size": {
@@ -115,7 +114,6 @@ RUN_HEADER: dict[str, Any] = {
     },
     "required": [
         "format_version",
-        "run_id",
         "method",
         "config_yaml",
         "image_size",

@@ -15,7 +15,7 @@ from rodctl.replay import format_summary, read_run, rebuild, summary_object, sum
 @pytest.fixture
 def run_dir(tmp_path, synthetic, helpers):
     header, records = synthetic
-    d = tmp_path / "20261123-101500_synthetic"
+    d = tmp_path / header.run_id  # a run folder is named by its run id
     d.mkdir()
     summary = helpers.summary_of(records)
     helpers.write_run(McapSink, d / "run.mcap", header, records, summary)
