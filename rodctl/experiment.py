@@ -284,6 +284,7 @@ class Experiment:
             self.times.sim += time.perf_counter() - t
             return res
 
+        setup_time = time.perf_counter() - wall0  # target, rod at home, stages
         # Step 0: the initial observation.
         obs = self.observe(sim)
         if not obs.ok:
@@ -392,9 +393,10 @@ class Experiment:
             final_T1=float(last.T1),
             final_pixel_error=float(last.pixel_error),
             wall_time_s=round(wall, 4),
-            steps_per_s=round(k / wall, 3) if wall > 0 else 0.0,
+            steps_per_s=round(k / (wall - setup_time), 3) if wall > setup_time else 0.0,
             extra={
                 "run_id": self.run_id,
+                "setup_time_s": round(setup_time, 4),
                 "probe_steps": probe_steps,
                 "target_pose": [float(v) for v in target.pose],
                 "target_difficulty": round(target.difficulty, 6),

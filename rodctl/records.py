@@ -127,7 +127,7 @@ class RunSummary:
     #: Keys that describe this invocation rather than the simulated run: wall-clock figures and
     #: the run id (which carries the start time). Logs leave them out, so that two runs of the
     #: same config write byte-identical MCAP files; summary.json keeps them.
-    INVOCATION_KEYS = ("run_id", "wall_time_s", "steps_per_s", "time_per_step_ms")
+    INVOCATION_KEYS = ("run_id", "wall_time_s", "steps_per_s", "setup_time_s", "time_per_step_ms")
 
     def to_log_json(self) -> dict[str, Any]:
         """`to_json` without the `INVOCATION_KEYS`: what the simulation alone determines."""
