@@ -113,7 +113,7 @@ class Experiment:
         self.extractor = CenterlineExtractor(
             cfg.camera, self.camera, self.clamp_pose, rod_length=cfg.rod.length
         )
-        self.features = make_feature_map(cfg.feature, points=cfg.camera.points)
+        self.features = make_feature_map(cfg.feature, points=cfg.camera.points, experiment=cfg)
         self.method = method_label(cfg)
 
     # --- observation -------------------------------------------------------------------------
