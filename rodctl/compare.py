@@ -1,0 +1,788 @@
+"""`rodctl compare`: the paper's comparison (Chen, section VI) turned into a reproducible benchmark.
+
+The paper claims that its framework (autoencoder + AKF + MFAC) converges fastest, Ma et al. 2022
+second and Aghajanzadeh et al. 2022 slowest but smoothest, and shows only curves of one run. Here
+every method runs the same K reachable targets from the same start, under the same speed limits,
+step budget, probing budget and success criterion (the mean pixel distance to the target's
+extracted 100-point centerline, the one measure every feature can be judged by), and the outcome
+of every episode is written down: converged, stalled, step limit or diverged.
+
+Fairness is structural: `CompareConfig` lets a method choose only its feature, estimator and
+controller; everything else comes from one shared `base` experiment. Each target has its own
+seed (camera noise), shared by all methods, so two methods on one target differ only by method.
+
+Episodes are independent, so they run in worker processes (the 'spawn' context: torch and fork
+do not mix) with one BLAS/torch thread each; results do not depend on the number of workers.
+Outputs, in one new folder: results.csv / results.json (one row per episode), summary.md (the
+table also printed to the terminal), targets.yaml (the target poses, reusable as a
+`targets.file`), figures/ (the paper's three figures side by side for one target, success rate
+and steps against target difficulty) and, if asked, every episode's logs under episodes/.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import time
+import traceback
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from pydantic import ValidationError
+
+from rodctl.config import ExperimentConfig, dump_config
+from rodctl.config.compare import CompareConfig
+from rodctl.config.loading import (
+    ConfigError,
+    apply_override,
+    format_validation_error,
+    parse_override,
+    read_yaml,
+    validate_config,
+)
+from rodctl.errors import UserError
+from rodctl.runs import RunDir, seed_sequence, write_json_atomic
+
+#: Episode outcomes, in the order the summary lists them ("error": the episode raised).
+OUTCOMES = ("converged", "stalled", "step_limit", "diverged", "lost_tracking", "error")
+
+#: Columns of results.csv, in order.
+CSV_COLUMNS = (
+    "method", "target", "band", "difficulty", "target_x", "target_y", "target_theta", "outcome",
+    "converged", "steps", "steps_to_converge", "final_pixel_error", "final_T1", "path_length",
+    "rotation_length", "smoothness", "saturated_steps", "clipped_steps", "probe_steps",
+    "wall_time_s", "error",
+)
+
+#: Candidate poses tried per sampled target before giving up (a candidate can fail to settle).
+_TARGET_TRIES = 20
+
+
+# --- config -----------------------------------------------------------------------------------
+
+
+def load_compare_config(path: str | Path, overrides: Sequence[str] | None = None) -> CompareConfig:
+    """Load a compare config: YAML -> `--set` overrides -> validation, every method checked.
+
+    Each method is validated as the full `ExperimentConfig` it will run (base + its three
+    stages), so a method that cannot run (e.g. an offline Jacobian on a feature that does not
+    observe its nodes) fails here, named by its dotted path.
+
+    Raises:
+        ConfigError: (a `UserError`) naming the file and the offending dotted key.
+    """
+    data = read_yaml(path)
+    for text in overrides or []:
+        parts, value = parse_override(text)
+        apply_override(data, parts, value, text)
+    source = str(path) + (" with --set " + " ".join(overrides) if overrides else "")
+    cfg = validate_config(data, source, model=CompareConfig)
+    for name in cfg.methods:
+        method_config(cfg, name, source=source)
+    return cfg
+
+
+def method_config(cfg: CompareConfig, name: str, *, source: str = "compare config") -> (
+    ExperimentConfig
+):
+    """The `ExperimentConfig` of one method: the shared base with the method's three stages.
+
+    Raises:
+        ConfigError: the combination does not validate (names `methods.<name>`).
+    """
+    method = cfg.methods[name]
+    data = cfg.base.model_dump(mode="json")
+    data.update(
+        name=name,
+        feature=method.feature.model_dump(mode="json"),
+        estimator=method.estimator.model_dump(mode="json"),
+        controller=method.controller.model_dump(mode="json"),
+    )
+    try:
+        return ExperimentConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(format_validation_error(exc, data, f"{source}: methods.{name}")) from None
+
+
+# --- targets ----------------------------------------------------------------------------------
+
+
+@dataclass
+class CompareTarget:
+    """One shared target: the gripper pose that makes it and how hard it is.
+
+    Attributes:
+        index: position in the target set (targets are numbered easy to hard when sampled).
+        pose: (3,) gripper pose [x, y, theta], world frame, as the rod settled there.
+        difficulty: normalised distance of `pose` from the home pose (`rodctl.targets`).
+        seed: the experiment seed of every episode on this target (camera noise).
+    """
+
+    index: int
+    pose: np.ndarray
+    difficulty: float
+    seed: int
+
+    def band(self, edges: Sequence[float]) -> str:
+        """The difficulty band's name: easy / medium / hard for two edges, else band0..bandN."""
+        i = int(np.searchsorted(np.asarray(edges, dtype=float), self.difficulty, side="right"))
+        names = ("easy", "medium", "hard") if len(edges) == 2 else None
+        return names[i] if names else f"band{i}"
+
+
+def _target_seeds(seed: int, k: int) -> list[int]:
+    """(k,) per-target experiment seeds from the 'compare' stream."""
+    state = seed_sequence(seed, "compare").generate_state(k, dtype=np.uint32)
+    return [int(v) for v in state]
+
+
+def read_target_file(path: str | Path) -> list[list[float]]:
+    """Gripper poses from a YAML/JSON file: a list of [x, y, theta], or {targets: [...]}.
+
+    Raises:
+        ConfigError: missing file, not YAML, or not a non-empty list of 3-number poses.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"targets.file {path}: no such file")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ConfigError(f"targets.file {path}: cannot read it as YAML/JSON: {exc}") from None
+    if isinstance(data, dict) and "targets" in data:
+        data = data["targets"]
+    if not isinstance(data, list) or not data:
+        raise ConfigError(
+            f"targets.file {path}: expected a non-empty list of gripper poses [[x, y, theta], ...]"
+        )
+    poses = []
+    for i, item in enumerate(data):
+        ok = isinstance(item, list | tuple) and len(item) == 3
+        ok = ok and all(isinstance(v, int | float) and math.isfinite(v) for v in item)
+        if not ok:
+            raise ConfigError(
+                f"targets.file {path}: item {i} is {item!r}; expected [x, y, theta] "
+                "(three finite numbers: metres, metres, radians)"
+            )
+        poses.append([float(v) for v in item])
+    return poses
+
+
+def _check_config(cfg: CompareConfig) -> ExperimentConfig:
+    """The base with cheap stages: target checks need the rod and camera, not a method."""
+    data = cfg.base.model_dump(mode="json")
+    data.update(feature={"type": "nodes"}, estimator={"type": "akf"}, controller={"type": "mfac"})
+    return ExperimentConfig.model_validate(data)
+
+
+def _settle_target(task: dict[str, Any]) -> dict[str, Any]:
+    """Worker: find a usable target (given pose, or sampled in its band) and settle it.
+
+    A target is usable when the rod settles there and the camera extracts its centerline
+    (`Experiment.make_target`). Returns {"pose", "difficulty"} or {"error"}.
+    """
+    from rodctl.experiment import Experiment
+    from rodctl.sim import RodSim
+    from rodctl.targets import sample_target_pose
+
+    cfg = ExperimentConfig.model_validate(task["config"])
+    if task.get("pose") is not None:
+        candidates: Iterable[np.ndarray] = [np.asarray(task["pose"], dtype=float)]
+    else:
+        gen = np.random.Generator(np.random.PCG64(task["seed_seq"]))
+        sim = RodSim(cfg.rod)
+        lo, hi = task["band"]
+
+        def sample() -> Iterable[np.ndarray]:
+            for _ in range(_TARGET_TRIES):
+                yield sample_target_pose(
+                    gen, sim.home_pose, cfg.rod.length, lambda p: not sim.clip_pose(p)[1], lo, hi
+                )
+
+        candidates = sample()
+    why = "no candidate"
+    for pose in candidates:
+        tcfg = cfg.model_copy(deep=True)
+        tcfg.run.target.pose = tuple(float(v) for v in pose)
+        try:
+            target = Experiment(tcfg).make_target()
+        except UserError as exc:
+            why = str(exc)
+            continue
+        return {"pose": [float(v) for v in target.pose], "difficulty": float(target.difficulty)}
+    return {"error": why}
+
+
+def make_targets(
+    cfg: CompareConfig,
+    config_dir: Path,
+    run_tasks: Callable[[list[dict], Callable[[dict], Any]], list[Any]],
+) -> list[CompareTarget]:
+    """The shared targets, checked reachable, numbered easy to hard when sampled.
+
+    Sampled targets spread evenly over [min_offset, max_offset]: target i is drawn (uniform
+    direction, `rodctl.targets.sample_target_pose`) in the i-th of K equal sub-bands, from its
+    own child of the 'targets' seed stream, so the set does not depend on the worker count.
+
+    Raises:
+        UserError: a given target pose is unusable, or a sampled band has no usable pose.
+    """
+    tc = cfg.targets
+    base = _check_config(cfg).model_dump(mode="json")
+    given: list[list[float]] | None = None
+    if tc.file is not None:
+        path = Path(tc.file)
+        given = read_target_file(path if path.is_absolute() else config_dir / path)
+    elif tc.poses is not None:
+        given = [list(p) for p in tc.poses]
+    if given is not None:
+        tasks = [{"config": base, "pose": p} for p in given]
+    else:
+        k = tc.count
+        edges = np.linspace(tc.min_offset, tc.max_offset, k + 1)
+        children = seed_sequence(cfg.seed, "targets").spawn(k)
+        tasks = [
+            {"config": base, "seed_seq": children[i], "band": (edges[i], edges[i + 1])}
+            for i in range(k)
+        ]
+    results = run_tasks(tasks, _settle_target)
+    seeds = _target_seeds(cfg.seed, len(tasks))
+    targets = []
+    for i, res in enumerate(results):
+        if "error" in res:
+            what = f"target {i} {given[i]}" if given is not None else f"sampled target {i}"
+            raise UserError(f"{what} is unusable: {res['error']}")
+        targets.append(CompareTarget(i, np.asarray(res["pose"]), res["difficulty"], seeds[i]))
+    return targets
+
+
+# --- episodes ---------------------------------------------------------------------------------
+
+
+def _episode(task: dict[str, Any]) -> dict[str, Any]:
+    """Worker: one method on one target; returns its results row (and records if asked)."""
+    from rodctl.experiment import Experiment
+
+    cfg = ExperimentConfig.model_validate(task["config"])
+    cfg.seed = task["seed"]
+    cfg.run.target.pose = tuple(task["pose"])
+    run_id = f"{task['method']}_t{task['target']:03d}"
+    row: dict[str, Any] = {"method": task["method"], "target": task["target"]}
+    exp = Experiment(cfg, run_id=run_id)
+    sinks: list[Any] = []
+    log_dir = Path(task["log_dir"]) if task.get("log_dir") else None
+    summary = None
+    try:
+        if log_dir is not None:
+            from rodctl.simulate import make_sinks
+
+            log_dir.mkdir(parents=True, exist_ok=True)
+            (log_dir / "config.yaml").write_text(dump_config(cfg), encoding="utf-8")
+            sinks = make_sinks(cfg, log_dir)
+        summary = exp.run(sinks)
+    except Exception as exc:  # noqa: BLE001 - one bad episode must not end the benchmark
+        row.update(outcome="error", error=f"{type(exc).__name__}: {exc}")
+        if log_dir is not None:
+            (log_dir / "error.txt").write_text(traceback.format_exc(), encoding="utf-8")
+    finally:
+        for sink in sinks:
+            try:
+                sink.close(summary, "completed" if summary is not None else "failed")
+            except Exception:  # noqa: BLE001, S110 - logs are optional; the row is what counts
+                pass
+    if summary is not None:
+        extra = summary.extra
+        row.update(
+            outcome=summary.outcome,
+            steps=summary.steps,
+            steps_to_converge=summary.steps_to_converge,
+            final_pixel_error=summary.final_pixel_error,
+            final_T1=summary.final_T1,
+            path_length=extra.get("path_length"),
+            rotation_length=extra.get("rotation_length"),
+            smoothness=extra.get("smoothness"),
+            saturated_steps=extra.get("saturated_steps"),
+            clipped_steps=extra.get("clipped_steps"),
+            probe_steps=extra.get("probe_steps"),
+            wall_time_s=summary.wall_time_s,
+            error="",
+        )
+        if log_dir is not None:
+            write_json_atomic(log_dir / "summary.json", _jsonable(summary.to_json()))
+        if task.get("want_records"):
+            row["_records"] = (exp.header, exp.records)
+    return row
+
+
+def _init_worker() -> None:
+    """Worker start: one torch thread (BLAS threads are limited through the environment)."""
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:  # pragma: no cover - torch is a dependency
+        pass
+
+
+class _Runner:
+    """Runs task lists in-process (1 worker) or in a 'spawn' process pool, with a progress bar."""
+
+    _ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+    def __init__(self, workers: int, progress: bool) -> None:
+        self.workers = workers
+        self.progress = progress
+        self.pool: ProcessPoolExecutor | None = None
+        self._saved_env: dict[str, str | None] = {}
+
+    def __enter__(self) -> _Runner:
+        if self.workers > 1:
+            # Children inherit the environment at spawn: one BLAS thread per worker process.
+            self._saved_env = {k: os.environ.get(k) for k in self._ENV}
+            os.environ.update({k: "1" for k in self._ENV})
+            self.pool = ProcessPoolExecutor(
+                self.workers, mp_context=get_context("spawn"), initializer=_init_worker
+            )
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=exc[0] is None, cancel_futures=True)
+            for k, v in self._saved_env.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+
+    def run(
+        self,
+        tasks: list[dict],
+        fn: Callable[[dict], Any],
+        label: str = "",
+        describe: Callable[[Any], str] | None = None,
+    ) -> list[Any]:
+        """fn(task) for every task, results in task order."""
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        from rodctl.display import stderr
+
+        bar = Progress(
+            TextColumn(f"[bold]{label}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            TextColumn("{task.fields[last]}"),
+            console=stderr,
+            disable=not self.progress,
+        )
+        results: list[Any] = [None] * len(tasks)
+        with bar:
+            tid = bar.add_task(label, total=len(tasks), last="")
+            if self.pool is None:
+                for i, task in enumerate(tasks):
+                    results[i] = fn(task)
+                    bar.update(tid, advance=1, last=describe(results[i]) if describe else "")
+                return results
+            futures: dict[Future, int] = {self.pool.submit(fn, t): i for i, t in enumerate(tasks)}
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    results[futures[fut]] = fut.result()
+                    last = describe(results[futures[fut]]) if describe else ""
+                    bar.update(tid, advance=1, last=last)
+        return results
+
+
+# --- statistics -------------------------------------------------------------------------------
+
+
+def _quantiles(values: Sequence[float]) -> tuple[float | None, float | None, float | None]:
+    """(q25, median, q75) of the values, or Nones when there are none."""
+    if not values:
+        return None, None, None
+    q = np.percentile(np.asarray(values, dtype=float), [25, 50, 75])
+    return float(q[0]), float(q[1]), float(q[2])
+
+
+def summarize(rows: Sequence[dict[str, Any]], methods: Sequence[str], bands: Sequence[str]) -> dict:
+    """Per-method statistics over the episodes.
+
+    Steps to converge are taken over converged episodes only; `paired_*` restricts them to the
+    targets every method converged on, the fair basis for "who converges fastest". Smoothness
+    (summed ||u_k - u_{k-1}||) and path length are over converged episodes too, since a run that
+    wanders until the step limit accumulates both without bound.
+    """
+    by_target: dict[int, set[str]] = {}
+    for r in rows:
+        if r["outcome"] == "converged":
+            by_target.setdefault(r["target"], set()).add(r["method"])
+    common = {t for t, ms in by_target.items() if set(methods) <= ms}
+    out: dict[str, Any] = {"common_targets": len(common), "methods": {}}
+    for m in methods:
+        mine = [r for r in rows if r["method"] == m]
+        conv = [r for r in mine if r["outcome"] == "converged"]
+        q25, med, q75 = _quantiles([r["steps_to_converge"] for r in conv])
+        p25, pmed, p75 = _quantiles([r["steps_to_converge"] for r in conv if r["target"] in common])
+        stats: dict[str, Any] = {
+            "episodes": len(mine),
+            "converged": len(conv),
+            "success_rate": len(conv) / len(mine) if mine else None,
+            "outcomes": {o: sum(r["outcome"] == o for r in mine) for o in OUTCOMES},
+            "steps_median": med,
+            "steps_q25": q25,
+            "steps_q75": q75,
+            "paired_steps_median": pmed,
+            "paired_steps_q25": p25,
+            "paired_steps_q75": p75,
+            "smoothness_median": _quantiles([r["smoothness"] for r in conv])[1],
+            "path_length_median": _quantiles([r["path_length"] for r in conv])[1],
+            "final_pixel_error_median": _quantiles(
+                [r["final_pixel_error"] for r in mine if r.get("final_pixel_error") is not None]
+            )[1],
+            "bands": {},
+        }
+        for b in bands:
+            rb = [r for r in mine if r["band"] == b]
+            cb = [r for r in rb if r["outcome"] == "converged"]
+            stats["bands"][b] = {
+                "episodes": len(rb),
+                "success_rate": len(cb) / len(rb) if rb else None,
+                "steps_median": _quantiles([r["steps_to_converge"] for r in cb])[1],
+            }
+        out["methods"][m] = stats
+    return out
+
+
+def _fmt(v: Any, spec: str = ".0f") -> str:
+    return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
+
+
+def summary_rows(summary: dict, bands: Sequence[str]) -> tuple[list[str], list[list[str]]]:
+    """The summary table as a header and string rows (shared by the terminal and summary.md)."""
+    header = [
+        "method", "success", "steps median [IQR]", "paired steps median", "smoothness",
+        "path (m)", "final px", *[f"{b}: success / steps" for b in bands], "stalled",
+        "step limit", "diverged",
+    ]
+    lines = []
+    for m, s in summary["methods"].items():
+        rate = s["success_rate"]
+        lines.append([
+            m,
+            f"{s['converged']}/{s['episodes']} ({_fmt(None if rate is None else 100 * rate)} %)",
+            f"{_fmt(s['steps_median'])} [{_fmt(s['steps_q25'])}–{_fmt(s['steps_q75'])}]",
+            f"{_fmt(s['paired_steps_median'])} [{_fmt(s['paired_steps_q25'])}–"
+            f"{_fmt(s['paired_steps_q75'])}]",
+            _fmt(s["smoothness_median"], ".3f"),
+            _fmt(s["path_length_median"], ".3f"),
+            _fmt(s["final_pixel_error_median"], ".2f"),
+            *[
+                f"{_fmt(None if bs['success_rate'] is None else 100 * bs['success_rate'])} % / "
+                f"{_fmt(bs['steps_median'])}"
+                for bs in (s["bands"][b] for b in bands)
+            ],
+            str(s["outcomes"]["stalled"]),
+            str(s["outcomes"]["step_limit"]),
+            str(s["outcomes"]["diverged"] + s["outcomes"]["lost_tracking"] + s["outcomes"]["error"]),
+        ])
+    return header, lines
+
+
+def markdown_table(header: Sequence[str], lines: Sequence[Sequence[str]]) -> str:
+    """A GitHub-flavoured markdown table."""
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(line) + " |" for line in lines]
+    return "\n".join(out)
+
+
+# --- figures ----------------------------------------------------------------------------------
+
+
+def success_figure(rows: Sequence[dict], methods: Sequence[str], path: Path, bins: int = 5) -> Path:
+    """Success rate and median steps to converge against target difficulty, one line per method."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    d = np.array([r["difficulty"] for r in rows], dtype=float)
+    edges = np.linspace(d.min(), d.max() + 1e-9, bins + 1)
+    mid = 0.5 * (edges[:-1] + edges[1:])
+    fig = Figure(figsize=(6.4, 5.6), layout="constrained")
+    ax1, ax2 = fig.subplots(2, 1, sharex=True)
+    for m in methods:
+        rate, steps = [], []
+        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+            rb = [r for r in rows if r["method"] == m and lo <= r["difficulty"] < hi]
+            cb = [r["steps_to_converge"] for r in rb if r["outcome"] == "converged"]
+            rate.append(100 * len(cb) / len(rb) if rb else np.nan)
+            steps.append(np.median(cb) if cb else np.nan)
+        ax1.plot(mid, rate, marker="o", label=m)
+        ax2.plot(mid, steps, marker="o", label=m)
+    ax1.set_ylabel("success rate (%)")
+    ax1.set_ylim(-5, 105)
+    ax2.set_ylabel("median steps to converge")
+    ax2.set_xlabel("target difficulty (normalised offset from home)")
+    for ax in (ax1, ax2):
+        ax.grid(True, alpha=0.3)
+    ax1.legend(fontsize=8)
+    fig.suptitle("Success and speed against target difficulty")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=120)
+    return path
+
+
+# --- the command ------------------------------------------------------------------------------
+
+
+def _jsonable(data: Any) -> Any:
+    """NaN/inf -> None and arrays -> lists, so the JSON parses everywhere."""
+
+    def clean(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [clean(x) for x in v]
+        if isinstance(v, np.ndarray):
+            return clean(v.tolist())
+        if isinstance(v, np.generic):
+            return clean(v.item())
+        return v
+
+    return clean(data)
+
+
+def _preflight(cfg: CompareConfig) -> dict[str, ExperimentConfig]:
+    """Every method's config, each built once here so a missing checkpoint fails before work."""
+    from rodctl.features import make_feature_map
+
+    configs = {name: method_config(cfg, name) for name in cfg.methods}
+    for ecfg in configs.values():
+        make_feature_map(ecfg.feature, points=ecfg.camera.points)  # raises UserError if unusable
+    return configs
+
+
+def run_compare(
+    config_path: str,
+    overrides: list[str],
+    out: str,
+    *,
+    progress: bool,
+    workers: int | None,
+) -> Path:
+    """Run the benchmark of `config_path` into a new folder under `out`; return that folder.
+
+    Args:
+        config_path: the compare config (YAML).
+        overrides: `--set a.b=v` overrides, applied to the compare config (e.g.
+            `methods.ours.controller.weights=[...]`, `targets.count=10`, `base.run.max_steps=100`).
+        out: parent folder of the output folder.
+        progress: show progress bars and print the summary table (stderr).
+        workers: worker processes; None: the config's `workers`, else one per CPU core.
+
+    Returns:
+        The output folder (holding results.csv/json, summary.md, targets.yaml, figures/).
+
+    Raises:
+        UserError: bad config, target file or target; a method that cannot be built.
+    """
+    wall0 = time.perf_counter()
+    cfg = load_compare_config(config_path, overrides)
+    configs = _preflight(cfg)
+    n_workers = workers or cfg.workers or os.cpu_count() or 1
+    if n_workers < 1:
+        raise UserError(f"--workers must be >= 1, got {n_workers}")
+    run = RunDir.create(out, cfg, command="compare")  # type: ignore[arg-type]  # duck-typed cfg
+    status = "failed"
+    try:
+        with _Runner(n_workers, progress) as runner:
+            targets = make_targets(
+                cfg,
+                Path(config_path).resolve().parent,
+                lambda tasks, fn: runner.run(tasks, fn, "targets"),
+            )
+            write_targets(targets, run.path / "targets.yaml")
+            fig_target = _figure_target(cfg, targets)
+            bands = _band_names(cfg)
+            tasks = []
+            for t in targets:  # target-major order: partial progress covers every method
+                for name, ecfg in configs.items():
+                    tasks.append({
+                        "config": ecfg.model_dump(mode="json"),
+                        "method": name,
+                        "target": t.index,
+                        "pose": [float(v) for v in t.pose],
+                        "seed": t.seed,
+                        "want_records": t.index == fig_target,
+                        "log_dir": str(run.path / "episodes" / name / f"t{t.index:03d}")
+                        if cfg.keep_logs
+                        else None,
+                    })
+            rows = runner.run(
+                tasks, _episode, "episodes", describe=lambda r: f"{r['method']}: {r['outcome']}"
+            )
+        records = {r["method"]: r.pop("_records") for r in rows if "_records" in r}
+        by_index = {t.index: t for t in targets}
+        for r in rows:
+            t = by_index[r["target"]]
+            r.update(
+                band=t.band(cfg.targets.bands),
+                difficulty=round(t.difficulty, 6),
+                target_x=float(t.pose[0]),
+                target_y=float(t.pose[1]),
+                target_theta=float(t.pose[2]),
+                converged=r["outcome"] == "converged",
+            )
+        summary = summarize(rows, list(cfg.methods), bands)
+        wall = time.perf_counter() - wall0
+        write_results(run.path, cfg, targets, rows, summary, wall, n_workers)
+        header, lines = summary_rows(summary, bands)
+        write_summary_md(run.path / "summary.md", cfg, header, lines, summary, wall, n_workers,
+                         fig_target)
+        _write_figures(run.path / "figures", records, rows, list(cfg.methods))
+        if progress:
+            _print_table(header, lines, f"{cfg.name}: {len(targets)} targets, {wall:.0f} s")
+        status = "completed"
+        return run.path
+    except KeyboardInterrupt:
+        status = "interrupted"
+        raise
+    finally:
+        run.finish(status)
+
+
+def _band_names(cfg: CompareConfig) -> list[str]:
+    n = len(cfg.targets.bands) + 1
+    return ["easy", "medium", "hard"] if n == 3 else [f"band{i}" for i in range(n)]
+
+
+def _figure_target(cfg: CompareConfig, targets: Sequence[CompareTarget]) -> int:
+    """The target drawn side by side: the configured one, else the one of median difficulty."""
+    if cfg.figure_target is not None:
+        if cfg.figure_target >= len(targets):
+            raise UserError(
+                f"figure_target={cfg.figure_target}, but there are only {len(targets)} targets"
+            )
+        return cfg.figure_target
+    order = sorted(targets, key=lambda t: t.difficulty)
+    return order[(len(order) - 1) // 2].index
+
+
+def write_targets(targets: Sequence[CompareTarget], path: Path) -> None:
+    """targets.yaml: the poses (reusable as `targets.file`) with their difficulty as comments."""
+    lines = ["# rodctl compare targets: gripper poses [x, y, theta] (world, m, rad)", "targets:"]
+    for t in targets:
+        pose = ", ".join(repr(float(v)) for v in t.pose)
+        lines.append(f"  - [{pose}]  # {t.index}: difficulty {t.difficulty:.3f}")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def write_results(
+    folder: Path,
+    cfg: CompareConfig,
+    targets: Sequence[CompareTarget],
+    rows: Sequence[dict],
+    summary: dict,
+    wall: float,
+    workers: int,
+) -> None:
+    """results.csv (one row per episode) and results.json (rows, summary, targets, config)."""
+    with (folder / "results.csv").open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in CSV_COLUMNS})
+    data = {
+        "name": cfg.name,
+        "seed": cfg.seed,
+        "wall_time_s": round(wall, 2),
+        "workers": workers,
+        "targets": [
+            {"index": t.index, "pose": [float(v) for v in t.pose], "difficulty": t.difficulty,
+             "seed": t.seed}
+            for t in targets
+        ],
+        "summary": summary,
+        "episodes": [{k: r.get(k) for k in CSV_COLUMNS} for r in rows],
+        "config": cfg.model_dump(mode="json"),
+    }
+    write_json_atomic(folder / "results.json", _jsonable(data))
+
+
+def write_summary_md(
+    path: Path,
+    cfg: CompareConfig,
+    header: Sequence[str],
+    lines: Sequence[Sequence[str]],
+    summary: dict,
+    wall: float,
+    workers: int,
+    fig_target: int,
+) -> None:
+    """summary.md: the table, what each method is, and how the benchmark was run."""
+    run = cfg.base.run
+    text = [
+        f"# rodctl compare: {cfg.name}",
+        "",
+        f"{summary['methods'][next(iter(cfg.methods))]['episodes']} targets per method, seed "
+        f"{cfg.seed}; step budget {run.max_steps} (probing included), success = mean pixel "
+        f"error < {run.pixel_tolerance} px on the {cfg.base.camera.points}-point centerline; "
+        f"speed limit {list(cfg.base.rod.max_step)} per step. Wall time {wall:.0f} s on "
+        f"{workers} worker(s).",
+        "",
+        "Steps: steps to converge over converged episodes, median [IQR]; *paired*: only the "
+        f"{summary['common_targets']} targets every method converged on. Smoothness: summed "
+        "||u_k - u_{k-1}|| and path: summed ||(dx, dy)||, medians over converged episodes.",
+        "",
+        markdown_table(header, lines),
+        "",
+        "## Methods",
+        "",
+    ]
+    for name, m in cfg.methods.items():
+        text.append(
+            f"- **{name}** ({m.feature.type} / {m.estimator.type} / {m.controller.type}): "
+            f"{m.description}"
+        )
+    text += ["", f"Figures: figures/ (side-by-side figures for target {fig_target})."]
+    path.write_text("\n".join(text) + "\n", encoding="utf-8")
+
+
+def _write_figures(folder: Path, records: dict, rows: Sequence[dict], methods: list[str]) -> None:
+    from rodctl.plots import write_comparison_figures
+
+    ordered = {m: records[m] for m in methods if m in records}
+    if ordered:
+        write_comparison_figures(ordered, folder)
+    success_figure(rows, methods, folder / "success_vs_difficulty.png")
+
+
+def _print_table(header: Sequence[str], lines: Sequence[Sequence[str]], title: str) -> None:
+    from rich.table import Table
+
+    from rodctl.display import stderr
+
+    table = Table(title=title)
+    for h in header:
+        table.add_column(h)
+    for line in lines:
+        table.add_row(*line)
+    stderr.print(table)

@@ -1,0 +1,131 @@
+"""Config of `rodctl compare`: one shared experiment, several methods, one target set.
+
+Owned by `rodctl/compare.py`. A comparison is only fair if everything but the method is the same
+for every method, so the model is built to make that the only possibility: `base` is one full
+`ExperimentConfig` (rod, camera, speed limits, step budget, probing budget, success criterion,
+logging), and a method may replace nothing but the three stages that *are* the method — its
+`feature`, `estimator` and `controller`. Targets are shared too: sampled once from the compare
+seed (easy to hard) or read from a file of gripper poses that labs can exchange.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field, PositiveInt, field_validator, model_validator
+
+from rodctl.config.base import Pose, StrictModel
+from rodctl.config.controller import ControllerConfig
+from rodctl.config.estimator import EstimatorConfig
+from rodctl.config.experiment import ExperimentConfig
+from rodctl.config.feature import FeatureConfig
+
+_NAME = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
+
+
+class MethodConfig(StrictModel):
+    """One full pipeline under comparison: representation + estimation + control.
+
+    Each stage needs its `type`: a comparison names its methods explicitly.
+    """
+
+    description: str = Field("", description="One line shown in summary.md (what this method is).")
+    feature: FeatureConfig = Field(..., description="The shape feature s = f_s(c).")
+    estimator: EstimatorConfig = Field(..., description="How the Jacobian J is obtained.")
+    controller: ControllerConfig = Field(..., description="The control law.")
+
+
+class CompareTargetsConfig(StrictModel):
+    """The shared target set: sampled (seeded, spread from easy to hard) or read from a file."""
+
+    count: PositiveInt = Field(
+        100, description="Number of sampled targets K (ignored when `file` is given)."
+    )
+    min_offset: float = Field(
+        0.1, ge=0.0, description="Easiest target: normalised distance from home (rodctl.targets)."
+    )
+    max_offset: float = Field(
+        1.0, gt=0.0, description="Hardest target: normalised distance from home."
+    )
+    file: str | None = Field(
+        None,
+        description="YAML/JSON file holding gripper poses [[x, y, theta], ...] (world frame, m, "
+        "rad), or a mapping with key `targets` holding them; a relative path is resolved from "
+        "the compare config's folder. Every compare run writes its targets as targets.yaml.",
+    )
+    poses: list[Pose] | None = Field(
+        None, description="Target gripper poses given inline (alternative to `file`)."
+    )
+    bands: list[float] = Field(
+        [0.4, 0.7],
+        description="Difficulty band edges (normalised offset): [0.4, 0.7] makes the bands easy "
+        "< 0.4 <= medium < 0.7 <= hard.",
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> CompareTargetsConfig:
+        if self.min_offset > self.max_offset:
+            raise ValueError(
+                f"min_offset ({self.min_offset}) must not exceed max_offset ({self.max_offset})"
+            )
+        if self.file is not None and self.poses is not None:
+            raise ValueError("give target poses either in `file` or in `poses`, not both")
+        if self.poses is not None and not self.poses:
+            raise ValueError("`poses` is empty")
+        if any(b >= a for b, a in zip(self.bands, self.bands[1:], strict=False)) or any(
+            b <= 0 for b in self.bands
+        ):
+            raise ValueError(f"bands must be positive and increasing, got {self.bands}")
+        return self
+
+
+class CompareConfig(StrictModel):
+    """`rodctl compare`: the benchmark of several methods on one shared set of targets."""
+
+    name: str = Field(
+        "compare", pattern=_NAME, max_length=64, description="Used in the output folder's name."
+    )
+    seed: int = Field(
+        0, ge=0, description="Seeds the targets ('targets' stream) and each target's camera noise "
+        "('compare' stream); every method sees the same start, targets and noise."
+    )
+    base: ExperimentConfig = Field(
+        default_factory=ExperimentConfig,
+        description="The experiment every method shares: rod, camera, speed limits (rod.max_step),"
+        " step budget (run.max_steps), probing (run.probe_size), success criterion "
+        "(run.pixel_tolerance), logging. Its feature/estimator/controller are unused.",
+    )
+    methods: dict[str, MethodConfig] = Field(
+        ..., min_length=1, description="Methods by name, in the order they are reported."
+    )
+    targets: CompareTargetsConfig = CompareTargetsConfig()
+    workers: PositiveInt | None = Field(
+        None, description="Worker processes (None: one per CPU core; 1: run in this process)."
+    )
+    keep_logs: bool = Field(
+        False,
+        description="Keep every episode's logs (MCAP/.rrd as base.logging asks) under episodes/.",
+    )
+    figure_target: int | None = Field(
+        None,
+        ge=0,
+        description="Index of the target drawn in the side-by-side figures (None: the target "
+        "of median difficulty).",
+    )
+
+    @field_validator("methods")
+    @classmethod
+    def _method_names(cls, value: dict[str, MethodConfig]) -> dict[str, MethodConfig]:
+        import re
+
+        bad = [k for k in value if not re.match(_NAME, k) or len(k) > 64]
+        if bad:
+            raise ValueError(f"method names must be letters, digits, . _ - ; got {bad}")
+        return value
+
+    @model_validator(mode="after")
+    def _base_samples_no_target(self) -> CompareConfig:
+        if self.base.run.target.pose is not None:
+            raise ValueError(
+                "base.run.target.pose is set, but compare chooses the targets: use "
+                "targets.poses or targets.file"
+            )
+        return self
