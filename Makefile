@@ -16,8 +16,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/rodctl --help
-	$(BIN)/rodctl config show configs/default.yaml
+	$(BIN)/rodctl simulate configs/default.yaml
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
