@@ -20,8 +20,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, as the goal states
 import torch  # noqa: E402
 
 from rodctl.config import load_config  # noqa: E402
-from rodctl.simulate import make_sinks  # noqa: E402
 from rodctl.experiment import Experiment  # noqa: E402
+from rodctl.simulate import make_sinks  # noqa: E402
 
 
 def run(config: str, steps: int, logging: bool) -> None:

@@ -138,8 +138,10 @@ def replay(
     if verify:
         diffs = verify_run(result.run)
         if diffs:
-            typer.echo(f"verify: FAILED, first mismatch: {diffs[0]} "
-                       f"({len(diffs)} differences in all)", err=True)
+            typer.echo(
+                f"verify: FAILED, first mismatch: {diffs[0]} ({len(diffs)} differences in all)",
+                err=True,
+            )
             code = 1
         else:
             typer.echo(f"verify: OK, {len(result.run.records)} steps identical", err=True)
@@ -157,8 +159,10 @@ def _open_rerun(rrd) -> None:
 
     exe = shutil.which("rerun")
     if exe is None or not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        typer.echo("note: no Rerun viewer or display here; open the file with `rerun "
-                   f"{rrd}` on a desktop", err=True)
+        typer.echo(
+            f"note: no Rerun viewer or display here; open the file with `rerun {rrd}` on a desktop",
+            err=True,
+        )
         return
     subprocess.Popen([exe, str(rrd)], start_new_session=True)
 

@@ -37,8 +37,9 @@ def step_progress(total: int, enabled: bool = True) -> Iterator[Callable[[StepRe
         task = progress.add_task("step", total=total, t1=float("nan"), px=float("nan"))
 
         def on_step(rec: StepRecord) -> None:
-            progress.update(task, completed=rec.step, t1=rec.T1, px=rec.pixel_error,
-                            description=rec.phase)
+            progress.update(
+                task, completed=rec.step, t1=rec.T1, px=rec.pixel_error, description=rec.phase
+            )
 
         yield on_step
 

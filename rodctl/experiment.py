@@ -155,8 +155,12 @@ class Experiment:
             gen = rng(cfg.seed, "targets")
             candidates = (
                 sample_target_pose(
-                    gen, home, cfg.rod.length, lambda p: not sim.clip_pose(p)[1],
-                    tcfg.min_offset, tcfg.max_offset,
+                    gen,
+                    home,
+                    cfg.rod.length,
+                    lambda p: not sim.clip_pose(p)[1],
+                    tcfg.min_offset,
+                    tcfg.max_offset,
                 )
                 for _ in range(20)
             )
@@ -288,7 +292,9 @@ class Experiment:
         # Step 0: the initial observation.
         obs = self.observe(sim)
         if not obs.ok:
-            raise UserError(f"initial frame: the rod's centerline could not be extracted ({obs.note})")
+            raise UserError(
+                f"initial frame: the rod's centerline could not be extracted ({obs.note})"
+            )
         s = self.encode(obs.extracted)
         offline = cfg.estimator.type == "offline"
         if offline:

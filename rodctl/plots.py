@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 
 from rodctl.records import RunHeader, StepRecord
 
-#: Colours of the shape-sequence figure, as in the paper: initial black, transitions blue, target red.
+#: Shape-sequence colours, as in the paper: initial black, transitions blue, target red.
 INITIAL, TRANSITION, TARGET = "black", "tab:blue", "tab:red"
 AXES = ("Δr_x (m)", "Δr_y (m)", "Δr_θ (rad)")
 

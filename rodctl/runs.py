@@ -28,8 +28,18 @@ from rodctl.errors import UserError
 SEED_CONSUMERS = ("targets", "camera", "data", "torch", "sim", "probing", "compare")
 
 #: Distributions whose versions meta.json records.
-_VERSIONED = ("rodctl", "numpy", "scipy", "torch", "pymunk", "rerun-sdk", "mcap", "pydantic",
-              "opencv-python-headless", "scikit-image")
+_VERSIONED = (
+    "rodctl",
+    "numpy",
+    "scipy",
+    "torch",
+    "pymunk",
+    "rerun-sdk",
+    "mcap",
+    "pydantic",
+    "opencv-python-headless",
+    "scikit-image",
+)
 
 STATUSES = ("running", "completed", "failed", "interrupted")
 
@@ -75,7 +85,10 @@ def git_sha() -> str | None:
             return None
         dirty = subprocess.run(
             ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=here, capture_output=True, text=True, timeout=5,
+            cwd=here,
+            capture_output=True,
+            text=True,
+            timeout=5,
         )
         return sha.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):

@@ -43,7 +43,10 @@ def test_help_cli_runner(cmd):
 @pytest.mark.parametrize("cmd", COMMANDS, ids=lambda c: " ".join(c) or "rodctl")
 def test_help_subprocess(cmd):
     proc = subprocess.run(
-        [sys.executable, "-m", "rodctl", *cmd, "--help"], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "rodctl", *cmd, "--help"],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert proc.returncode == 0, proc.stderr
     assert "Usage" in proc.stdout

@@ -1,4 +1,4 @@
-"""Config loading: every shipped config validates; every kind of bad input is a clear exit-2 error."""
+"""Config loading: shipped configs validate; every kind of bad input is a clear exit-2 error."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import json
 import jsonschema
 import pytest
 import yaml
-from paths import CONFIGS, REPO
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from paths import CONFIGS, REPO
 from typer.testing import CliRunner
 
 from rodctl.cli import app
@@ -113,7 +113,9 @@ def test_out_of_range(override, path, repo):
 
 
 def test_unknown_method_type(repo):
-    out = _fail(["config", "show", str(repo / "configs/default.yaml"), "--set", "controller.type=x"])
+    out = _fail(
+        ["config", "show", str(repo / "configs/default.yaml"), "--set", "controller.type=x"]
+    )
     assert "controller" in out and "'x'" in out
 
 
@@ -131,6 +133,7 @@ def test_config_error_is_a_user_error():
 
 
 # --- property-based: mutate valid configs, the CLI never prints a traceback -------------------
+
 
 def _leaf_paths(node, prefix=()):
     if isinstance(node, dict):
@@ -158,7 +161,9 @@ _values = st.one_of(
 )
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(
     path=st.one_of(st.sampled_from(_PATHS), st.text(min_size=0, max_size=10)),
     value=_values,
@@ -167,8 +172,9 @@ _values = st.one_of(
 def test_mutated_configs_never_traceback(path, value, raw):
     text = value if (raw and isinstance(value, str)) else yaml.safe_dump(value).strip()
     text = text.removesuffix("\n...").strip()
-    result = runner.invoke(app, ["config", "show", str(REPO / "configs/default.yaml"),
-                                 "--set", f"{path}={text}"])
+    result = runner.invoke(
+        app, ["config", "show", str(REPO / "configs/default.yaml"), "--set", f"{path}={text}"]
+    )
     out = result.stdout + (result.stderr or "")
     assert result.exit_code in (0, 2), out
     assert "Traceback" not in out

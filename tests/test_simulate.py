@@ -31,8 +31,16 @@ RERUN = shutil.which("rerun", path=str(Path(sys.executable).parent)) or shutil.w
 
 def simulate(tmp_path: Path, *extra: str) -> Path:
     result = runner.invoke(
-        app, ["simulate", str(REPO / "configs/default.yaml"), "--out", str(tmp_path), "-q",
-              *FAST, *extra]
+        app,
+        [
+            "simulate",
+            str(REPO / "configs/default.yaml"),
+            "--out",
+            str(tmp_path),
+            "-q",
+            *FAST,
+            *extra,
+        ],
     )
     assert result.exit_code == 0, result.output
     run_dir = Path(result.stdout.strip().splitlines()[-1])
@@ -49,13 +57,25 @@ def test_run_directory_contract(run_dir):
     names = {p.name for p in run_dir.iterdir()}
     assert {"config.yaml", "meta.json", "summary.json", "run.mcap", "run.rrd", "figures"} <= names
     assert {p.name for p in (run_dir / "figures").iterdir()} >= {
-        "shapes.png", "t1.png", "commands.png"}
+        "shapes.png",
+        "t1.png",
+        "commands.png",
+    }
     meta = json.loads((run_dir / "meta.json").read_text())
     assert meta["status"] == "completed" and meta["seed"] == 0
     assert meta["started_at"] and meta["ended_at"] and meta["versions"]["pymunk"] == "7.3.1"
     summary = json.loads((run_dir / "summary.json").read_text())
-    for key in ("status", "method", "steps", "converged", "steps_to_converge", "final_T1",
-                "final_pixel_error", "wall_time_s", "steps_per_s"):
+    for key in (
+        "status",
+        "method",
+        "steps",
+        "converged",
+        "steps_to_converge",
+        "final_T1",
+        "final_pixel_error",
+        "wall_time_s",
+        "steps_per_s",
+    ):
         assert key in summary
     assert summary["method"] == "bezier/akf/mfac"
     # The easy default target converges well inside 40 steps, probing included.
@@ -80,8 +100,18 @@ def test_same_config_gives_identical_logs(run_dir, tmp_path):
     assert (again / "run.mcap").read_bytes() == (run_dir / "run.mcap").read_bytes()
     if RERUN:
         cmp = subprocess.run(
-            [RERUN, "rrd", "compare", "--unordered", str(run_dir / "run.rrd"),
-             str(again / "run.rrd")], capture_output=True, text=True, timeout=120)
+            [
+                RERUN,
+                "rrd",
+                "compare",
+                "--unordered",
+                str(run_dir / "run.rrd"),
+                str(again / "run.rrd"),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert cmp.returncode == 0, cmp.stdout + cmp.stderr
 
 
@@ -89,8 +119,9 @@ def test_files_pass_rerun_validators(run_dir):
     if not RERUN:
         pytest.skip("rerun CLI not found")
     for cmd in (["mcap", "check", "run.mcap"], ["rrd", "verify", "run.rrd"]):
-        res = subprocess.run([RERUN, *cmd], cwd=run_dir, capture_output=True, text=True,
-                             timeout=120)
+        res = subprocess.run(
+            [RERUN, *cmd], cwd=run_dir, capture_output=True, text=True, timeout=120
+        )
         assert res.returncode == 0, res.stdout + res.stderr
 
 
@@ -128,10 +159,24 @@ def test_replay_of_a_broken_file_exits_2(run_dir, tmp_path, kind):
 def test_signal_half_way_leaves_an_interrupted_readable_run(tmp_path, sig):
     """A long run stopped by a signal: exit 1, meta `interrupted`, the MCAP opens with every
     step logged so far, and both files pass the validators."""
-    cmd = [sys.executable, "-m", "rodctl", "simulate", str(REPO / "configs/default.yaml"),
-           "--out", str(tmp_path), "-q", "--set", "feature.type=bezier",
-           "--set", "run.max_steps=3000", "--set", "run.pixel_tolerance=1e-6",
-           "--set", "run.stall_window=3000"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "rodctl",
+        "simulate",
+        str(REPO / "configs/default.yaml"),
+        "--out",
+        str(tmp_path),
+        "-q",
+        "--set",
+        "feature.type=bezier",
+        "--set",
+        "run.max_steps=3000",
+        "--set",
+        "run.pixel_tolerance=1e-6",
+        "--set",
+        "run.stall_window=3000",
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     mcap = None
@@ -164,7 +209,17 @@ def test_signal_half_way_leaves_an_interrupted_readable_run(tmp_path, sig):
 
 
 def test_bad_target_is_a_user_error(tmp_path):
-    result = runner.invoke(app, ["simulate", str(REPO / "configs/default.yaml"), "--out",
-                                 str(tmp_path), *FAST, "--set", "run.target.pose=[2.0, 0, 0]"])
+    result = runner.invoke(
+        app,
+        [
+            "simulate",
+            str(REPO / "configs/default.yaml"),
+            "--out",
+            str(tmp_path),
+            *FAST,
+            "--set",
+            "run.target.pose=[2.0, 0, 0]",
+        ],
+    )
     assert result.exit_code == 2, result.output
     assert "run.target.pose" in result.output and "Traceback" not in result.output

@@ -10,6 +10,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
+
 class StrictModel(BaseModel):
     """Base for all config models: unknown keys, NaN and infinity are errors; defaults validated."""
 

@@ -60,7 +60,9 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     key, sep, raw = text.partition("=")
     key = key.strip()
     if not sep or not key:
-        raise ConfigError(f"--set {text!r}: expected KEY=VALUE with a dotted key, e.g. rod.length=0.6")
+        raise ConfigError(
+            f"--set {text!r}: expected KEY=VALUE with a dotted key, e.g. rod.length=0.6"
+        )
     parts = key.split(".")
     if any(not p.strip() for p in parts):
         raise ConfigError(f"--set {text!r}: empty segment in the dotted key {key!r}")

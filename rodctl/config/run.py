@@ -23,7 +23,9 @@ class TargetConfig(StrictModel):
         description="Gripper pose that produces the target shape (world). None: sample one.",
     )
     min_offset: float = Field(
-        0.3, ge=0.0, description="Sampled targets: least normalised distance from home (see README)."
+        0.3,
+        ge=0.0,
+        description="Sampled targets: least normalised distance from home (see README).",
     )
     max_offset: float = Field(
         1.0, gt=0.0, description="Sampled targets: largest normalised distance from home."
@@ -49,7 +51,7 @@ class RunConfig(StrictModel):
     )
     pixel_tolerance: PositiveFloat = Field(
         1.0,
-        description="Converged when the mean pixel distance to the target centerline is below this…",
+        description="Converged when the mean distance (px) to the target centerline is below this…",
     )
     t1_tolerance: PositiveFloat | None = Field(
         None,
@@ -67,7 +69,7 @@ class RunConfig(StrictModel):
     )
     stall_gradient: PositiveFloat = Field(
         0.05,
-        description="…while ||J^T e|| / (||J|| ||e||) is below this (the descent direction vanished).",
+        description="…while ||J^T e|| / (||J|| ||e||) is below this (no descent direction left).",
     )
     max_lost_frames: PositiveInt = Field(
         3, description="Consecutive failed centerline extractions that end the run."
