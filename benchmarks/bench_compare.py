@@ -111,17 +111,21 @@ def main() -> None:
     out = run_compare(config, overrides, args.out, progress=not args.quiet, workers=args.workers)
     wall = time.perf_counter() - t0
     data = json.loads((out / "results.json").read_text())
-    print(f"wall time: {wall:.1f} s with {args.workers} workers "
-          f"({len(data['episodes'])} episodes, {wall * args.workers / len(data['episodes']):.2f}"
-          " worker-s per episode; shared 2-core machine, timings are noisy)")
+    print(
+        f"wall time: {wall:.1f} s with {args.workers} workers "
+        f"({len(data['episodes'])} episodes, {wall * args.workers / len(data['episodes']):.2f}"
+        " worker-s per episode; shared 2-core machine, timings are noisy)"
+    )
     ranking = sorted(
         data["summary"]["methods"].items(),
         key=lambda kv: (-kv[1]["success_rate"], kv[1]["steps_median"] or 1e9),
     )
     print(f"{'method':40s} success  steps(median)  paired  smoothness")
     for name, s in ranking:
-        print(f"{name:40s} {100 * s['success_rate']:6.1f}%  {s['steps_median']!s:>12}  "
-              f"{s['paired_steps_median']!s:>6}  {s['smoothness_median']}")
+        print(
+            f"{name:40s} {100 * s['success_rate']:6.1f}%  {s['steps_median']!s:>12}  "
+            f"{s['paired_steps_median']!s:>6}  {s['smoothness_median']}"
+        )
     print(out)
 
 

@@ -22,7 +22,6 @@ and steps against target difficulty) and, if asked, every episode's logs under e
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 import time
@@ -56,10 +55,27 @@ OUTCOMES = ("converged", "stalled", "step_limit", "diverged", "lost_tracking", "
 
 #: Columns of results.csv, in order.
 CSV_COLUMNS = (
-    "method", "target", "band", "difficulty", "target_x", "target_y", "target_theta", "outcome",
-    "converged", "steps", "steps_to_converge", "final_pixel_error", "final_T1", "path_length",
-    "rotation_length", "smoothness", "saturated_steps", "clipped_steps", "probe_steps",
-    "wall_time_s", "error",
+    "method",
+    "target",
+    "band",
+    "difficulty",
+    "target_x",
+    "target_y",
+    "target_theta",
+    "outcome",
+    "converged",
+    "steps",
+    "steps_to_converge",
+    "final_pixel_error",
+    "final_T1",
+    "path_length",
+    "rotation_length",
+    "smoothness",
+    "saturated_steps",
+    "clipped_steps",
+    "probe_steps",
+    "wall_time_s",
+    "error",
 )
 
 #: Candidate poses tried per sampled target before giving up (a candidate can fail to settle).
@@ -90,9 +106,9 @@ def load_compare_config(path: str | Path, overrides: Sequence[str] | None = None
     return cfg
 
 
-def method_config(cfg: CompareConfig, name: str, *, source: str = "compare config") -> (
-    ExperimentConfig
-):
+def method_config(
+    cfg: CompareConfig, name: str, *, source: str = "compare config"
+) -> ExperimentConfig:
     """The `ExperimentConfig` of one method: the shared base with the method's three stages.
 
     Raises:
@@ -221,9 +237,20 @@ def _settle_target(task: dict[str, Any]) -> dict[str, Any]:
     return {"error": why}
 
 
+def given_target_poses(cfg: CompareConfig, config_dir: Path) -> list[list[float]] | None:
+    """The target poses from `targets.file` (relative to `config_dir`) or `targets.poses`."""
+    tc = cfg.targets
+    if tc.file is not None:
+        path = Path(tc.file)
+        return read_target_file(path if path.is_absolute() else config_dir / path)
+    if tc.poses is not None:
+        return [list(p) for p in tc.poses]
+    return None
+
+
 def make_targets(
     cfg: CompareConfig,
-    config_dir: Path,
+    given: list[list[float]] | None,
     run_tasks: Callable[[list[dict], Callable[[dict], Any]], list[Any]],
 ) -> list[CompareTarget]:
     """The shared targets, checked reachable, numbered easy to hard when sampled.
@@ -237,12 +264,6 @@ def make_targets(
     """
     tc = cfg.targets
     base = _check_config(cfg).model_dump(mode="json")
-    given: list[list[float]] | None = None
-    if tc.file is not None:
-        path = Path(tc.file)
-        given = read_target_file(path if path.is_absolute() else config_dir / path)
-    elif tc.poses is not None:
-        given = [list(p) for p in tc.poses]
     if given is not None:
         tasks = [{"config": base, "pose": p} for p in given]
     else:
@@ -475,33 +496,45 @@ def _fmt(v: Any, spec: str = ".0f") -> str:
 
 
 def summary_rows(summary: dict, bands: Sequence[str]) -> tuple[list[str], list[list[str]]]:
-    """The summary table as a header and string rows (shared by the terminal and summary.md)."""
+    """The summary table as a header and string rows (shared by the terminal and summary.md).
+
+    Band cells read "success % / median steps"; the last column counts stalled / step-limit /
+    failed (diverged, lost the rod, raised) episodes.
+    """
     header = [
-        "method", "success", "steps median [IQR]", "paired steps median", "smoothness",
-        "path (m)", "final px", *[f"{b}: success / steps" for b in bands], "stalled",
-        "step limit", "diverged",
+        "method",
+        "success",
+        "steps [IQR]",
+        "paired steps",
+        "smooth.",
+        "path m",
+        "final px",
+        *bands,
+        "stall/limit/fail",
     ]
     lines = []
     for m, s in summary["methods"].items():
         rate = s["success_rate"]
-        lines.append([
-            m,
-            f"{s['converged']}/{s['episodes']} ({_fmt(None if rate is None else 100 * rate)} %)",
-            f"{_fmt(s['steps_median'])} [{_fmt(s['steps_q25'])}–{_fmt(s['steps_q75'])}]",
-            f"{_fmt(s['paired_steps_median'])} [{_fmt(s['paired_steps_q25'])}–"
-            f"{_fmt(s['paired_steps_q75'])}]",
-            _fmt(s["smoothness_median"], ".3f"),
-            _fmt(s["path_length_median"], ".3f"),
-            _fmt(s["final_pixel_error_median"], ".2f"),
-            *[
-                f"{_fmt(None if bs['success_rate'] is None else 100 * bs['success_rate'])} % / "
-                f"{_fmt(bs['steps_median'])}"
-                for bs in (s["bands"][b] for b in bands)
-            ],
-            str(s["outcomes"]["stalled"]),
-            str(s["outcomes"]["step_limit"]),
-            str(s["outcomes"]["diverged"] + s["outcomes"]["lost_tracking"] + s["outcomes"]["error"]),
-        ])
+        o = s["outcomes"]
+        lines.append(
+            [
+                m,
+                f"{s['converged']}/{s['episodes']} ({_fmt(None if rate is None else 100 * rate)}%)",
+                f"{_fmt(s['steps_median'])} [{_fmt(s['steps_q25'])}-{_fmt(s['steps_q75'])}]",
+                f"{_fmt(s['paired_steps_median'])} [{_fmt(s['paired_steps_q25'])}-"
+                f"{_fmt(s['paired_steps_q75'])}]",
+                _fmt(s["smoothness_median"], ".3f"),
+                _fmt(s["path_length_median"], ".3f"),
+                _fmt(s["final_pixel_error_median"], ".2f"),
+                *[
+                    f"{_fmt(None if bs['success_rate'] is None else 100 * bs['success_rate'])}% / "
+                    f"{_fmt(bs['steps_median'])}"
+                    for bs in (s["bands"][b] for b in bands)
+                ],
+                f"{o['stalled']}/{o['step_limit']}/"
+                f"{o['diverged'] + o['lost_tracking'] + o['error']}",
+            ]
+        )
     return header, lines
 
 
@@ -607,6 +640,7 @@ def run_compare(
     wall0 = time.perf_counter()
     cfg = load_compare_config(config_path, overrides)
     configs = _preflight(cfg)
+    given = given_target_poses(cfg, Path(config_path).resolve().parent)
     n_workers = workers or cfg.workers or os.cpu_count() or 1
     if n_workers < 1:
         raise UserError(f"--workers must be >= 1, got {n_workers}")
@@ -616,7 +650,7 @@ def run_compare(
         with _Runner(n_workers, progress) as runner:
             targets = make_targets(
                 cfg,
-                Path(config_path).resolve().parent,
+                given,
                 lambda tasks, fn: runner.run(tasks, fn, "targets"),
             )
             write_targets(targets, run.path / "targets.yaml")
@@ -625,17 +659,19 @@ def run_compare(
             tasks = []
             for t in targets:  # target-major order: partial progress covers every method
                 for name, ecfg in configs.items():
-                    tasks.append({
-                        "config": ecfg.model_dump(mode="json"),
-                        "method": name,
-                        "target": t.index,
-                        "pose": [float(v) for v in t.pose],
-                        "seed": t.seed,
-                        "want_records": t.index == fig_target,
-                        "log_dir": str(run.path / "episodes" / name / f"t{t.index:03d}")
-                        if cfg.keep_logs
-                        else None,
-                    })
+                    tasks.append(
+                        {
+                            "config": ecfg.model_dump(mode="json"),
+                            "method": name,
+                            "target": t.index,
+                            "pose": [float(v) for v in t.pose],
+                            "seed": t.seed,
+                            "want_records": t.index == fig_target,
+                            "log_dir": str(run.path / "episodes" / name / f"t{t.index:03d}")
+                            if cfg.keep_logs
+                            else None,
+                        }
+                    )
             rows = runner.run(
                 tasks, _episode, "episodes", describe=lambda r: f"{r['method']}: {r['outcome']}"
             )
@@ -655,8 +691,9 @@ def run_compare(
         wall = time.perf_counter() - wall0
         write_results(run.path, cfg, targets, rows, summary, wall, n_workers)
         header, lines = summary_rows(summary, bands)
-        write_summary_md(run.path / "summary.md", cfg, header, lines, summary, wall, n_workers,
-                         fig_target)
+        write_summary_md(
+            run.path / "summary.md", cfg, header, lines, summary, wall, n_workers, fig_target
+        )
         _write_figures(run.path / "figures", records, rows, list(cfg.methods))
         if progress:
             _print_table(header, lines, f"{cfg.name}: {len(targets)} targets, {wall:.0f} s")
@@ -716,8 +753,12 @@ def write_results(
         "wall_time_s": round(wall, 2),
         "workers": workers,
         "targets": [
-            {"index": t.index, "pose": [float(v) for v in t.pose], "difficulty": t.difficulty,
-             "seed": t.seed}
+            {
+                "index": t.index,
+                "pose": [float(v) for v in t.pose],
+                "difficulty": t.difficulty,
+                "seed": t.seed,
+            }
             for t in targets
         ],
         "summary": summary,
@@ -750,7 +791,9 @@ def write_summary_md(
         "",
         "Steps: steps to converge over converged episodes, median [IQR]; *paired*: only the "
         f"{summary['common_targets']} targets every method converged on. Smoothness: summed "
-        "||u_k - u_{k-1}|| and path: summed ||(dx, dy)||, medians over converged episodes.",
+        "||u_k - u_{k-1}|| and path: summed ||(dx, dy)||, medians over converged episodes. "
+        f"Band columns (difficulty edges {cfg.targets.bands}): success % / median steps. Last "
+        "column: stalled / step limit / failed (diverged, lost the rod, error) episodes.",
         "",
         markdown_table(header, lines),
         "",

@@ -84,8 +84,10 @@ class CompareConfig(StrictModel):
         "compare", pattern=_NAME, max_length=64, description="Used in the output folder's name."
     )
     seed: int = Field(
-        0, ge=0, description="Seeds the targets ('targets' stream) and each target's camera noise "
-        "('compare' stream); every method sees the same start, targets and noise."
+        0,
+        ge=0,
+        description="Seeds the targets ('targets' stream) and each target's camera noise "
+        "('compare' stream); every method sees the same start, targets and noise.",
     )
     base: ExperimentConfig = Field(
         default_factory=ExperimentConfig,

@@ -1,0 +1,210 @@
+"""`rodctl compare` on the smoke config: every method converges on easy targets, the outputs are
+complete, results do not depend on the worker count, a shared targets file reproduces a run,
+and bad input is a `UserError` naming the file and key."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import pytest
+import yaml
+from paths import REPO
+
+from rodctl.compare import OUTCOMES, load_compare_config, run_compare, summarize
+from rodctl.config import ConfigError
+from rodctl.errors import UserError
+
+SMOKE = REPO / "configs" / "compare-smoke.yaml"
+COMPARE_CONFIGS = sorted((REPO / "configs").glob("compare*.yaml"))
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    """The smoke benchmark, run once in 2 spawned worker processes."""
+    out = tmp_path_factory.mktemp("compare")
+    return run_compare(str(SMOKE), [], str(out), progress=False, workers=2)
+
+
+def _rows(folder):
+    with (folder / "results.csv").open() as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_shipped_compare_configs_validate():
+    assert COMPARE_CONFIGS, "configs/compare.yaml and compare-smoke.yaml must exist"
+    for path in COMPARE_CONFIGS:
+        cfg = load_compare_config(path)
+        assert cfg.methods
+
+
+def test_every_method_converges_on_the_easy_smoke_targets(smoke_run):
+    cfg = load_compare_config(SMOKE)
+    rows = _rows(smoke_run)
+    assert len(rows) == len(cfg.methods) * cfg.targets.count
+    assert {r["method"] for r in rows} == set(cfg.methods)
+    failed = [
+        (r["method"], r["target"], r["outcome"], r["final_pixel_error"])
+        for r in rows
+        if r["outcome"] != "converged"
+    ]
+    assert not failed, failed
+    for r in rows:
+        assert float(r["final_pixel_error"]) < cfg.base.run.pixel_tolerance
+        assert int(r["steps_to_converge"]) <= cfg.base.run.max_steps
+        assert float(r["difficulty"]) <= cfg.targets.max_offset + 0.05
+
+
+def test_every_method_sees_the_same_targets(smoke_run):
+    rows = _rows(smoke_run)
+    by_target: dict[str, set] = {}
+    for r in rows:
+        by_target.setdefault(r["target"], set()).add(
+            (r["target_x"], r["target_y"], r["target_theta"], r["difficulty"])
+        )
+    assert all(len(v) == 1 for v in by_target.values()), by_target
+
+
+def test_outputs_are_complete(smoke_run):
+    for name in ("results.csv", "results.json", "summary.md", "targets.yaml", "meta.json"):
+        assert (smoke_run / name).is_file(), name
+    for fig in ("shapes.png", "t1.png", "commands.png", "success_vs_difficulty.png"):
+        assert (smoke_run / "figures" / fig).stat().st_size > 1000, fig
+    data = json.loads((smoke_run / "results.json").read_text())
+    cfg = load_compare_config(SMOKE)
+    assert set(data["summary"]["methods"]) == set(cfg.methods)
+    assert all(e["outcome"] in OUTCOMES for e in data["episodes"])
+    assert json.loads((smoke_run / "meta.json").read_text())["status"] == "completed"
+    md = (smoke_run / "summary.md").read_text()
+    assert all(f"| {m} |" in md for m in cfg.methods)
+
+
+def test_a_shared_targets_file_reproduces_the_run_in_one_process(smoke_run, tmp_path):
+    """targets.yaml fed back as targets.file, one worker: the same episodes, step for step."""
+    again = run_compare(
+        str(SMOKE),
+        [f"targets.file={smoke_run / 'targets.yaml'}"],
+        str(tmp_path),
+        progress=False,
+        workers=1,
+    )
+    keys = ("method", "target", "outcome", "steps", "final_pixel_error", "smoothness")
+    first = [{k: r[k] for k in keys} for r in _rows(smoke_run)]
+    second = [{k: r[k] for k in keys} for r in _rows(again)]
+    assert first == second
+
+
+def test_summary_statistics():
+    rows = [
+        {
+            "method": "a",
+            "target": 0,
+            "band": "easy",
+            "outcome": "converged",
+            "steps_to_converge": 10,
+            "smoothness": 1.0,
+            "path_length": 0.1,
+            "final_pixel_error": 0.5,
+        },
+        {
+            "method": "a",
+            "target": 1,
+            "band": "hard",
+            "outcome": "converged",
+            "steps_to_converge": 30,
+            "smoothness": 3.0,
+            "path_length": 0.3,
+            "final_pixel_error": 0.6,
+        },
+        {
+            "method": "b",
+            "target": 0,
+            "band": "easy",
+            "outcome": "converged",
+            "steps_to_converge": 20,
+            "smoothness": 0.5,
+            "path_length": 0.1,
+            "final_pixel_error": 0.7,
+        },
+        {
+            "method": "b",
+            "target": 1,
+            "band": "hard",
+            "outcome": "stalled",
+            "steps_to_converge": None,
+            "smoothness": 9.0,
+            "path_length": 0.9,
+            "final_pixel_error": 9,
+        },
+    ]
+    s = summarize(rows, ["a", "b"], ["easy", "hard"])
+    a, b = s["methods"]["a"], s["methods"]["b"]
+    assert s["common_targets"] == 1
+    assert a["success_rate"] == 1.0 and b["success_rate"] == 0.5
+    assert a["steps_median"] == 20 and a["paired_steps_median"] == 10
+    assert b["steps_median"] == 20 and b["outcomes"]["stalled"] == 1
+    assert b["smoothness_median"] == 0.5  # over converged episodes only
+    assert a["bands"]["hard"]["success_rate"] == 1.0 and b["bands"]["hard"]["success_rate"] == 0.0
+    assert b["bands"]["hard"]["steps_median"] is None
+    assert math.isclose(a["final_pixel_error_median"], 0.55)
+
+
+def _write(tmp_path, data, name="c.yaml"):
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _smoke_data():
+    return yaml.safe_load(SMOKE.read_text())
+
+
+def test_a_method_may_not_change_the_shared_setup(tmp_path):
+    data = _smoke_data()
+    name = next(iter(data["methods"]))
+    data["methods"][name]["run"] = {"max_steps": 1000}
+    with pytest.raises(ConfigError, match=rf"methods\.{name}\.run: unknown key"):
+        load_compare_config(_write(tmp_path, data))
+
+
+def test_an_impossible_method_is_named(tmp_path):
+    data = _smoke_data()
+    data["methods"]["broken"] = {
+        "feature": {"type": "bezier"},
+        "estimator": {"type": "offline"},
+        "controller": {"type": "qp"},
+    }
+    with pytest.raises(ConfigError, match=r"(?s)methods\.broken.*feature.type=nodes"):
+        load_compare_config(_write(tmp_path, data))
+
+
+def test_overrides_name_the_dotted_key():
+    with pytest.raises(ConfigError, match=r"targets\.count"):
+        load_compare_config(SMOKE, ["targets.count=-3"])
+
+
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        ("[[0.4, 0.1]]", r"item 0 .*\[x, y, theta\]"),
+        ("targets: []", "non-empty list"),
+        ("[[0.4, 0.1, .nan]]", "item 0"),
+    ],
+)
+def test_bad_targets_file_is_a_user_error(tmp_path, content, match):
+    bad = tmp_path / "targets.yaml"
+    bad.write_text(content)
+    with pytest.raises(UserError, match=match):
+        run_compare(str(SMOKE), [f"targets.file={bad}"], str(tmp_path), progress=False, workers=1)
+
+
+def test_unreachable_target_pose_is_a_user_error(tmp_path):
+    with pytest.raises(UserError, match=r"target 0 .*unusable"):
+        run_compare(
+            str(SMOKE),
+            ["targets.poses=[[5.0, 0.0, 0.0]]"],
+            str(tmp_path),
+            progress=False,
+            workers=1,
+        )
