@@ -57,18 +57,42 @@ def user_errors(fn: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
+def _config_model(path: str) -> type:
+    """The model a config file is for: a compare config has `methods`, any other an experiment."""
+    from rodctl.config import read_yaml
+    from rodctl.config.compare import CompareConfig
+
+    return CompareConfig if "methods" in read_yaml(path) else ExperimentConfig
+
+
 @config_app.command("show")
 @user_errors
 def config_show(config: ConfigArg, set_: SetOpt = None) -> None:
-    """Print the resolved config (YAML, every default filled in) after --set overrides."""
-    cfg = load_config(config, set_ or [])
+    """Print the resolved config (YAML, every default filled in) after --set overrides.
+
+    Works for experiment configs (simulate, train-encoder) and compare configs alike.
+    """
+    model = _config_model(config)
+    if model is ExperimentConfig:
+        cfg = load_config(config, set_ or [])
+    else:
+        from rodctl.compare import load_compare_config
+
+        cfg = load_compare_config(config, set_ or [])
     typer.echo(dump_config(cfg), nl=False)
 
 
 @config_app.command("schema")
-def config_schema() -> None:
-    """Print the JSON schema of the experiment config."""
-    typer.echo(json.dumps(ExperimentConfig.model_json_schema(), indent=2))
+def config_schema(
+    compare: Annotated[
+        bool, typer.Option("--compare", help="The schema of `rodctl compare` configs instead.")
+    ] = False,
+) -> None:
+    """Print the JSON schema of the experiment config (or, with --compare, of compare configs)."""
+    from rodctl.config.compare import CompareConfig
+
+    model = CompareConfig if compare else ExperimentConfig
+    typer.echo(json.dumps(model.model_json_schema(), indent=2))
 
 
 OutOpt = Annotated[
@@ -206,6 +230,30 @@ def train_encoder(
         for k in keys:
             typer.echo(f"{k}: {metrics[k]}", err=True)
     typer.echo(str(run.path))
+
+
+@app.command()
+@user_errors
+def compare(
+    config: Annotated[str, typer.Argument(help="Compare config, e.g. configs/compare.yaml.")],
+    set_: SetOpt = None,
+    out: OutOpt = "runs",
+    workers: Annotated[
+        int | None,
+        typer.Option("--workers", min=1, help="Worker processes (default: the config's)."),
+    ] = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Benchmark several methods on one shared set of reachable targets.
+
+    Every method gets the same start, targets, speed limits, step and probing budgets and
+    success criterion. Writes results.csv/json, summary.md and figures/ into a new folder and
+    prints it as the last line.
+    """
+    from rodctl.compare import run_compare
+
+    folder = run_compare(config, set_ or [], out, progress=not quiet, workers=workers)
+    typer.echo(str(folder))
 
 
 def main() -> None:

@@ -41,11 +41,9 @@ from rodctl.config import ExperimentConfig, dump_config
 from rodctl.config.compare import CompareConfig
 from rodctl.config.loading import (
     ConfigError,
-    apply_override,
+    config_source,
     format_validation_error,
-    parse_override,
-    read_yaml,
-    validate_config,
+    load_config,
 )
 from rodctl.errors import UserError
 from rodctl.runs import RunDir, seed_sequence, write_json_atomic
@@ -95,12 +93,8 @@ def load_compare_config(path: str | Path, overrides: Sequence[str] | None = None
     Raises:
         ConfigError: (a `UserError`) naming the file and the offending dotted key.
     """
-    data = read_yaml(path)
-    for text in overrides or []:
-        parts, value = parse_override(text)
-        apply_override(data, parts, value, text)
-    source = str(path) + (" with --set " + " ".join(overrides) if overrides else "")
-    cfg = validate_config(data, source, model=CompareConfig)
+    cfg = load_config(path, overrides, model=CompareConfig)
+    source = config_source(path, overrides)
     for name in cfg.methods:
         method_config(cfg, name, source=source)
     return cfg

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from pathlib import Path
 
 import pytest
 import yaml
@@ -22,9 +23,17 @@ COMPARE_CONFIGS = sorted((REPO / "configs").glob("compare*.yaml"))
 
 @pytest.fixture(scope="module")
 def smoke_run(tmp_path_factory):
-    """The smoke benchmark, run once in 2 spawned worker processes."""
+    """The smoke benchmark, run once in 2 spawned worker processes, as a user types it."""
+    from typer.testing import CliRunner
+
+    from rodctl.cli import app
+
     out = tmp_path_factory.mktemp("compare")
-    return run_compare(str(SMOKE), [], str(out), progress=False, workers=2)
+    result = CliRunner().invoke(app, ["compare", str(SMOKE), "--out", str(out), "-q"])
+    assert result.exit_code == 0, result.output
+    folder = Path(result.stdout.strip().splitlines()[-1])  # the output folder is the last line
+    assert folder.parent == out
+    return folder
 
 
 def _rows(folder):

@@ -13,7 +13,9 @@ from paths import CONFIGS, REPO
 from typer.testing import CliRunner
 
 from rodctl.cli import app
+from rodctl.compare import load_compare_config
 from rodctl.config import ConfigError, ExperimentConfig, dump_config, load_config, read_yaml
+from rodctl.config.compare import CompareConfig
 
 runner = CliRunner()
 
@@ -23,16 +25,29 @@ def test_configs_folder_is_not_empty():
     assert REPO / "configs" / "default.yaml" in CONFIGS
 
 
+def _is_compare(path) -> bool:
+    return "methods" in read_yaml(path)
+
+
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
 def test_every_shipped_config_validates(path):
-    cfg = load_config(path)
+    if _is_compare(path):
+        cfg = load_compare_config(path)
+        model = CompareConfig
+    else:
+        cfg = load_config(path)
+        model = ExperimentConfig
     # The resolved dump loads back to the same config (round trip through YAML).
-    assert ExperimentConfig.model_validate(yaml.safe_load(dump_config(cfg))) == cfg
+    assert model.model_validate(yaml.safe_load(dump_config(cfg))) == cfg
+    result = runner.invoke(app, ["config", "show", str(path)])
+    assert result.exit_code == 0, result.output
+    assert model.model_validate(yaml.safe_load(result.stdout)) == cfg
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
 def test_schema_validates_shipped_configs(path):
-    result = runner.invoke(app, ["config", "schema"])
+    args = ["config", "schema"] + (["--compare"] if _is_compare(path) else [])
+    result = runner.invoke(app, args)
     assert result.exit_code == 0
     schema = json.loads(result.stdout)
     jsonschema.validate(read_yaml(path), schema)

@@ -6,6 +6,7 @@ what was expected; the CLI prints it and exits with code 2, never a traceback.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -161,16 +162,28 @@ def validate_config(data: dict[str, Any], source: str, model: type[BaseModel] = 
         raise ConfigError(format_validation_error(exc, data, source)) from None
 
 
-def load_config(path: str | Path | None, overrides: list[str] | None = None) -> ExperimentConfig:
-    """Load `path` (None: embedded defaults only), apply `--set` overrides, validate once."""
+def config_source(path: str | Path | None, overrides: Sequence[str] | None) -> str:
+    """How error messages name a config: its file, plus the overrides applied to it."""
+    source = str(path) if path is not None else "(defaults)"
+    if overrides:
+        source += " with --set " + " ".join(overrides)
+    return source
+
+
+def load_config(
+    path: str | Path | None,
+    overrides: Sequence[str] | None = None,
+    model: type[BaseModel] = ExperimentConfig,
+) -> Any:
+    """Load `path` (None: embedded defaults only), apply `--set` overrides, validate once.
+
+    Returns an instance of `model` (an `ExperimentConfig` unless told otherwise).
+    """
     data: dict[str, Any] = read_yaml(path) if path is not None else {}
     for text in overrides or []:
         parts, value = parse_override(text)
         apply_override(data, parts, value, text)
-    source = str(path) if path is not None else "(defaults)"
-    if overrides:
-        source += " with --set " + " ".join(overrides)
-    return validate_config(data, source)
+    return validate_config(data, config_source(path, overrides), model)
 
 
 def dump_config(cfg: BaseModel) -> str:
