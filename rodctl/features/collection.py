@@ -204,11 +204,24 @@ def _collect_task(args: tuple[str, int, np.random.SeedSequence]) -> dict[str, An
     return collect_chunk(*args)
 
 
+def _start_method() -> str:
+    """"spawn" (a clean interpreter: no torch or OpenMP state inherited) when the main module can
+    be re-imported by the workers, as for the CLI, pytest or a script; "fork" otherwise (code fed
+    on stdin or typed interactively), where spawned workers would fail to start."""
+    import __main__
+
+    main_file = getattr(__main__, "__file__", None)
+    if main_file is None or not Path(main_file).is_file():
+        if "fork" in multiprocessing.get_all_start_methods():
+            return "fork"
+    return "spawn"
+
+
 def collect_dataset(cfg: ExperimentConfig, *, progress: bool = True) -> CenterlineDataset:
     """Collect `cfg.feature.data.samples` centerlines through the simulator and the camera.
 
-    Uses `cfg.feature.data.workers` processes (spawned, so that no torch or OpenMP state is
-    forked); the result does not depend on that number.
+    Uses `cfg.feature.data.workers` processes (see `_start_method`); the result does not depend
+    on that number.
 
     Args:
         cfg: the experiment config; `cfg.feature` must be an autoencoder.
@@ -229,7 +242,7 @@ def collect_dataset(cfg: ExperimentConfig, *, progress: bool = True) -> Centerli
                 results.append(_collect_task(task))
                 advance(n=task[1])
         else:
-            ctx = multiprocessing.get_context("spawn")
+            ctx = multiprocessing.get_context(_start_method())
             with ctx.Pool(min(data_cfg.workers, len(tasks))) as pool:
                 for task, res in zip(tasks, pool.imap(_collect_task, tasks), strict=True):
                     results.append(res)
