@@ -103,9 +103,7 @@ def bench_encode() -> None:
     c = rod_like_centerlines(np.random.default_rng(3), 1, cfg.camera.points)[0]
     ae = make_feature_map(cfg.feature, points=cfg.camera.points)
     med, p10 = per_call_us(ae.encode, c)
-    print(
-        f"encode      autoencoder numpy (packaged): median {med:.1f} us, p10 {p10:.1f} us"
-    )
+    print(f"encode      autoencoder numpy (packaged): median {med:.1f} us, p10 {p10:.1f} us")
     ckpt = ae.checkpoint  # type: ignore[attr-defined]
     net = ckpt.network()
     import torch

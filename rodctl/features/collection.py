@@ -205,9 +205,12 @@ def _collect_task(args: tuple[str, int, np.random.SeedSequence]) -> dict[str, An
 
 
 def _start_method() -> str:
-    """"spawn" (a clean interpreter: no torch or OpenMP state inherited) when the main module can
-    be re-imported by the workers, as for the CLI, pytest or a script; "fork" otherwise (code fed
-    on stdin or typed interactively), where spawned workers would fail to start."""
+    """The multiprocessing start method for collection workers.
+
+    "spawn" (a clean interpreter: no torch or OpenMP state inherited) when the main module can be
+    re-imported by the workers, as for the CLI, pytest or a script; "fork" otherwise (code fed on
+    stdin or typed interactively), where spawned workers would fail to start.
+    """
     import __main__
 
     main_file = getattr(__main__, "__file__", None)
