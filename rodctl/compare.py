@@ -385,34 +385,14 @@ class _Runner:
         describe: Callable[[Any], str] | None = None,
     ) -> list[Any]:
         """fn(task) for every task, results in task order."""
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
+        from rodctl.display import task_progress
 
-        from rodctl.display import stderr
-
-        bar = Progress(
-            TextColumn(f"[bold]{label}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            TextColumn("{task.fields[last]}"),
-            console=stderr,
-            disable=not self.progress,
-        )
         results: list[Any] = [None] * len(tasks)
-        with bar:
-            tid = bar.add_task(label, total=len(tasks), last="")
+        with task_progress(label, len(tasks), self.progress) as advance:
             if self.pool is None:
                 for i, task in enumerate(tasks):
                     results[i] = fn(task)
-                    bar.update(tid, advance=1, last=describe(results[i]) if describe else "")
+                    advance(describe(results[i]) if describe else "")
                 return results
             futures: dict[Future, int] = {self.pool.submit(fn, t): i for i, t in enumerate(tasks)}
             pending = set(futures)
@@ -420,8 +400,7 @@ class _Runner:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
                     results[futures[fut]] = fut.result()
-                    last = describe(results[futures[fut]]) if describe else ""
-                    bar.update(tid, advance=1, last=last)
+                    advance(describe(results[futures[fut]]) if describe else "")
         return results
 
 

@@ -10,7 +10,14 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
 
 from rodctl.records import RunSummary, StepRecord
@@ -42,6 +49,31 @@ def step_progress(total: int, enabled: bool = True) -> Iterator[Callable[[StepRe
             )
 
         yield on_step
+
+
+@contextmanager
+def task_progress(label: str, total: int, enabled: bool = True) -> Iterator[Callable[..., None]]:
+    """A progress bar over `total` units of work (samples, epochs, episodes) on stderr.
+
+    Yields ``advance(note="", n=1)``: move the bar by n and show a short note beside it.
+    """
+    progress = Progress(
+        TextColumn(f"[bold]{label}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        TextColumn("{task.fields[note]}"),
+        console=stderr,
+        disable=not enabled,
+    )
+    with progress:
+        task = progress.add_task(label, total=total, note="")
+
+        def advance(note: str = "", n: int = 1) -> None:
+            progress.update(task, advance=n, note=note)
+
+        yield advance
 
 
 def summary_table(summary: RunSummary, title: str = "run summary") -> Table:

@@ -25,6 +25,8 @@ from typing import Literal
 import numpy as np
 from scipy.linalg import lapack
 
+from rodctl.estimation.base import checked_jacobian
+
 # Raw LAPACK calls: scipy.linalg's high-level wrappers (and numpy.linalg's) spend more time
 # checking their small inputs than the 18 x 18 factorisations themselves take.
 _dpotrf = lapack.dpotrf
@@ -191,10 +193,7 @@ class AdaptiveKalmanJacobian:
 
     def reset(self, J0: np.ndarray) -> None:
         """Restart from J0 (p, q) with P, Q, R at their configured initial values."""
-        J0 = np.asarray(J0, dtype=float)
-        if J0.shape != (self.p, self.q):
-            raise ValueError(f"J0 must have shape {(self.p, self.q)}, got {J0.shape}")
-        self._J = J0.copy()
+        self._J = checked_jacobian(J0, self.p, self.q)
         self._P = self._p0 * np.eye(self._n)
         self._Q = self._q0 * np.eye(self._n)
         self._R = self._r0 * np.eye(self.p)

@@ -35,6 +35,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from rodctl.estimation.base import checked_jacobian
+
 _ROT90 = np.array([[0.0, -1.0], [1.0, 0.0]])
 
 
@@ -240,10 +242,7 @@ class OfflineJacobian:
 
     def reset(self, J0: np.ndarray) -> None:
         """Install the (p, q) model Jacobian."""
-        J0 = np.asarray(J0, dtype=float)
-        if J0.shape != (self.p, self.q):
-            raise ValueError(f"J must have shape {(self.p, self.q)}, got {J0.shape}")
-        self._J = J0.copy()
+        self._J = checked_jacobian(J0, self.p, self.q)
 
     def update(self, ds: np.ndarray, dr: np.ndarray) -> np.ndarray:
         """Ignore the measurement; return the fixed (p, q) Jacobian."""

@@ -29,3 +29,15 @@ class JacobianEstimator(Protocol):
     def info(self) -> dict[str, float]:
         """Scalar diagnostics for the log (e.g. adaptive factor, innovation statistic)."""
         ...
+
+
+def checked_jacobian(J0: np.ndarray, p: int, q: int) -> np.ndarray:
+    """A float64 copy of J0, which must have shape (p, q): what every `reset` starts from.
+
+    Raises:
+        ValueError: J0 has another shape.
+    """
+    J0 = np.array(J0, dtype=float)
+    if J0.shape != (p, q):
+        raise ValueError(f"J0 must have shape {(p, q)}, got {J0.shape}")
+    return J0

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from rodctl.estimation.base import checked_jacobian
+
 
 class BroydenJacobian:
     """Rank-1 secant update of J (p, q).
@@ -43,10 +45,7 @@ class BroydenJacobian:
 
     def reset(self, J0: np.ndarray) -> None:
         """Restart from J0 (p, q)."""
-        J0 = np.asarray(J0, dtype=float)
-        if J0.shape != (self.p, self.q):
-            raise ValueError(f"J0 must have shape {(self.p, self.q)}, got {J0.shape}")
-        self._J = J0.copy()
+        self._J = checked_jacobian(J0, self.p, self.q)
         self._info = {"skipped": 0.0, "residual": 0.0}
 
     def update(self, ds: np.ndarray, dr: np.ndarray) -> np.ndarray:

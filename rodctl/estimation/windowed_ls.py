@@ -16,6 +16,8 @@ from collections import deque
 
 import numpy as np
 
+from rodctl.estimation.base import checked_jacobian
+
 
 class WindowedLsJacobian:
     """Least squares over the most recent `window` (dr, ds) pairs, ridge towards J_prev."""
@@ -50,10 +52,7 @@ class WindowedLsJacobian:
 
     def reset(self, J0: np.ndarray) -> None:
         """Restart from J0 (p, q) with an empty window."""
-        J0 = np.asarray(J0, dtype=float)
-        if J0.shape != (self.p, self.q):
-            raise ValueError(f"J0 must have shape {(self.p, self.q)}, got {J0.shape}")
-        self._J = J0.copy()
+        self._J = checked_jacobian(J0, self.p, self.q)
         self._dR: deque[np.ndarray] = deque(maxlen=self._window)
         self._dS: deque[np.ndarray] = deque(maxlen=self._window)
         self._info = {"skipped": 0.0, "window": 0.0}

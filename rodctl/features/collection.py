@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from rodctl.config import ExperimentConfig
+from rodctl.display import task_progress
 from rodctl.errors import UserError
-from rodctl.features.progress import progress_bar
 from rodctl.runs import seed_sequence
 
 #: A walk gives up after this many control steps per wanted sample (a broken setup, not bad luck).
@@ -239,7 +239,7 @@ def collect_dataset(cfg: ExperimentConfig, *, progress: bool = True) -> Centerli
     cfg_json = cfg.model_dump_json()
     tasks = [(cfg_json, size, s) for size, s in zip(sizes, seeds, strict=True)]
     results: list[dict[str, Any]] = []
-    with progress_bar(progress, "collecting", data_cfg.samples) as advance:
+    with task_progress("collecting", data_cfg.samples, progress) as advance:
         if data_cfg.workers == 1 or len(tasks) == 1:
             for task in tasks:
                 results.append(_collect_task(task))

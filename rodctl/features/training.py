@@ -23,6 +23,7 @@ import torch
 
 from rodctl.config import ExperimentConfig, dump_config
 from rodctl.config.feature import AutoencoderFeatureConfig, EncoderTrainingConfig
+from rodctl.display import task_progress
 from rodctl.errors import UserError
 from rodctl.features.autoencoder import (
     AutoencoderNet,
@@ -31,7 +32,6 @@ from rodctl.features.autoencoder import (
     encoder_fingerprint,
 )
 from rodctl.features.collection import CenterlineDataset, collect_dataset
-from rodctl.features.progress import progress_bar
 from rodctl.runs import RunDir, rng, torch_seed, write_json_atomic
 
 
@@ -103,7 +103,7 @@ def fit_autoencoder(
         batch = min(tcfg.batch_size, n_train)
         losses: list[float] = []
         t0 = time.perf_counter()
-        with progress_bar(progress, "training", tcfg.epochs) as advance:
+        with task_progress("training", tcfg.epochs, progress) as advance:
             for _epoch in range(tcfg.epochs):
                 order = torch.randperm(n_train, generator=gen)
                 total = 0.0

@@ -165,16 +165,7 @@ def _entity(t_ns: int, entity_id: str, **primitives: list[Any]) -> dict[str, Any
         "frame_locked": False,
         "metadata": [],
     }
-    for name in (
-        "arrows",
-        "cubes",
-        "spheres",
-        "cylinders",
-        "lines",
-        "triangles",
-        "texts",
-        "models",
-    ):
+    for name in schemas.PRIMITIVE_LISTS:
         ent[name] = primitives.get(name, [])
     return ent
 

@@ -217,7 +217,8 @@ _ARROW = {
     },
     "required": ["pose", "shaft_length", "shaft_diameter", "head_length", "head_diameter", "color"],
 }
-_PRIMITIVE_LISTS = (
+#: The primitive lists of a foxglove.SceneEntity (every one required, empty when unused).
+PRIMITIVE_LISTS = (
     "arrows",
     "cubes",
     "spheres",
@@ -245,7 +246,7 @@ _ENTITY = {
                 "required": ["key", "value"],
             },
         },
-        **{name: {"type": "array"} for name in _PRIMITIVE_LISTS},
+        **{name: {"type": "array"} for name in PRIMITIVE_LISTS},
         "arrows": {"type": "array", "items": _ARROW},
         "lines": {"type": "array", "items": _LINE},
     },
@@ -256,7 +257,7 @@ _ENTITY = {
         "lifetime",
         "frame_locked",
         "metadata",
-        *_PRIMITIVE_LISTS,
+        *PRIMITIVE_LISTS,
     ],
 }
 SCENE_UPDATE: dict[str, Any] = {
