@@ -117,6 +117,11 @@ def simulate(
     from rodctl.display import print_summary, step_progress
     from rodctl.simulate import simulate as run_simulation
 
+    if _config_model(config) is not ExperimentConfig:
+        raise UserError(
+            f"{config}: this is a compare config (it has 'methods'); run it with "
+            f"`rodctl compare {config}`"
+        )
     cfg = load_config(config, set_ or [])
     with step_progress(cfg.run.max_steps, enabled=not quiet) as on_step:
         result = run_simulation(cfg, out, argv=sys.argv, on_step=on_step)

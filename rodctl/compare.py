@@ -331,7 +331,7 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
             error="",
         )
         if log_dir is not None:
-            write_json_atomic(log_dir / "summary.json", _jsonable(summary.to_json()))
+            write_json_atomic(log_dir / "summary.json", summary.to_json())
         if task.get("want_records"):
             row["_records"] = (exp.header, exp.records)
     return row
@@ -557,25 +557,6 @@ def success_figure(rows: Sequence[dict], methods: Sequence[str], path: Path, bin
 # --- the command ------------------------------------------------------------------------------
 
 
-def _jsonable(data: Any) -> Any:
-    """NaN/inf -> None and arrays -> lists, so the JSON parses everywhere."""
-
-    def clean(v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, list | tuple):
-            return [clean(x) for x in v]
-        if isinstance(v, np.ndarray):
-            return clean(v.tolist())
-        if isinstance(v, np.generic):
-            return clean(v.item())
-        return v
-
-    return clean(data)
-
-
 def _preflight(cfg: CompareConfig) -> dict[str, ExperimentConfig]:
     """Every method's config, each built once here so a missing checkpoint fails before work."""
     from rodctl.features import make_feature_map
@@ -738,7 +719,7 @@ def write_results(
         "episodes": [{k: r.get(k) for k in CSV_COLUMNS} for r in rows],
         "config": cfg.model_dump(mode="json"),
     }
-    write_json_atomic(folder / "results.json", _jsonable(data))
+    write_json_atomic(folder / "results.json", data)
 
 
 def write_summary_md(

@@ -16,6 +16,7 @@ loop is free of user interface: progress is reported through an `on_step` callba
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -203,12 +204,19 @@ class Experiment:
         self,
         sinks: Sequence[Sink] = (),
         on_step: Callable[[StepRecord], None] | None = None,
+        stop_requested: Callable[[], str | None] | None = None,
     ) -> RunSummary:
         """Run the experiment to its end and return the summary.
 
         Sinks are opened here and receive every record as it is made; closing them is the
-        caller's job (so that it happens whatever way the run ends). Raises `Interrupted` if a
-        signal handler raises it, with all records so far already handed to the sinks.
+        caller's job (so that it happens whatever way the run ends).
+
+        Args:
+            sinks: outputs that receive the header and every step record.
+            on_step: called with each record after the sinks have it (progress display).
+            stop_requested: polled before each step; a non-empty reason (e.g. "SIGINT") ends
+                the run there by raising `Interrupted`, so a stop never cuts a step in half:
+                every record made so far is complete and in every sink.
         """
         cfg = self.cfg
         wall0 = time.perf_counter()
@@ -255,6 +263,9 @@ class Experiment:
                 on_step(rec)
 
         def make_record(k, phase, obs, s, u, u_raw, res=None, sat=None) -> StepRecord:
+            """The record of step k; saturation flags come from the move when not given."""
+            if sat is None:
+                sat = res.saturated if res is not None else np.zeros(Q, dtype=bool)
             health = sim.health()
             return StepRecord(
                 step=k,
@@ -273,7 +284,7 @@ class Experiment:
                 J_singular_values=np.linalg.svd(J, compute_uv=False),
                 pixel_error=pixel_error(obs.extracted, target.pixels),
                 settled=True if res is None else bool(res.settled),
-                saturated=np.zeros(Q, dtype=bool) if sat is None else sat,
+                saturated=np.asarray(sat, dtype=bool),
                 clipped=False if res is None else bool(res.clipped or res.refused),
                 max_joint_gap=float(health.max_joint_gap),
                 kinetic_energy=float(health.kinetic_energy),
@@ -289,6 +300,12 @@ class Experiment:
             return res
 
         setup_time = time.perf_counter() - wall0  # target, rod at home, stages
+
+        def check_stop() -> None:
+            reason = stop_requested() if stop_requested is not None else None
+            if reason:
+                raise Interrupted(reason)
+
         # Step 0: the initial observation.
         obs = self.observe(sim)
         if not obs.ok:
@@ -301,7 +318,7 @@ class Experiment:
             J = self.offline_jacobian(obs.extracted)
             estimator.reset(J)
         zero = np.zeros(Q)
-        emit(make_record(0, "initial", obs, s, zero, zero), obs)
+        emit(make_record(0, "initial", obs, s, zero, zero, sat=np.zeros(Q, dtype=bool)), obs)
         k = 0
         outcome = None
         steps_to_converge = None
@@ -310,28 +327,34 @@ class Experiment:
         # Probing: q + 1 small moves and a least-squares fit give J_0 (method-notes section 1).
         # J_0 is fitted before the last probe's record is made: a record never changes once a
         # sink has it (replay --verify compares the log with a rerun bit for bit).
+        # A frame whose centerline was not extracted gives no feature: the moves made since the
+        # last good frame are summed, so each Delta s is paired with the Delta r that caused it.
+        unseen = np.zeros(Q)  # gripper motion since the last good frame
         if not (scripted or offline):
             moves = probe_moves(Q, np.asarray(cfg.run.probe_size))
             dS, dR = [], []
             for i, du in enumerate(moves):
                 if k >= cfg.run.max_steps:
                     break
+                check_stop()
                 k += 1
                 res = move(du)
                 obs = self.observe(sim)
+                unseen += res.u_applied
                 if res.diverged:
                     outcome = "diverged"
                 elif obs.ok:
                     s_new = self.encode(obs.extracted)
                     dS.append(s_new - s)
-                    dR.append(res.u_applied)
+                    dR.append(unseen.copy())
+                    unseen[:] = 0.0
                     s = s_new
                 if outcome is None and i == len(moves) - 1:
                     if len(dR) < Q:
                         outcome = "lost_tracking"
                     else:
                         t = time.perf_counter()
-                        J = fit_jacobian(np.array(dS), np.array(dR))
+                        J = _initial_jacobian(np.array(dS), np.array(dR))
                         estimator.reset(J)
                         self.times.control += time.perf_counter() - t
                 emit(make_record(k, "probe", obs, s, res.u_applied, du, res), obs)
@@ -341,33 +364,42 @@ class Experiment:
 
         # Control.
         lost = 0
-        window: list[float] = []
+        # Pixel errors of the last stall_window + 1 good frames: progress over stall_window steps.
+        window: deque[float] = deque(maxlen=cfg.run.stall_window + 1)
         while outcome is None and k < cfg.run.max_steps:
+            check_stop()
             k += 1
             t = time.perf_counter()
             r_rel = sim.gripper_pose - home
             u_raw = np.asarray(controller.command(s, s_star, J, r_rel), dtype=float)
-            u = np.clip(u_raw, -self.max_step, self.max_step)
-            saturated = np.abs(u_raw) > self.max_step
             self.times.control += time.perf_counter() - t
-            res = move(u)
+            if not np.all(np.isfinite(u_raw)):
+                # A NaN estimate or feature: the method has broken down; do not move the robot.
+                emit(make_record(k, "control", obs, s, np.zeros(Q), u_raw), obs)
+                outcome = "diverged"
+                break
+            res = move(u_raw)  # the robot saturates per axis (rod.max_step) and reports it
             obs = self.observe(sim)
+            unseen += res.u_applied
             if obs.ok:
                 lost = 0
                 s_new = self.encode(obs.extracted)
                 t = time.perf_counter()
-                J = estimator.update(s_new - s, res.u_applied)
+                J = estimator.update(s_new - s, unseen)
                 self.times.control += time.perf_counter() - t
+                unseen[:] = 0.0
                 s = s_new
             else:
                 lost += 1
-            rec = make_record(k, "control", obs, s, res.u_applied, u_raw, res, saturated)
+            rec = make_record(k, "control", obs, s, res.u_applied, u_raw, res, res.saturated)
             emit(rec, obs)
 
             if res.diverged or not np.isfinite(rec.T1):
                 outcome = "diverged"
             elif lost >= cfg.run.max_lost_frames:
                 outcome = "lost_tracking"
+            elif not obs.ok:
+                continue  # a bridged or failed frame decides nothing
             elif scripted:
                 if getattr(controller, "done", False) and res.settled:
                     outcome = "completed"
@@ -378,10 +410,8 @@ class Experiment:
                 steps_to_converge = k
             else:
                 window.append(rec.pixel_error)
-                if len(window) > cfg.run.stall_window:
-                    window.pop(0)
-                    if _stalled(window, J, s_star - s, cfg):
-                        outcome = "stalled"
+                if len(window) == window.maxlen and _stalled(list(window), J, s_star - s, cfg):
+                    outcome = "stalled"
         if outcome is None:
             outcome = "step_limit"
 
@@ -419,6 +449,17 @@ class Experiment:
                 "time_per_step_ms": self.times.per_step_ms(len(self.records)),
             },
         )
+
+
+def _initial_jacobian(dS: np.ndarray, dR: np.ndarray) -> np.ndarray:
+    """J_0 from the probing moves; probes the workspace refused cannot span every axis."""
+    try:
+        return fit_jacobian(dS, dR)
+    except ValueError as exc:
+        raise UserError(
+            f"probing: {exc}. The workspace clipped or refused the probing moves; make "
+            "run.probe_size smaller or start further inside rod.workspace"
+        ) from None
 
 
 def _image_every(rate_hz: float, control_period: float) -> int:

@@ -255,11 +255,13 @@ def verify(run: ReadRun, *, progress: bool = False) -> list[str]:
     from rodctl.experiment import Experiment
 
     data = yaml.safe_load(run.header.config_yaml)
+    logged = run.records
+    ended = run.complete and run.status == "completed"
+    if not ended and logged:
+        # An interrupted, failed or unfinished run: replay only as far as it got.
+        data.setdefault("run", {})["max_steps"] = max(1, int(logged[-1].step))
     cfg = validate_config(data, f"{run.path} (embedded config.yaml)")
     exp = Experiment(cfg, run_id=run.header.run_id)
-    logged = run.records
     exp.run()
-    fresh = exp.records
-    if not run.complete:
-        fresh = fresh[: len(logged)]
+    fresh = exp.records if ended else exp.records[: len(logged)]
     return compare_records(logged, fresh)

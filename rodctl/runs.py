@@ -8,6 +8,7 @@ atomically (write to a temporary file, then rename) so a crash never leaves it h
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -99,10 +100,25 @@ def _now() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
+def jsonable(value: Any) -> Any:
+    """A copy that strict JSON can hold: numpy values as Python ones, NaN and infinity as null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray | np.generic):
+        return jsonable(value.tolist())
+    return value
+
+
 def write_json_atomic(path: Path, data: Any) -> None:
-    """Write JSON to `path` via a temporary file and a rename, so readers never see half a file."""
+    """Write `jsonable(data)` to `path` via a temporary file and a rename, so readers never see
+    half a file and every JSON parser reads it (no NaN)."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n", encoding="utf-8")
+    text = json.dumps(jsonable(data), indent=2, allow_nan=False)
+    tmp.write_text(text + "\n", encoding="utf-8")
     os.replace(tmp, path)
 
 

@@ -7,8 +7,8 @@ far and meta.json records the terminal status. Nothing already logged is lost.
 
 from __future__ import annotations
 
-import json
 import signal
+import threading
 import time
 import traceback
 from collections.abc import Callable
@@ -16,9 +16,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from rodctl.config import ExperimentConfig
+from rodctl.errors import UserError
 from rodctl.experiment import Experiment, Interrupted
 from rodctl.logs.base import Sink
 from rodctl.records import RunSummary, StepRecord
@@ -52,19 +51,39 @@ def make_sinks(cfg: ExperimentConfig, run_dir: Path) -> list[Sink]:
     return sinks
 
 
-@contextmanager
-def interrupts_as_exceptions():
-    """Turn SIGINT and SIGTERM into `Interrupted` raised inside the loop, for the duration."""
+class StopRequests:
+    """Records SIGINT/SIGTERM instead of acting on them; the loop polls `reason()` each step.
 
-    def handler(signum, _frame):
-        raise Interrupted(signal.Signals(signum).name)
+    A handler that raised wherever the signal landed could cut a step in half or be swallowed
+    by a library that turns exceptions into warnings; a flag is checked at one safe point.
+    A signal the process was started ignoring (nohup, a background job) stays ignored.
+    """
 
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
+    def __init__(self) -> None:
+        self._reason: str | None = None
+
+    def reason(self) -> str | None:
+        """The name of the first stop signal received, or None."""
+        return self._reason
+
+    def _handler(self, signum: int, _frame: object) -> None:
+        self._reason = self._reason or signal.Signals(signum).name
+
+    @contextmanager
+    def installed(self):
+        """Catch SIGINT and SIGTERM for the duration (main thread only; no-op elsewhere)."""
+        if threading.current_thread() is not threading.main_thread():
+            yield self
+            return
+        previous = {}
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(sig) is not signal.SIG_IGN:
+                previous[sig] = signal.signal(sig, self._handler)
+        try:
+            yield self
+        finally:
+            for sig, old in previous.items():
+                signal.signal(sig, old)
 
 
 def partial_summary(exp: Experiment, status: str, outcome: str, wall: float) -> RunSummary:
@@ -94,40 +113,49 @@ def simulate(
     argv: list[str] | None = None,
     on_step: Callable[[StepRecord], None] | None = None,
 ) -> SimulateResult:
-    """Run one experiment into a new run directory under `out`."""
-    run = RunDir.create(out, cfg, command="simulate", argv=argv)
-    exp = Experiment(cfg, run_id=run.run_id)
-    sinks = make_sinks(cfg, run.path)
-    wall0 = time.perf_counter()
-    summary: RunSummary | None = None
-    error: str | None = None
-    status = "failed"
-    try:
-        with interrupts_as_exceptions():
-            summary = exp.run(sinks, on_step=on_step)
-        status = "completed" if summary.status == "completed" else "failed"
-    except (Interrupted, KeyboardInterrupt) as exc:
-        status, error = "interrupted", f"interrupted by {exc or 'SIGINT'}"
-        summary = partial_summary(exp, "interrupted", "interrupted", time.perf_counter() - wall0)
-    except Exception as exc:
-        from rodctl.errors import UserError
+    """Run one experiment into a new run directory under `out`.
 
-        if isinstance(exc, UserError) and not exp.records:
-            # Bad input found before the first step: nothing to keep but the config.
-            _close(sinks, None, "failed")
-            run.finish("failed", error=str(exc))
-            raise
-        status, error = "failed", f"{type(exc).__name__}: {exc}"
-        (run.path / "error.txt").write_text(traceback.format_exc(), encoding="utf-8")
-        summary = partial_summary(exp, "failed", "failed", time.perf_counter() - wall0)
-    finally:
-        _close(sinks, summary, status)
-    write_json_atomic(run.path / "summary.json", _jsonable(summary.to_json()))
-    if cfg.logging.figures and exp.records:
-        from rodctl.plots import write_figures
+    The stages are built before the run directory exists, so a config that cannot run (a
+    missing checkpoint, an impossible feature) is a `UserError` that leaves nothing behind.
+    SIGINT/SIGTERM are recorded from then until meta.json is final: the loop stops at the next
+    step boundary, and the closing of the logs is never cut short.
+    """
+    stops = StopRequests()
+    with stops.installed():
+        exp = Experiment(cfg)
+        run = RunDir.create(out, cfg, command="simulate", argv=argv)
+        exp.run_id = run.run_id
+        wall0 = time.perf_counter()
+        summary: RunSummary | None = None
+        error: str | None = None
+        status = "failed"
+        sinks: list[Sink] = []
+        try:
+            sinks = make_sinks(cfg, run.path)
+            summary = exp.run(sinks, on_step=on_step, stop_requested=stops.reason)
+            status = "completed" if summary.status == "completed" else "failed"
+        except (Interrupted, KeyboardInterrupt) as exc:
+            status, error = "interrupted", f"interrupted by {exc or 'SIGINT'}"
+            wall = time.perf_counter() - wall0
+            summary = partial_summary(exp, "interrupted", "interrupted", wall)
+        except Exception as exc:
+            if isinstance(exc, UserError) and not exp.records:
+                # Bad input found before the first step: nothing to keep but the config.
+                _close(sinks, None, "failed")
+                run.finish("failed", error=str(exc))
+                raise
+            status = "failed"
+            error = str(exc) if isinstance(exc, UserError) else f"{type(exc).__name__}: {exc}"
+            (run.path / "error.txt").write_text(traceback.format_exc(), encoding="utf-8")
+            summary = partial_summary(exp, "failed", "failed", time.perf_counter() - wall0)
+        finally:
+            _close(sinks, summary, status)
+        write_json_atomic(run.path / "summary.json", summary.to_json())
+        if cfg.logging.figures and exp.records:
+            from rodctl.plots import write_figures
 
-        write_figures(exp.header, exp.records, run.path / "figures")
-    run.finish(status, outcome=summary.outcome, **({"error": error} if error else {}))
+            write_figures(exp.header, exp.records, run.path / "figures")
+        run.finish(status, outcome=summary.outcome, **({"error": error} if error else {}))
     code = EXIT_OK if status == "completed" else EXIT_RUN_FAILED
     return SimulateResult(run=run, summary=summary, exit_code=code, error=error)
 
@@ -142,11 +170,3 @@ def _close(sinks: list[Sink], summary: RunSummary | None, status: str) -> None:
             first = first or exc
     if first is not None:
         raise first
-
-
-def _jsonable(data):
-    """Replace NaN/inf (not valid JSON) by None so summary.json parses everywhere."""
-    return json.loads(
-        json.dumps(data, default=lambda o: o.tolist() if isinstance(o, np.ndarray) else str(o)),
-        parse_constant=lambda _c: None,
-    )

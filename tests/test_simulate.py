@@ -206,6 +206,21 @@ def test_signal_half_way_leaves_an_interrupted_readable_run(tmp_path, sig):
         for check in (["mcap", "check", str(mcap)], ["rrd", "verify", str(run_dir / "run.rrd")]):
             res = subprocess.run([RERUN, *check], capture_output=True, text=True, timeout=120)
             assert res.returncode == 0, res.stdout + res.stderr
+    if sig == signal.SIGINT:
+        # The interrupted run replays bit for bit as far as it got.
+        res = runner.invoke(
+            app,
+            [
+                "replay",
+                str(run_dir),
+                "--verify",
+                "--no-figures",
+                "--out",
+                str(tmp_path / "replayed"),
+            ],
+        )
+        assert res.exit_code == 0, res.output
+        assert f"verify: OK, {len(run.records)} steps identical" in res.output
 
 
 def test_bad_target_is_a_user_error(tmp_path):

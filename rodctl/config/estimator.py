@@ -17,13 +17,6 @@ from pydantic import Field, PositiveFloat, model_validator
 
 from rodctl.config.base import StrictModel
 
-#: Default probing move per axis [dx (m), dy (m), dtheta (rad)].
-DEFAULT_PROBE_SIZE = (0.005, 0.005, 0.03)
-
-_PROBE_DOC = (
-    "Probing move per axis [dx m, dy m, dtheta rad]: q + 1 moves (each axis, then a combined "
-    "return) fit J_0 by least squares at the start of a run; they count as run steps."
-)
 _DEAD_ZONE_DOC = (
     "Skip the update when ||dr|| (Euclidean, metres and radians mixed) is below this: a tiny "
     "move carries no information about J and would amplify feature noise."

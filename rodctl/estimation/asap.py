@@ -36,31 +36,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from rodctl.estimation.base import checked_jacobian
+from rodctl.geometry import resample_polyline
 
 _ROT90 = np.array([[0.0, -1.0], [1.0, 0.0]])
-
-
-def resample_polyline(points: np.ndarray, n: int) -> np.ndarray:
-    """Resample a polyline at n points equally spaced in arc length (both ends kept).
-
-    Args:
-        points: (M, 2) ordered points.
-        n: number of output points, >= 2.
-
-    Returns:
-        (n, 2) points.
-    """
-    points = np.asarray(points, dtype=float)
-    if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] < 2:
-        raise ValueError(f"points must be (M >= 2, 2), got {points.shape}")
-    if n < 2:
-        raise ValueError(f"n must be >= 2, got {n}")
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    if s[-1] <= 0.0:
-        raise ValueError("the polyline has zero length")
-    t = np.linspace(0.0, s[-1], n)
-    return np.column_stack([np.interp(t, s, points[:, 0]), np.interp(t, s, points[:, 1])])
 
 
 def asap_matrix(rest: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ from rodctl.config.feature import (
     FourierFeatureConfig,
     NodesFeatureConfig,
 )
+from rodctl.errors import UserError
 from rodctl.features.base import FeatureMap
 from rodctl.features.bezier import BezierFeatureMap
 from rodctl.features.fourier import FourierFeatureMap
@@ -93,10 +94,13 @@ def make_feature_map(
     """
     if isinstance(cfg, AutoencoderFeatureConfig):
         return load_autoencoder(cfg, points=points, experiment=experiment)
-    if isinstance(cfg, BezierFeatureConfig):
-        return BezierFeatureMap(cfg.degree, points)
-    if isinstance(cfg, FourierFeatureConfig):
-        return FourierFeatureMap(cfg.harmonics, points)
-    if isinstance(cfg, NodesFeatureConfig):
-        return NodesFeatureMap(cfg.positions, points)
+    try:
+        if isinstance(cfg, BezierFeatureConfig):
+            return BezierFeatureMap(cfg.degree, points)
+        if isinstance(cfg, FourierFeatureConfig):
+            return FourierFeatureMap(cfg.harmonics, points)
+        if isinstance(cfg, NodesFeatureConfig):
+            return NodesFeatureMap(cfg.positions, points)
+    except ValueError as exc:  # a combination one model alone cannot check (e.g. with N)
+        raise UserError(f"feature ({cfg.type}) with camera.points={points}: {exc}") from None
     raise TypeError(f"unknown feature config {type(cfg).__name__}")

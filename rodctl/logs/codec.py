@@ -352,6 +352,10 @@ def record_from_messages(
 
 
 # ---------------------------------------------------------------------------------------- logs
+def _saturated_axes(r: StepRecord) -> list[str]:
+    return [axis for axis, bit in zip(("x", "y", "theta"), r.saturated, strict=True) if bit]
+
+
 def step_log_lines(prev: StepRecord | None, r: StepRecord) -> list[tuple[str, str]]:
     """The human-readable events of one step as (level, text): phase changes and problems.
 
@@ -367,6 +371,9 @@ def step_log_lines(prev: StepRecord | None, r: StepRecord) -> list[tuple[str, st
         lines.append(("WARN", f"step {r.step}: rod did not settle within the budget"))
     if r.clipped:
         lines.append(("INFO", f"step {r.step}: workspace clipped the commanded pose"))
+    sat = _saturated_axes(r)
+    if sat and (prev is None or sat != _saturated_axes(prev)):  # when it starts or changes
+        lines.append(("INFO", f"step {r.step}: speed limit bit on {', '.join(sat)}"))
     if not math.isfinite(r.T1):
         lines.append(("ERROR", f"step {r.step}: T1 is not finite ({r.T1})"))
     return lines

@@ -13,6 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from rodctl.geometry import resample_polyline
 from rodctl.records import RunHeader, StepRecord
 
 _CONFIG_YAML = """\
@@ -43,14 +44,6 @@ def _curve(clamp: np.ndarray, grip: np.ndarray, m: int) -> np.ndarray:
     return h00 * p0 + h10 * t0 + h01 * p1 + h11 * t1
 
 
-def _resample(points: np.ndarray, n: int) -> np.ndarray:
-    """(n, 2) points equally spaced in arc length along a polyline."""
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    arc = np.concatenate([[0.0], np.cumsum(seg)])
-    t = np.linspace(0.0, arc[-1], n)
-    return np.stack([np.interp(t, arc, points[:, 0]), np.interp(t, arc, points[:, 1])], axis=1)
-
-
 class SyntheticRun:
     """A fake run: `header` and `records(n)`.
 
@@ -77,7 +70,7 @@ class SyntheticRun:
         self.target_pose = np.array([0.45, 0.18, 0.9])
         self.W = self.rng.normal(size=(p, 100 * 2)) / 40.0
         target_world = _curve(self.clamp, self.target_pose, 51)
-        target_px = _resample(self.project(target_world), 100)
+        target_px = resample_polyline(self.project(target_world), 100)
         self.s_target = self.feature(target_px)
         self.header = RunHeader(
             run_id=f"20261123-101500_synthetic-{seed}",
@@ -130,7 +123,7 @@ class SyntheticRun:
             u = np.clip(u_raw, [-0.02, -0.02, -0.1], [0.02, 0.02, 0.1])
             pose = pose + u
             world = _curve(self.clamp, pose, 51)
-            truth_px = _resample(self.project(world), 100)
+            truth_px = resample_polyline(self.project(world), 100)
             extracted = truth_px + self.rng.normal(0.0, 0.3, truth_px.shape)
             s = self.feature(extracted)
             J = J + self.rng.normal(0.0, 0.01, J.shape)

@@ -160,7 +160,7 @@ class RodChain:
         # Velocities are multiplied by damping**dt each step: damping = e^(-c) per second.
         space.damping = math.exp(-damping_rate)
         # Undo the spring softening by damping**dt (pitfall 2 of rod-validation.md).
-        soften = space.damping**self.dt
+        soften = math.exp(-damping_rate * self.dt)  # = damping**dt, without the underflow
         k_in = bending_stiffness / seg / soften
         k_end = 2.0 * bending_stiffness / seg / soften
 

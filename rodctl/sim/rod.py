@@ -22,6 +22,7 @@ import numpy as np
 
 from rodctl.config.rod import RodConfig
 from rodctl.errors import UserError
+from rodctl.geometry import resample_polyline
 from rodctl.sim.chain import RodChain, first_mode_rate, stable_dt_limit
 
 #: Default home pose in the clamp frame: [x/L, y/L, theta]. Gently bent (chord 0.82 L), with a
@@ -34,6 +35,9 @@ SETTLE_CHECK_EVERY = 5
 
 #: Fraction of the stability limit used when `dt` is left to the simulator.
 DT_SAFETY = 0.5
+#: Largest global damping rate (1/s) pymunk can represent: it keeps e^-rate of the velocity per
+#: second, a float that underflows near e^-745; 700 leaves a margin.
+MAX_DAMPING_RATE = 700.0
 
 
 @dataclass
@@ -106,6 +110,16 @@ class RodSim:
         self.omega1 = first_mode_rate(
             cfg.length, cfg.bending_stiffness, cfg.mass_per_length, n, cfg.inertia_radius
         )
+        damping_rate = 2.0 * cfg.damping * self.omega1
+        if damping_rate > MAX_DAMPING_RATE:
+            # pymunk takes damping as the fraction of velocity kept per second, e^-rate: past
+            # this it underflows to 0 and the rod could not move at all.
+            raise UserError(
+                f"rod: this rod's first bending mode ({self.omega1:.0f} rad/s) is too fast to "
+                f"damp in pymunk (rate {damping_rate:.0f}/s > {MAX_DAMPING_RATE:.0f}/s). "
+                "Increase rod.inertia_radius (it slows every mode without changing the settled "
+                "shape), or lower rod.damping, or use a longer / softer rod"
+            )
         self.chain = RodChain(
             length=cfg.length,
             bending_stiffness=cfg.bending_stiffness,
@@ -115,7 +129,7 @@ class RodSim:
             dt=self.dt,
             iterations=cfg.iterations,
             # Critical damping of mode 1: c = 2 ω1 (scaled by cfg.damping).
-            damping_rate=2.0 * cfg.damping * self.omega1,
+            damping_rate=damping_rate,
             inertia_radius=cfg.inertia_radius,
         )
         self._diverged = False
@@ -363,22 +377,3 @@ class RodSim:
     def _is_slow(self) -> bool:
         speed = self.chain.max_speed()
         return math.isfinite(speed) and speed < self.cfg.settle_speed_tol
-
-
-def resample_polyline(points: np.ndarray, m: int) -> np.ndarray:
-    """`m` points equally spaced in arc length along a polyline, both ends included.
-
-    Args:
-        points: (K, 2) polyline vertices, K >= 2.
-        m: number of output points, >= 2.
-
-    Returns:
-        (m, 2).
-    """
-    if m < 2:
-        raise ValueError(f"need m >= 2 points, got {m}")
-    points = np.asarray(points, dtype=float)
-    seg = np.hypot(*np.diff(points, axis=0).T)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    q = np.linspace(0.0, s[-1], m)
-    return np.stack([np.interp(q, s, points[:, 0]), np.interp(q, s, points[:, 1])], axis=1)

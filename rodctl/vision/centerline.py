@@ -47,6 +47,7 @@ import numpy as np
 
 from rodctl.config.camera import CameraConfig
 from rodctl.errors import UserError
+from rodctl.geometry import polyline_length, resample_polyline
 from rodctl.vision.camera import Camera
 
 # Cross-section sample spacing (px) and the status codes of `_cross_sections`.
@@ -87,44 +88,11 @@ class Extraction:
     bridged: bool = False
 
 
-def resample_polyline(points: np.ndarray, n: int) -> np.ndarray:
-    """Resample a polyline at `n` points equally spaced in arc length, both ends kept.
-
-    Args:
-        points: (M, 2) polyline, M >= 2.
-        n: number of output points, n >= 2.
-
-    Returns:
-        (n, 2) float64 points.
-    """
-    pts = np.asarray(points, dtype=np.float64)
-    seg = np.hypot(*np.diff(pts, axis=0).T)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    if s[-1] <= 0:
-        return np.repeat(pts[:1], n, axis=0)
-    q = np.linspace(0.0, s[-1], n)
-    return np.column_stack([np.interp(q, s, pts[:, 0]), np.interp(q, s, pts[:, 1])])
-
-
-def polyline_length(points: np.ndarray) -> float:
-    """Total length of a (M, 2) polyline."""
-    return float(np.hypot(*np.diff(np.asarray(points, dtype=np.float64), axis=0).T).sum())
-
-
 def _unit_normals(points: np.ndarray) -> np.ndarray:
     """(M, 2) unit normals (left of the direction of travel in image coordinates)."""
     d = np.gradient(points, axis=0)
     d /= np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
     return np.column_stack([-d[:, 1], d[:, 0]])
-
-
-def _rotate(d: np.ndarray, angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
-
-
-def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
-    return math.atan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1])
 
 
 def _hermite(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray, n: int) -> np.ndarray:
