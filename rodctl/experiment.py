@@ -29,6 +29,7 @@ from rodctl.estimation import make_estimator
 from rodctl.estimation.asap import asap_from_centerline
 from rodctl.estimation.probing import fit_jacobian, probe_moves
 from rodctl.features import make_feature_map
+from rodctl.geometry import resample_polyline
 from rodctl.logs.base import Sink
 from rodctl.records import RunHeader, RunSummary, StepRecord
 from rodctl.runs import rng
@@ -126,7 +127,7 @@ class Experiment:
         gripper = sim.gripper_pose
         image = self.camera.render(truth, gripper, self.clamp_pose)
         ext = self.extractor.extract(image, gripper)
-        projected = self.camera.project(sim.centerline(self.cfg.camera.points))
+        projected = self.camera.project(resample_polyline(truth, self.cfg.camera.points))
         self.times.vision += time.perf_counter() - t
         return Observation(truth, projected, image, ext.points, ext.ok, ext.note)
 

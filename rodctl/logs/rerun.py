@@ -116,7 +116,14 @@ class RerunSink:
         if self._rec is not None or self._closed:
             raise RuntimeError("RerunSink.open called twice")
         self._header = header
-        rec = rr.RecordingStream(APPLICATION_ID, recording_id=header.run_id)
+        # No time-based batching: rows logged one by one (frames, log lines) are cut into chunks
+        # only where `_send` flushes, every `flush_every_steps` steps, so two runs of one config
+        # give the same chunks (rrd compare matches chunks) however busy the machine is.
+        rec = rr.RecordingStream(
+            APPLICATION_ID,
+            recording_id=header.run_id,
+            batcher_config=rr.ChunkBatcherConfig.NEVER(),
+        )
         rec.set_log_time_enabled(False)
         rec.save(self.path, default_blueprint=blueprint())
         self._rec = rec
@@ -252,6 +259,7 @@ class RerunSink:
         for i, axis in enumerate(_AXES):
             rec.send_columns(f"/control/u/{axis}", idx, rr.Scalars.columns(scalars=u[:, i]))
         self._buf = _empty_buffer()
+        rec.flush()  # the batched rows become chunks here, and reach the file
 
     def close(self, summary: RunSummary | None, status: str) -> None:
         """Log the closing line and finish the file (footer). Idempotent.
