@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import Protocol
 
 from rodctl.records import RunHeader, RunSummary, StepRecord
@@ -19,3 +20,13 @@ class Sink(Protocol):
 
     def close(self, summary: RunSummary | None, status: str) -> None:
         """Finalise the output. `status` is "completed", "failed" or "interrupted"."""
+
+
+def raise_or_warn(errors: list[BaseException], status: str, what: str) -> None:
+    """The sinks' policy for failures while closing: raise for a completed run; otherwise
+    warn, so that a closing failure never masks the exception that ended the run."""
+    if not errors:
+        return
+    if status == "completed":
+        raise errors[0]
+    warnings.warn(f"{what}: {errors[0]!r}", RuntimeWarning, stacklevel=3)

@@ -28,7 +28,6 @@ import json
 import os
 import signal
 import threading
-import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -47,6 +46,7 @@ from mcap.writer import CompressionType, Writer
 from rodctl.config.logging import LoggingConfig
 from rodctl.errors import UserError
 from rodctl.logs import codec, schemas
+from rodctl.logs.base import raise_or_warn
 from rodctl.records import RunHeader, RunSummary, StepRecord
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -378,14 +378,7 @@ class McapSink:
                 errors.append(exc)
             finally:
                 f.close()
-        if errors:
-            if status == "completed":
-                raise errors[0]
-            warnings.warn(
-                f"{self.path}: closing the MCAP log failed: {errors[0]!r}",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+        raise_or_warn(errors, status, f"{self.path}: closing the MCAP log failed")
 
     # -------------------------------------------------------------------------------- helpers
     def _add(self, topic: str, t_ns: int, seq: int, msg: dict[str, Any]) -> None:

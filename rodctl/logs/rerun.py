@@ -22,7 +22,6 @@ three command axes, the log) is embedded in the file.
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +30,7 @@ import rerun.blueprint as rrb
 
 from rodctl.config.logging import LoggingConfig
 from rodctl.logs import codec
+from rodctl.logs.base import raise_or_warn
 from rodctl.records import RunHeader, RunSummary, StepRecord
 
 APPLICATION_ID = "rodctl"
@@ -306,11 +306,4 @@ class RerunSink:
             rec.disconnect()
         except Exception as exc:  # noqa: BLE001
             errors.append(exc)
-        if errors:
-            if status == "completed":
-                raise errors[0]
-            warnings.warn(
-                f"{self.path}: closing the Rerun recording failed: {errors[0]!r}",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+        raise_or_warn(errors, status, f"{self.path}: closing the Rerun recording failed")
