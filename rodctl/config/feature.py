@@ -41,9 +41,11 @@ class EncoderTrainingConfig(StrictModel):
     """How the autoencoder is trained (paper section VI-A: Adam, lr 1e-3, batch 10,000, MSE)."""
 
     epochs: int = Field(
-        300,
+        800,
         ge=1,
-        description="Passes over the training set (300 x 10 steps: ~0.7 px, <= 5 min on 2 cores).",
+        description="Passes over the training set. The paper gives none; on 100k collected "
+        "shapes 300 epochs (2,700 Adam steps at batch 10,000) left 1.05 px, 800 reach 0.62 px "
+        "in 226 s on 2 cores.",
     )
     batch_size: int = Field(10_000, ge=1, description="Mini-batch size (the paper: 10,000).")
     lr: float = Field(1e-3, gt=0.0, description="Initial Adam learning rate (the paper: 1e-3).")
