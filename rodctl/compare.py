@@ -598,7 +598,7 @@ def run_compare(
     n_workers = workers or cfg.workers or os.cpu_count() or 1
     if n_workers < 1:
         raise UserError(f"--workers must be >= 1, got {n_workers}")
-    run = RunDir.create(out, cfg, command="compare")  # type: ignore[arg-type]  # duck-typed cfg
+    run = RunDir.create(out, cfg, command="compare")
     status = "failed"
     try:
         with _Runner(n_workers, progress) as runner:

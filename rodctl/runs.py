@@ -20,8 +20,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import BaseModel
 
-from rodctl.config import ExperimentConfig, dump_config
+from rodctl.config import dump_config
 from rodctl.errors import UserError
 
 #: Every consumer of randomness, in a fixed order. Each gets its own independent stream derived
@@ -136,9 +137,12 @@ class RunDir:
 
     @classmethod
     def create(
-        cls, parent: str | Path, cfg: ExperimentConfig, command: str, argv: list[str] | None = None
+        cls, parent: str | Path, cfg: BaseModel, command: str, argv: list[str] | None = None
     ) -> RunDir:
-        """Make a new, unique run directory under `parent` and write config.yaml and meta.json."""
+        """Make a new, unique run directory under `parent` and write config.yaml and meta.json.
+
+        `cfg` is any config with a `name` and a `seed` (an experiment or a compare config).
+        """
         parent = Path(parent)
         try:
             parent.mkdir(parents=True, exist_ok=True)
