@@ -69,12 +69,16 @@ def write_comparison_figures(
     names = list(runs)
     n = len(names)
 
-    fig = Figure(figsize=(4.2 * n, 3.8), layout="constrained")
-    axes = fig.subplots(1, n, squeeze=False)[0]
-    for ax, name in zip(axes, names, strict=True):
+    cols = min(n, 3)
+    rows = -(-n // cols)
+    fig = Figure(figsize=(4.2 * cols, 3.8 * rows), layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    for ax, name in zip(axes, names, strict=False):
         header, records = runs[name]
         draw_shapes(ax, header, records)
         ax.set_title(name)
+    for ax in axes[n:]:
+        ax.set_visible(False)
     fig.suptitle("Rod centerline every three frames")
     paths = [_save(fig, out_dir / "shapes.png")]
 
