@@ -311,8 +311,9 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
         for sink in sinks:
             try:
                 sink.close(summary, "completed" if summary is not None else "failed")
-            except Exception:  # noqa: BLE001, S110 - logs are optional; the row is what counts
-                pass
+            except Exception as exc:  # noqa: BLE001 - the row counts; the log says why it broke
+                with (log_dir / "error.txt").open("a", encoding="utf-8") as fh:
+                    fh.write(f"closing {type(sink).__name__} failed: {exc!r}\n")
     if summary is not None:
         extra = summary.extra
         row.update(
@@ -339,12 +340,9 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
 
 def _init_worker() -> None:
     """Worker start: one torch thread (BLAS threads are limited through the environment)."""
-    try:
-        import torch
+    import torch
 
-        torch.set_num_threads(1)
-    except ImportError:  # pragma: no cover - torch is a dependency
-        pass
+    torch.set_num_threads(1)
 
 
 class _Runner:
