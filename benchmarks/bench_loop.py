@@ -20,7 +20,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, as the goal states
 import torch  # noqa: E402
 
 from rodctl.config import load_config  # noqa: E402
-from rodctl.experiment import Experiment  # noqa: E402
+from rodctl.env import ShapeServoEnv  # noqa: E402
+from rodctl.episode import run_episode  # noqa: E402
+from rodctl.method import Method  # noqa: E402
 from rodctl.simulate import make_sinks  # noqa: E402
 
 
@@ -35,12 +37,10 @@ def run(config: str, steps: int, logging: bool) -> None:
     ]
     cfg = load_config(config, overrides)
     with tempfile.TemporaryDirectory() as tmp:
-        exp = Experiment(cfg, run_id="bench")
+        env, method = ShapeServoEnv(cfg), Method.from_config(cfg)
         sinks = make_sinks(cfg, __import__("pathlib").Path(tmp)) if logging else []
         t0 = time.perf_counter()
-        summary = exp.run(sinks)
-        for s in sinks:
-            s.close(summary, "completed")
+        summary = run_episode(env, method, sinks=sinks, run_id="bench").summary
         wall = time.perf_counter() - t0
     ms = summary.extra["time_per_step_ms"]
     total = sum(ms.values())

@@ -24,7 +24,6 @@ app = typer.Typer(
     help="Experiment runner for vision-based shape servoing of elastic rods.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
-    add_completion=False,
 )
 config_app = typer.Typer(
     help="Inspect configs: print a resolved config or the JSON schema.",
@@ -55,6 +54,52 @@ def user_errors(fn: F) -> F:
             raise typer.Exit(code=2) from None
 
     return wrapper  # type: ignore[return-value]
+
+
+def _version(value: bool) -> None:
+    if value:
+        from rodctl import __version__
+
+        typer.echo(f"rodctl {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _startup(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_version, is_eager=True, help="Print the version and exit."
+        ),
+    ] = False,
+) -> None:
+    """Experiment runner for vision-based shape servoing of elastic rods."""
+    from rodctl.registry import load_plugins
+
+    try:
+        load_plugins()
+    except UserError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from None
+
+
+@app.command()
+def plugins() -> None:
+    """List every registered feature, estimator and controller type, and where it comes from."""
+    from rodctl.registry import STAGES, load_plugins
+
+    failures = load_plugins(strict=False)
+    for kind, registry in STAGES.items():
+        typer.echo(f"{kind}:")
+        for reg in registry:
+            default = " (default)" if reg.type == registry.default else ""
+            typer.echo(f"  {reg.type:<14} {reg.source}{default}")
+            if reg.summary:
+                typer.echo(f"  {'':<14} {reg.summary}")
+    for f in failures:
+        typer.echo(f"failed plug-in {f.name} ({f.value}): {f.error}", err=True)
+    if failures:
+        raise typer.Exit(code=2)
 
 
 def _config_model(path: str) -> type:
@@ -96,7 +141,8 @@ def config_schema(
 
 
 OutOpt = Annotated[
-    str, typer.Option("--out", help="Parent folder of the run directory.", show_default=True)
+    str,
+    typer.Option("--out", "-o", help="Parent folder of the run directory.", show_default=True),
 ]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or table.")]
 
@@ -108,6 +154,14 @@ def simulate(
     set_: SetOpt = None,
     out: OutOpt = "runs",
     quiet: QuietOpt = False,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the summary as one JSON object on stdout (with `run_dir`) instead of "
+            "the table and the run directory.",
+        ),
+    ] = False,
 ) -> None:
     """Run one shape-servoing experiment; print the run directory as the last line.
 
@@ -123,13 +177,19 @@ def simulate(
             f"`rodctl compare {config}`"
         )
     cfg = load_config(config, set_ or [])
-    with step_progress(cfg.run.max_steps, enabled=not quiet) as on_step:
+    with step_progress(cfg.run.max_steps, enabled=not (quiet or as_json)) as on_step:
         result = run_simulation(cfg, out, argv=sys.argv, on_step=on_step)
-    if not quiet:
+    if not (quiet or as_json):
         print_summary(result.summary)
     if result.error:
         typer.echo(f"error: {result.error}", err=True)
-    typer.echo(str(result.run.path))
+    if as_json:
+        from rodctl.runs import jsonable
+
+        data = {**result.summary.to_json(), "run_dir": str(result.run.path)}
+        typer.echo(json.dumps(jsonable(data), allow_nan=False))
+    else:
+        typer.echo(str(result.run.path))
     raise typer.Exit(code=result.exit_code)
 
 
@@ -144,7 +204,7 @@ def replay(
         bool, typer.Option("--recover", help="Read an unfinished MCAP up to its last whole step.")
     ] = False,
     out: Annotated[
-        str | None, typer.Option("--out", help="Write run.rrd and figures here instead.")
+        str | None, typer.Option("--out", "-o", help="Write run.rrd and figures here instead.")
     ] = None,
     figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Redraw figures.")] = True,
     open_viewer: Annotated[

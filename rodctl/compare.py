@@ -199,7 +199,7 @@ def _settle_target(task: dict[str, Any]) -> dict[str, Any]:
     A target is usable when the rod settles there and the camera extracts its centerline
     (`Experiment.make_target`). Returns {"pose", "difficulty"} or {"error"}.
     """
-    from rodctl.experiment import Experiment
+    from rodctl.env import ShapeServoEnv
     from rodctl.sim import RodSim
     from rodctl.targets import sample_target_pose
 
@@ -220,10 +220,8 @@ def _settle_target(task: dict[str, Any]) -> dict[str, Any]:
         candidates = sample()
     why = "no candidate"
     for pose in candidates:
-        tcfg = cfg.model_copy(deep=True)
-        tcfg.run.target.pose = tuple(float(v) for v in pose)
         try:
-            target = Experiment(tcfg).make_target()
+            target = ShapeServoEnv(cfg).make_target([float(v) for v in pose])
         except UserError as exc:
             why = str(exc)
             continue
@@ -284,37 +282,42 @@ def make_targets(
 
 def _episode(task: dict[str, Any]) -> dict[str, Any]:
     """Worker: one method on one target; returns its results row (and records if asked)."""
-    from rodctl.experiment import Experiment
+    from rodctl.env import ShapeServoEnv
+    from rodctl.episode import EpisodeFailed, run_episode
+    from rodctl.method import Method
 
     cfg = ExperimentConfig.model_validate(task["config"])
+    # The episode's own config says everything (seed, target), so its log replays alone.
     cfg.seed = task["seed"]
     cfg.run.target.pose = tuple(task["pose"])
     run_id = f"{task['method']}_t{task['target']:03d}"
     row: dict[str, Any] = {"method": task["method"], "target": task["target"]}
-    exp = Experiment(cfg, run_id=run_id)
-    sinks: list[Any] = []
     log_dir = Path(task["log_dir"]) if task.get("log_dir") else None
-    summary = None
+    result = None
     try:
+        sinks: list[Any] = []
         if log_dir is not None:
             from rodctl.simulate import make_sinks
 
             log_dir.mkdir(parents=True, exist_ok=True)
             (log_dir / "config.yaml").write_text(dump_config(cfg), encoding="utf-8")
             sinks = make_sinks(cfg, log_dir)
-        summary = exp.run(sinks)
+        result = run_episode(
+            ShapeServoEnv(cfg),
+            Method.from_config(cfg),
+            sinks=sinks,
+            run_id=run_id,
+        )
     except Exception as exc:  # noqa: BLE001 - one bad episode must not end the benchmark
-        row.update(outcome="error", error=f"{type(exc).__name__}: {exc}")
+        failed = exc.result if isinstance(exc, EpisodeFailed) else None
+        row.update(
+            outcome="error", error=failed.error if failed else f"{type(exc).__name__}: {exc}"
+        )
         if log_dir is not None:
-            (log_dir / "error.txt").write_text(traceback.format_exc(), encoding="utf-8")
-    finally:
-        for sink in sinks:
-            try:
-                sink.close(summary, "completed" if summary is not None else "failed")
-            except Exception as exc:  # noqa: BLE001 - the row counts; the log says why it broke
-                with (log_dir / "error.txt").open("a", encoding="utf-8") as fh:
-                    fh.write(f"closing {type(sink).__name__} failed: {exc!r}\n")
-    if summary is not None:
+            text = failed.traceback if failed else traceback.format_exc()
+            (log_dir / "error.txt").write_text(text or "", encoding="utf-8")
+    if result is not None:
+        summary = result.summary
         extra = summary.extra
         row.update(
             outcome=summary.outcome,
@@ -334,7 +337,7 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
         if log_dir is not None:
             write_json_atomic(log_dir / "summary.json", summary.to_json())
         if task.get("want_records"):
-            row["_records"] = (exp.header, exp.records)
+            row["_records"] = (result.header, result.records)
     return row
 
 

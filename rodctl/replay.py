@@ -252,7 +252,6 @@ def verify(run: ReadRun, *, progress: bool = False) -> list[str]:
     it did. The embedded config must still validate with this version of rodctl.
     """
     from rodctl.config import validate_config
-    from rodctl.experiment import Experiment
 
     data = yaml.safe_load(run.header.config_yaml)
     logged = run.records
@@ -261,7 +260,19 @@ def verify(run: ReadRun, *, progress: bool = False) -> list[str]:
         # An interrupted, failed or unfinished run: replay only as far as it got.
         data.setdefault("run", {})["max_steps"] = max(1, int(logged[-1].step))
     cfg = validate_config(data, f"{run.path} (embedded config.yaml)")
-    exp = Experiment(cfg, run_id=run.header.run_id)
-    exp.run()
-    fresh = exp.records if ended else exp.records[: len(logged)]
+    records = rerun_records(cfg, run.header.run_id)
+    fresh = records if ended else records[: len(logged)]
     return compare_records(logged, fresh)
+
+
+def rerun_records(cfg: Any, run_id: str) -> list[StepRecord]:
+    """The records of a fresh run of `cfg` through the one episode loop (no sinks)."""
+    from rodctl.env import ShapeServoEnv
+    from rodctl.episode import EpisodeFailed, run_episode
+    from rodctl.method import Method
+
+    try:
+        result = run_episode(ShapeServoEnv(cfg), Method.from_config(cfg), run_id=run_id)
+    except EpisodeFailed as exc:
+        result = exc.result
+    return result.records

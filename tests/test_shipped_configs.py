@@ -11,7 +11,9 @@ import pytest
 from paths import CONFIGS
 
 from rodctl.config import load_config
-from rodctl.experiment import Experiment
+from rodctl.env import ShapeServoEnv
+from rodctl.episode import run_episode
+from rodctl.method import Method
 
 EXPERIMENTS = [p for p in CONFIGS if not p.name.startswith("compare")]
 SHORT = ["logging.mcap=false", "logging.rerun=false", "logging.figures=false"]
@@ -21,14 +23,14 @@ SHORT = ["logging.mcap=false", "logging.rerun=false", "logging.figures=false"]
 def test_config_reaches_its_declared_outcome(path):
     cfg = load_config(path, SHORT)
     assert cfg.run.expect is not None, f"{path.name} must declare run.expect"
-    exp = Experiment(cfg, run_id=f"test-{path.stem}")
-    summary = exp.run()
+    result = run_episode(ShapeServoEnv(cfg), Method.from_config(cfg), run_id=f"test-{path.stem}")
+    summary = result.summary
     assert summary.outcome == cfg.run.expect, summary.to_json()
     assert summary.steps <= cfg.run.max_steps
     if summary.outcome == "converged":
         assert summary.final_pixel_error < cfg.run.pixel_tolerance
         # The pixel criterion is met on the camera's view; the rod really is in the target
         # shape: its ground truth is within a few millimetres of the target's ground truth.
-        final = exp.records[-1].centerline
-        gap = np.linalg.norm(final - exp.header.target_centerline, axis=1)
+        final = result.records[-1].centerline
+        gap = np.linalg.norm(final - result.header.target_centerline, axis=1)
         assert gap.mean() < 3e-3, gap.mean()

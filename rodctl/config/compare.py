@@ -10,22 +10,28 @@ seed (easy to hard) or read from a file of gripper poses that labs can exchange.
 
 from __future__ import annotations
 
-from pydantic import Field, PositiveInt, field_validator, model_validator
+from pydantic import ConfigDict, Field, PositiveInt, field_validator, model_validator
 
 from rodctl.config.base import Pose, StrictModel
-from rodctl.config.controller import ControllerConfig
-from rodctl.config.estimator import EstimatorConfig
-from rodctl.config.experiment import ExperimentConfig
-from rodctl.config.feature import FeatureConfig
+from rodctl.config.experiment import (
+    ControllerConfig,
+    EstimatorConfig,
+    ExperimentConfig,
+    FeatureConfig,
+)
+from rodctl.registry import depends_on_stages
 
 _NAME = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
 
 
+@depends_on_stages
 class MethodConfig(StrictModel):
     """One full pipeline under comparison: representation + estimation + control.
 
     Each stage needs its `type`: a comparison names its methods explicitly.
     """
+
+    model_config = ConfigDict(defer_build=True)
 
     description: str = Field("", description="One line shown in summary.md (what this method is).")
     feature: FeatureConfig = Field(..., description="The shape feature s = f_s(c).")
@@ -77,8 +83,11 @@ class CompareTargetsConfig(StrictModel):
         return self
 
 
+@depends_on_stages
 class CompareConfig(StrictModel):
     """`rodctl compare`: the benchmark of several methods on one shared set of targets."""
+
+    model_config = ConfigDict(defer_build=True)
 
     name: str = Field(
         "compare", pattern=_NAME, max_length=64, description="Used in the output folder's name."

@@ -15,6 +15,7 @@ from pydantic import BaseModel, ValidationError
 
 from rodctl.config.experiment import ExperimentConfig
 from rodctl.errors import UserError
+from rodctl.registry import STAGES
 
 
 class ConfigError(UserError):
@@ -75,13 +76,22 @@ def parse_override(text: str) -> tuple[list[str], Any]:
 
 
 def apply_override(data: dict[str, Any], parts: list[str], value: Any, text: str) -> None:
-    """Set `data[parts[0]][parts[1]]... = value`, creating mappings on the way; lists by index."""
+    """Set `data[parts[0]][parts[1]]... = value`, creating mappings on the way; lists by index.
+
+    Setting a section's `type` to another type replaces the section: the old type's keys mean
+    nothing to the new one (`--set controller.type=pinv` drops MFAC's `weights`). Keys set by
+    later `--set`s are applied to the new section. A section written without `type` has the
+    default type of its stage.
+    """
     node: Any = data
     for i, part in enumerate(parts):
         last = i == len(parts) - 1
         where = ".".join(parts[: i + 1])
         if isinstance(node, dict):
-            if last:
+            if last and part == "type" and _section_type(node, parts[:-1]) not in (None, value):
+                node.clear()
+                node[part] = value
+            elif last:
                 node[part] = value
             else:
                 nxt = node.get(part)
@@ -105,6 +115,15 @@ def apply_override(data: dict[str, Any], parts: list[str], value: Any, text: str
             raise ConfigError(
                 f"--set {text!r}: {'.'.join(parts[:i])!r} is a value ({node!r}), not a section"
             )
+
+
+def _section_type(section: dict[str, Any], path: list[str]) -> Any:
+    """The type a section has now: its `type`, or its stage's default when it has other keys."""
+    if "type" in section:
+        return section["type"]
+    if section and path and path[-1] in STAGES:
+        return STAGES[path[-1]].default
+    return None
 
 
 def _dotted(loc: tuple[Any, ...], data: Any) -> str:

@@ -1,6 +1,6 @@
 """Config of the experiment loop: target, probing, step budget and stopping criteria.
 
-Owned by `rodctl/experiment.py`.
+Owned by `rodctl/episode.py` (stop rules) and `rodctl/env.py` (targets).
 """
 
 from __future__ import annotations

@@ -8,7 +8,12 @@ import numpy as np
 
 
 class Controller(Protocol):
-    """Computes the next command u_k = Delta r_k (q,) for a feature-space shape servo."""
+    """Computes the next command u_k = Delta r_k (q,) for a feature-space shape servo.
+
+    Optional attributes the episode reads: `open_loop` (True: the law ignores the feature and
+    J, so there is no probing and nothing converges) and `done` (True: nothing left to do; an
+    open-loop run then ends as `completed`).
+    """
 
     def reset(self) -> None:
         """Forget the command history (start of a run)."""

@@ -16,9 +16,14 @@ terms concern the increment the gripper really made (method-notes: u_k = Delta r
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
+from pydantic import Field, field_validator
 from scipy.linalg import lapack
+
+from rodctl.config.base import StrictModel
+from rodctl.registry import CONTROLLERS, BuildContext
 
 # A raw LAPACK call: numpy.linalg.solve spends more time checking a 3 x 3 system than solving it.
 _dposv = lapack.dposv
@@ -147,3 +152,55 @@ class MfacController:
         self._r_prev = r.copy()
         self._J_prev = J.copy()
         return u
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+#: Default MFAC weights (omega_1..omega_7), see `MfacControllerConfig`.
+DEFAULT_MFAC_WEIGHTS = (0.55, 1e-4, 0.2, 0.05, 1e-4, 0.0998, 0.1)
+
+
+class MfacControllerConfig(StrictModel):
+    """MFAC velocity law with seven performance weights (paper eq. 24, method-notes section 2).
+
+    Weights omega_1..omega_7 weigh: error, feature amplitude, feature rate, feature acceleration,
+    distance from home, speed, acceleration. They must be positive and sum to 1.
+
+    Default (0.55, 1e-4, 0.2, 0.05, 1e-4, 0.0998, 0.1): one step removes about
+    omega_1 / (omega_1 + ... + omega_4) ~ 0.69 of the linearised error (fast), omega_3 and
+    omega_7 smooth it. omega_2 and omega_5 are tiny because at rest omega_1 J^T e =
+    omega_2 J^T s + omega_5 r (method-notes section 2): they leave a steady-state error of order
+    (omega_2/omega_1) ||s|| ~ 2e-4 for order-1 features. omega_6 and omega_7 act in command
+    units (m^2) against J^T J ~ 1e2-1e4 in feature units, so at ~0.1 they damp only directions
+    J barely observes (singular values below ~1), which is where a noisy estimate would
+    otherwise ask for large moves.
+    """
+
+    type: Literal["mfac"] = "mfac"
+    weights: tuple[float, float, float, float, float, float, float] = Field(
+        DEFAULT_MFAC_WEIGHTS,
+        description="omega_1..omega_7 of eq. 24: error, feature amplitude, feature rate, feature "
+        "acceleration, distance from home, speed, acceleration. Positive, summing to 1.",
+    )
+
+    @field_validator("weights")
+    @classmethod
+    def _positive_sum_one(cls, w: tuple[float, ...]) -> tuple[float, ...]:
+        bad = [f"omega_{i + 1}={v}" for i, v in enumerate(w) if not v > 0.0]
+        if bad:
+            raise ValueError(
+                "every MFAC weight must be positive (the paper's eq. 20); got " + ", ".join(bad)
+            )
+        total = sum(w)
+        if abs(total - 1.0) > 1e-6:
+            raise ValueError(
+                f"the seven MFAC weights must sum to 1 (eq. 20), they sum to {total:.6g}; "
+                "when you change one, lower or raise another by the same amount"
+            )
+        return w
+
+
+@CONTROLLERS.register(MfacControllerConfig)
+def _build(cfg: MfacControllerConfig, ctx: BuildContext) -> MfacController:
+    return MfacController(cfg.weights)

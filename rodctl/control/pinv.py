@@ -11,7 +11,13 @@ so that is the same law. Assumptions we made:
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
+from pydantic import Field, PositiveFloat
+
+from rodctl.config.base import StrictModel
+from rodctl.registry import CONTROLLERS, BuildContext
 
 
 class PinvController:
@@ -34,3 +40,32 @@ class PinvController:
         """u = lambda J^+ clip(s* - s, +-error_limit); s, s* (p,), J (p, q), r unused. (q,)."""
         e = np.clip(np.asarray(s_target, float) - np.asarray(s, float), -self._limit, self._limit)
         return self._gain * (np.linalg.pinv(np.asarray(J, float), rcond=self._rcond) @ e)
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+class PinvControllerConfig(StrictModel):
+    """u = lambda J^+ sat(s* - s), the Ma et al. 2022 law (our re-implementation).
+
+    method-notes writes -lambda J^+ sat(s - s*): the same thing, since sat is odd.
+    """
+
+    type: Literal["pinv"] = "pinv"
+    gain: float = Field(
+        0.5, gt=0.0, le=1.0, description="lambda: the fraction of the linearised error removed."
+    )
+    error_limit: PositiveFloat = Field(
+        0.5, description="sat(): each feature error component is clipped to +-this (feature units)."
+    )
+    rcond: float = Field(
+        1e-4,
+        gt=0.0,
+        lt=1.0,
+        description="Singular values below rcond * the largest are dropped in J^+ (numpy pinv).",
+    )
+
+
+@CONTROLLERS.register(PinvControllerConfig)
+def _build(cfg: PinvControllerConfig, ctx: BuildContext) -> PinvController:
+    return PinvController(gain=cfg.gain, error_limit=cfg.error_limit, rcond=cfg.rcond)

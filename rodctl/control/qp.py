@@ -19,8 +19,13 @@ tolerance to tune, at most 27 solves of at most 3 x 3.
 from __future__ import annotations
 
 import itertools
+from typing import Literal
 
 import numpy as np
+from pydantic import Field, PositiveFloat
+
+from rodctl.config.base import StrictModel
+from rodctl.registry import CONTROLLERS, BuildContext
 
 
 def solve_box_qp(H: np.ndarray, g: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -104,3 +109,30 @@ class QpController:
         H = J.T @ J + self._R
         g = -self._gain * (J.T @ e)
         return solve_box_qp(H, g, -self._max, self._max)
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+class QpControllerConfig(StrictModel):
+    """min 1/2 ||J u - lambda e||^2 + 1/2 u^T R u s.t. |u_i| <= max_step_i (our re-implementation).
+
+    The Aghajanzadeh et al. 2022 "optimal deformation control" step as reconstructed from the
+    group's published descriptions (method-notes section 4); the bounds are the loop's
+    per-axis speed limits. R = diag(r_weights) in feature^2 per command^2: small against
+    J^T J (~1e2-1e4 for latents, ~1e6 for pixel node features), so it only regularises
+    directions J barely observes.
+    """
+
+    type: Literal["qp"] = "qp"
+    gain: float = Field(
+        0.3, gt=0.0, le=1.0, description="lambda: the fraction of the error one step aims at."
+    )
+    r_weights: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+        (1.0, 1.0, 1.0), description="Diagonal of R: penalty on [dx, dy, dtheta] (feature^2/u^2)."
+    )
+
+
+@CONTROLLERS.register(QpControllerConfig)
+def _build(cfg: QpControllerConfig, ctx: BuildContext) -> QpController:
+    return QpController(ctx.max_step, gain=cfg.gain, r_weights=cfg.r_weights)

@@ -6,7 +6,13 @@ validation against ground truth), through the same loop as the servo laws.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
+from pydantic import Field, PositiveFloat
+
+from rodctl.config.base import Pose, StrictModel
+from rodctl.registry import CONTROLLERS, BuildContext
 
 
 class ScriptedController:
@@ -15,6 +21,9 @@ class ScriptedController:
     The controller receives r relative to the run's home pose (the Controller protocol), and
     the waypoints are absolute world poses, so it adds `home_pose` back.
     """
+
+    #: It ignores the feature and J: no probing, no convergence, the run ends with the path.
+    open_loop = True
 
     def __init__(
         self,
@@ -67,3 +76,33 @@ class ScriptedController:
         if self.done:
             return np.zeros(3)
         return np.clip(self._wp[self._index] - pose, -self._max, self._max)
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+class ScriptedControllerConfig(StrictModel):
+    """Drive the gripper through absolute world poses, ignoring the feature and J.
+
+    Each step moves towards the current waypoint by at most the loop's `max_step` per axis and
+    advances to the next waypoint once within `tolerance` on every axis; the run ends when the
+    last one is reached and the rod has settled.
+    """
+
+    type: Literal["scripted"] = "scripted"
+    waypoints: list[Pose] = Field(
+        ...,
+        min_length=1,
+        description="Absolute gripper poses [[x, y, theta], ...] (world frame, m, rad), in order.",
+    )
+    tolerance: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+        (1e-4, 1e-4, 1e-3),
+        description="A waypoint is reached when every axis is within this [m, m, rad].",
+    )
+
+
+@CONTROLLERS.register(ScriptedControllerConfig)
+def _build(cfg: ScriptedControllerConfig, ctx: BuildContext) -> ScriptedController:
+    return ScriptedController(
+        cfg.waypoints, home_pose=ctx.home_pose, max_step=ctx.max_step, tolerance=cfg.tolerance
+    )

@@ -23,9 +23,12 @@ import math
 from typing import Literal
 
 import numpy as np
+from pydantic import Field, PositiveFloat, model_validator
 from scipy.linalg import lapack
 
-from rodctl.estimation.base import checked_jacobian
+from rodctl.config.base import StrictModel
+from rodctl.estimation.base import DEAD_ZONE_DOC, checked_jacobian
+from rodctl.registry import ESTIMATORS, BuildContext
 
 # Raw LAPACK calls: scipy.linalg's high-level wrappers (and numpy.linalg's) spend more time
 # checking their small inputs than the 18 x 18 factorisations themselves take.
@@ -254,3 +257,80 @@ class AdaptiveKalmanJacobian:
             "trace_Q": float(np.trace(self._Q)),
             "trace_R": float(np.trace(self._R)),
         }
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+class AkfEstimatorConfig(StrictModel):
+    """Adaptive Kalman filter on vec_rows(J) (paper eqs. 25-33, method-notes section 1).
+
+    P_0 = p0 I, Q_0 = q0 I (pq x pq) and R_0 = r0 I (p x p). With features of order 1 and J
+    entries O(10-100), p0 = 10 says "J_0 from probing is good to ~3 per entry", r0 = 1e-4 says
+    "feature noise ~1e-2", q0 = 1e-2 lets J drift by ~0.1 per step; Q and R then adapt.
+    """
+
+    type: Literal["akf"] = "akf"
+    p0: PositiveFloat = Field(10.0, description="Initial state covariance P_0 = p0 I (J units^2).")
+    q0: PositiveFloat = Field(1e-2, description="Initial process noise Q_0 = q0 I (J units^2).")
+    r0: PositiveFloat = Field(1e-4, description="Initial measurement noise R_0 = r0 I (feature^2).")
+    c0: float = Field(
+        1.5, gt=0.0, description="IGG-III threshold c0 (eq. 29): alpha = 1 while |d_eps| <= c0."
+    )
+    c1: float = Field(
+        6.0, gt=0.0, description="IGG-III threshold c1 (eq. 29): alpha reaches 0 at |d_eps| = c1."
+    )
+    alpha_floor: float = Field(
+        1e-3,
+        gt=0.0,
+        le=1.0,
+        description="Smallest adaptive factor alpha; eq. 29's alpha = 0 is clamped to it, since "
+        "alpha divides P (eq. 28).",
+    )
+    forgetting: float = Field(
+        0.95,
+        gt=0.0,
+        lt=1.0,
+        description="Fading-memory factor b of d_k = (1 - b)/(1 - b^(k+1)) (eqs. 32-33); larger "
+        "remembers longer (about 1/(1 - b) steps).",
+    )
+    r_update: Literal["eq33", "eq32"] = Field(
+        "eq33",
+        description="eq33: R = (1-d) R + d eps eps^T (biased, stays PSD; the paper's choice). "
+        "eq32: subtracts C P C^T too (unbiased, may lose definiteness; then clipped).",
+    )
+    q_min: PositiveFloat = Field(
+        1e-8, description="Eigenvalue floor applied to Q after each update (keeps it PSD)."
+    )
+    r_min: PositiveFloat = Field(
+        1e-8, description="Eigenvalue floor applied to R after each update (keeps it PD)."
+    )
+    dead_zone: float = Field(1e-4, ge=0.0, description=DEAD_ZONE_DOC)
+
+    @model_validator(mode="after")
+    def _thresholds_ordered(self) -> AkfEstimatorConfig:
+        if not self.c0 < self.c1:
+            raise ValueError(
+                f"c0 must be smaller than c1 (paper: c0 in [1, 1.5], c1 in [3, 8]); "
+                f"got c0={self.c0}, c1={self.c1}"
+            )
+        return self
+
+
+@ESTIMATORS.register(AkfEstimatorConfig)
+def _build(cfg: AkfEstimatorConfig, ctx: BuildContext) -> AdaptiveKalmanJacobian:
+    return AdaptiveKalmanJacobian(
+        ctx.p,
+        ctx.q,
+        p0=cfg.p0,
+        q0=cfg.q0,
+        r0=cfg.r0,
+        c0=cfg.c0,
+        c1=cfg.c1,
+        alpha_floor=cfg.alpha_floor,
+        forgetting=cfg.forgetting,
+        r_update=cfg.r_update,
+        q_min=cfg.q_min,
+        r_min=cfg.r_min,
+        dead_zone=cfg.dead_zone,
+    )

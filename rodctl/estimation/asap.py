@@ -32,11 +32,15 @@ projection Jacobian to get pixels.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Annotated, Any, Literal
 
 import numpy as np
+from pydantic import Field
 
+from rodctl.config.base import StrictModel
 from rodctl.estimation.base import checked_jacobian
 from rodctl.geometry import resample_polyline
+from rodctl.registry import ESTIMATORS, BuildContext
 
 _ROT90 = np.array([[0.0, -1.0], [1.0, 0.0]])
 
@@ -200,10 +204,27 @@ class OfflineJacobian:
     installs the model Jacobian, `update` returns it unchanged.
     """
 
-    def __init__(self, p: int, q: int, J: np.ndarray | None = None) -> None:
-        """Args: p, q: the Jacobian's shape; J: (p, q) model Jacobian, or None until `reset`."""
+    def __init__(
+        self,
+        p: int,
+        q: int,
+        J: np.ndarray | None = None,
+        *,
+        camera: Any = None,
+        nodes: int = 40,
+        servoed: Sequence[float] = (0.25, 0.5, 0.75),
+    ) -> None:
+        """Args:
+        p, q: the Jacobian's shape.
+        J: (p, q) model Jacobian, or None until `reset` / `prepare`.
+        camera: the calibrated camera (`unproject`, `projection_jacobian`) `prepare` uses.
+        nodes, servoed: the ASAP model's node count and servoed arc-length fractions.
+        """
         self.p, self.q = int(p), int(q)
         self._J: np.ndarray | None = None
+        self._camera = camera
+        self._nodes = int(nodes)
+        self._servoed = list(servoed)
         if J is not None:
             self.reset(J)
 
@@ -222,6 +243,31 @@ class OfflineJacobian:
         """Install the (p, q) model Jacobian."""
         self._J = checked_jacobian(J0, self.p, self.q)
 
+    def prepare(self, pixels: np.ndarray) -> np.ndarray | None:
+        """The start hook: the model Jacobian from the first image (None: none configured).
+
+        With a camera and the ASAP settings (`OfflineEstimatorConfig`), the rest shape is what
+        the camera sees at the start, mapped onto the rod's plane with the calibrated camera
+        (the method knows no more about the rod than its image). The model gives
+        d(node positions)/d(gripper pose) in world units, and the camera's projection Jacobian
+        at each node turns it into pixels (the `nodes` feature's units).
+
+        Args:
+            pixels: (N, 2) the centerline extracted from the first frame.
+
+        Returns:
+            The installed (p, q) Jacobian; no probing is needed after it.
+        """
+        if self._camera is None:
+            return None if self._J is None else self.J
+        rest = self._camera.unproject(pixels)
+        J_world, nodes = asap_from_centerline(rest, self._nodes, self._servoed)
+        proj = self._camera.projection_jacobian(nodes)  # (n, 2, 2)
+        n = nodes.shape[0]
+        J = np.einsum("nij,njq->niq", proj, J_world.reshape(n, 2, self.q)).reshape(2 * n, self.q)
+        self.reset(J)
+        return self.J
+
     def update(self, ds: np.ndarray, dr: np.ndarray) -> np.ndarray:
         """Ignore the measurement; return the fixed (p, q) Jacobian."""
         return self.J
@@ -229,3 +275,43 @@ class OfflineJacobian:
     def info(self) -> dict[str, float]:
         """No diagnostics: a fixed model has nothing to report."""
         return {}
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+class OfflineEstimatorConfig(StrictModel):
+    """A fixed Jacobian from the rest shape's as-similar-as-possible (ASAP) model.
+
+    The Aghajanzadeh et al. 2022 baseline (our re-implementation, method-notes section 4). No
+    probing: `OfflineJacobian.prepare` builds J once from the first image (the ASAP model composed
+    with the camera's projection Jacobian). The servoed nodes must be the points the feature
+    observes.
+    """
+
+    type: Literal["offline"] = "offline"
+    nodes: int = Field(
+        40, ge=6, description="Nodes the rest shape is resampled to for the ASAP model."
+    )
+    servoed: list[Annotated[float, Field(gt=0.0, lt=1.0)]] = Field(
+        [0.25, 0.5, 0.75],
+        min_length=1,
+        description="Servoed points as fractions of arc length from the clamp (0) to the "
+        "gripper (1); 2 features each (x, y).",
+    )
+
+    def check_experiment(self, experiment: Any) -> None:
+        """The model is of the servoed nodes: the feature must observe exactly those."""
+        feature = experiment.feature
+        servoed = list(self.servoed)
+        if feature.type != "nodes" or list(getattr(feature, "positions", [])) != servoed:
+            raise ValueError(
+                "estimator.type=offline models the servoed nodes estimator.servoed="
+                f"{servoed}; the feature must be those nodes: feature.type=nodes with "
+                f"feature.positions={servoed}"
+            )
+
+
+@ESTIMATORS.register(OfflineEstimatorConfig)
+def _build(cfg: OfflineEstimatorConfig, ctx: BuildContext) -> OfflineJacobian:
+    return OfflineJacobian(ctx.p, ctx.q, camera=ctx.camera, nodes=cfg.nodes, servoed=cfg.servoed)

@@ -41,3 +41,10 @@ def checked_jacobian(J0: np.ndarray, p: int, q: int) -> np.ndarray:
     if J0.shape != (p, q):
         raise ValueError(f"J0 must have shape {(p, q)}, got {J0.shape}")
     return J0
+
+
+#: The description every online estimator's `dead_zone` field shares.
+DEAD_ZONE_DOC = (
+    "Skip the update when ||dr|| (Euclidean, metres and radians mixed) is below this: a tiny "
+    "move carries no information about J and would amplify feature noise."
+)

@@ -10,9 +10,14 @@ section 6.2), not the authors' code. Assumptions we made, since the sources do n
 
 from __future__ import annotations
 
-import numpy as np
+from typing import Literal
 
-from rodctl.estimation.base import checked_jacobian
+import numpy as np
+from pydantic import Field
+
+from rodctl.config.base import StrictModel
+from rodctl.estimation.base import DEAD_ZONE_DOC, checked_jacobian
+from rodctl.registry import ESTIMATORS, BuildContext
 
 
 class BroydenJacobian:
@@ -64,3 +69,27 @@ class BroydenJacobian:
     def info(self) -> dict[str, float]:
         """skipped (1.0 in the dead zone) and residual ||ds - J dr|| before the update."""
         return dict(self._info)
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+class BroydenEstimatorConfig(StrictModel):
+    """Rank-1 Broyden update J += gamma (ds - J dr) dr^T / (dr^T dr) (method-notes section 4).
+
+    Part of our re-implementation of the Ma et al. 2022 baseline from its published description.
+    """
+
+    type: Literal["broyden"] = "broyden"
+    gamma: float = Field(
+        1.0,
+        gt=0.0,
+        le=1.0,
+        description="Step size gamma in (0, 1]; 1 makes each update satisfy the secant exactly.",
+    )
+    dead_zone: float = Field(1e-4, ge=0.0, description=DEAD_ZONE_DOC)
+
+
+@ESTIMATORS.register(BroydenEstimatorConfig)
+def _build(cfg: BroydenEstimatorConfig, ctx: BuildContext) -> BroydenJacobian:
+    return BroydenJacobian(ctx.p, ctx.q, gamma=cfg.gamma, dead_zone=cfg.dead_zone)

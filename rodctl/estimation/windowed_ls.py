@@ -13,10 +13,14 @@ code. Assumptions we made:
 from __future__ import annotations
 
 from collections import deque
+from typing import Literal
 
 import numpy as np
+from pydantic import Field
 
-from rodctl.estimation.base import checked_jacobian
+from rodctl.config.base import StrictModel
+from rodctl.estimation.base import DEAD_ZONE_DOC, checked_jacobian
+from rodctl.registry import ESTIMATORS, BuildContext
 
 
 class WindowedLsJacobian:
@@ -78,3 +82,30 @@ class WindowedLsJacobian:
     def info(self) -> dict[str, float]:
         """skipped (1.0 in the dead zone) and the number of pairs in the window."""
         return dict(self._info)
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+class WindowedLsEstimatorConfig(StrictModel):
+    """Least squares over the last `window` (dr, ds) pairs (method-notes section 4).
+
+    The alternative online estimator of the Ma et al. 2022 baseline (our re-implementation).
+    """
+
+    type: Literal["windowed_ls"] = "windowed_ls"
+    window: int = Field(10, ge=1, description="Number of most recent informative pairs fitted.")
+    ridge: float = Field(
+        1e-6,
+        ge=0.0,
+        description="Weight mu of mu ||J - J_prev||^2 in the fit (m^2): a pseudo-move of "
+        "sqrt(mu) per axis that keeps the fit defined when the window's moves are collinear.",
+    )
+    dead_zone: float = Field(1e-4, ge=0.0, description=DEAD_ZONE_DOC)
+
+
+@ESTIMATORS.register(WindowedLsEstimatorConfig)
+def _build(cfg: WindowedLsEstimatorConfig, ctx: BuildContext) -> WindowedLsJacobian:
+    return WindowedLsJacobian(
+        ctx.p, ctx.q, window=cfg.window, ridge=cfg.ridge, dead_zone=cfg.dead_zone
+    )

@@ -33,8 +33,8 @@ import torch
 from torch import nn
 
 from rodctl.config.experiment import ExperimentConfig
-from rodctl.config.feature import AutoencoderFeatureConfig
 from rodctl.errors import UserError
+from rodctl.features.autoencoder_config import AutoencoderFeatureConfig
 from rodctl.features.geometry import check_centerlines
 
 #: Identifies our checkpoints; bump VERSION when the layout changes.

@@ -17,10 +17,16 @@ monotonically with d.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
+from pydantic import Field
 from scipy.special import comb
 
+from rodctl.config.base import StrictModel
+from rodctl.errors import UserError
 from rodctl.features.linear import LinearBasisFeatureMap
+from rodctl.registry import FEATURES, BuildContext
 
 
 def bernstein_basis(degree: int, rho: np.ndarray) -> np.ndarray:
@@ -52,3 +58,23 @@ class BezierFeatureMap(LinearBasisFeatureMap):
             raise ValueError(f"a degree-{degree} fit needs at least {degree + 1} points")
         self.degree = degree
         super().__init__(bernstein_basis(degree, np.linspace(0.0, 1.0, points)))
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+class BezierFeatureConfig(StrictModel):
+    """Least-squares Bézier control points in normalised arc length (the Ma et al. baseline)."""
+
+    type: Literal["bezier"] = "bezier"
+    degree: int = Field(
+        4, ge=1, le=12, description="Curve degree d; the feature has 2(d+1) components."
+    )
+
+
+@FEATURES.register(BezierFeatureConfig)
+def _build(cfg: BezierFeatureConfig, ctx: BuildContext) -> BezierFeatureMap:
+    try:
+        return BezierFeatureMap(cfg.degree, ctx.points)
+    except ValueError as exc:  # a combination one model alone cannot check (e.g. with N)
+        raise UserError(f"feature ({cfg.type}) with camera.points={ctx.points}: {exc}") from None

@@ -22,9 +22,15 @@ for a 1 px mean on the same shapes.
 
 from __future__ import annotations
 
-import numpy as np
+from typing import Literal
 
+import numpy as np
+from pydantic import Field
+
+from rodctl.config.base import StrictModel
+from rodctl.errors import UserError
 from rodctl.features.linear import LinearBasisFeatureMap
+from rodctl.registry import FEATURES, BuildContext
 
 
 def chord_sine_basis(harmonics: int, rho: np.ndarray) -> np.ndarray:
@@ -56,3 +62,23 @@ class FourierFeatureMap(LinearBasisFeatureMap):
             raise ValueError(f"{harmonics} harmonics need at least {harmonics + 2} points")
         self.harmonics = harmonics
         super().__init__(chord_sine_basis(harmonics, np.linspace(0.0, 1.0, points)))
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+class FourierFeatureConfig(StrictModel):
+    """Chord line plus truncated sine series of x(rho), y(rho), rho the normalised arc length."""
+
+    type: Literal["fourier"] = "fourier"
+    harmonics: int = Field(
+        4, ge=1, le=40, description="Harmonics H; the feature has 2(H+2) components."
+    )
+
+
+@FEATURES.register(FourierFeatureConfig)
+def _build(cfg: FourierFeatureConfig, ctx: BuildContext) -> FourierFeatureMap:
+    try:
+        return FourierFeatureMap(cfg.harmonics, ctx.points)
+    except ValueError as exc:  # a combination one model alone cannot check (e.g. with N)
+        raise UserError(f"feature ({cfg.type}) with camera.points={ctx.points}: {exc}") from None

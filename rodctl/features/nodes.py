@@ -9,10 +9,15 @@ rod points whatever N the extractor uses. Interior points barely see the gripper
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
+from pydantic import Field, field_validator
 
+from rodctl.config.base import StrictModel
+from rodctl.errors import UserError
 from rodctl.features.geometry import check_centerlines, resample_uniform
+from rodctl.registry import FEATURES, BuildContext
 
 
 class NodesFeatureMap:
@@ -53,3 +58,34 @@ class NodesFeatureMap:
         """(B, N, 2) pixels -> (B, p)."""
         arr = check_centerlines(centerlines_px, self.points, batch=True)
         return resample_uniform(arr, self.positions).reshape(arr.shape[0], self.dim)
+
+
+# --- config and registration ------------------------------------------------------------
+
+
+class NodesFeatureConfig(StrictModel):
+    """Pixel positions of a few centerline points (the Aghajanzadeh et al. baseline)."""
+
+    type: Literal["nodes"] = "nodes"
+    positions: list[float] = Field(
+        [1 / 3, 2 / 3, 1.0],
+        min_length=1,
+        description="Servoed points as normalised arc length in (0, 1] from the clamp.",
+    )
+
+    @field_validator("positions")
+    @classmethod
+    def _in_range(cls, value: list[float]) -> list[float]:
+        if any(not 0.0 < p <= 1.0 for p in value):
+            raise ValueError(f"positions must lie in (0, 1], got {value}")
+        if len(set(value)) != len(value):
+            raise ValueError(f"positions must be distinct, got {value}")
+        return value
+
+
+@FEATURES.register(NodesFeatureConfig)
+def _build(cfg: NodesFeatureConfig, ctx: BuildContext) -> NodesFeatureMap:
+    try:
+        return NodesFeatureMap(cfg.positions, ctx.points)
+    except ValueError as exc:  # a combination one model alone cannot check (e.g. with N)
+        raise UserError(f"feature ({cfg.type}) with camera.points={ctx.points}: {exc}") from None

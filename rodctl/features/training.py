@@ -22,7 +22,6 @@ import numpy as np
 import torch
 
 from rodctl.config import ExperimentConfig, dump_config
-from rodctl.config.feature import AutoencoderFeatureConfig, EncoderTrainingConfig
 from rodctl.display import task_progress
 from rodctl.errors import UserError
 from rodctl.features.autoencoder import (
@@ -31,6 +30,7 @@ from rodctl.features.autoencoder import (
     architecture_of,
     encoder_fingerprint,
 )
+from rodctl.features.autoencoder_config import AutoencoderFeatureConfig, EncoderTrainingConfig
 from rodctl.features.collection import CenterlineDataset, collect_dataset
 from rodctl.runs import RunDir, rng, torch_seed, write_json_atomic
 

@@ -12,12 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rodctl.config.controller import MfacControllerConfig, PinvControllerConfig, QpControllerConfig
-from rodctl.config.estimator import (
-    AkfEstimatorConfig,
-    BroydenEstimatorConfig,
-    OfflineEstimatorConfig,
-)
+from rodctl.control.mfac import MfacControllerConfig
+from rodctl.control.pinv import PinvControllerConfig
+from rodctl.control.qp import QpControllerConfig
+from rodctl.estimation.akf import AkfEstimatorConfig
+from rodctl.estimation.asap import OfflineEstimatorConfig
+from rodctl.estimation.broyden import BroydenEstimatorConfig
 from rodctl.control import make_controller
 from rodctl.estimation import fit_jacobian, make_estimator, probe_moves
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from pydantic import TypeAdapter
 
-from rodctl.config.controller import ControllerConfig
+from rodctl.config.experiment import ControllerConfig
 from rodctl.control import (
     MfacController,
     PinvController,

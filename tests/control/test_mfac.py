@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from rodctl.config.controller import DEFAULT_MFAC_WEIGHTS, MfacControllerConfig
+from rodctl.control.mfac import DEFAULT_MFAC_WEIGHTS, MfacControllerConfig
 from rodctl.control.mfac import MfacController, mfac_cost, mfac_step
 
 P, Q = 6, 3

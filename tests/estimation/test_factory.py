@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from pydantic import TypeAdapter
 
-from rodctl.config.estimator import EstimatorConfig
+from rodctl.config.experiment import EstimatorConfig
 from rodctl.estimation import (
     AdaptiveKalmanJacobian,
     BroydenJacobian,

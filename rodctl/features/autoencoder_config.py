@@ -1,18 +1,21 @@
-"""Config of the shape feature s = f_s(c): one union member per FeatureMap, keyed by `type`.
+"""Config of the paper's feature (section VI-A), an autoencoder latent, and its registration.
 
-Owned by `rodctl/features/`. The autoencoder (the paper's feature, section VI-A) also carries the
-settings of `rodctl train-encoder`: how the training centerlines are collected through the
-simulator and camera, and how the network is trained. Those settings never change what a trained
-checkpoint *is* for (the fingerprint ignores them); the architecture settings do.
+Kept apart from `autoencoder.py` so that reading a config never imports torch: the network is only
+loaded when a feature map is built. The autoencoder config also carries the settings of
+`rodctl train-encoder`: how the training centerlines are collected through the simulator and
+camera, and how the network is trained. Those settings never change what a trained checkpoint
+*is* for (the fingerprint ignores them); the architecture settings do.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, field_validator
 
 from rodctl.config.base import StrictModel
+from rodctl.registry import FEATURES, BuildContext
 
 
 class EncoderDataConfig(StrictModel):
@@ -88,45 +91,43 @@ class AutoencoderFeatureConfig(StrictModel):
         return value
 
 
-class BezierFeatureConfig(StrictModel):
-    """Least-squares Bézier control points in normalised arc length (the Ma et al. baseline)."""
+def load_autoencoder(cfg: AutoencoderFeatureConfig, *, points: int, experiment=None):
+    """Load the checkpoint `cfg.checkpoint` (None: the packaged default) and check it fits.
 
-    type: Literal["bezier"] = "bezier"
-    degree: int = Field(
-        4, ge=1, le=12, description="Curve degree d; the feature has 2(d+1) components."
+    Args:
+        cfg: the autoencoder feature config.
+        points: N, the centerline points the experiment extracts.
+        experiment: the whole config; when given, the checkpoint's fingerprint (rod, camera, N,
+            architecture) must match it, otherwise only N and the architecture are checked.
+
+    Returns:
+        The `AutoencoderFeatureMap` of the checkpoint.
+
+    Raises:
+        UserError: the file is missing or corrupt, or was trained for another setup; the message
+            names the file and each mismatch.
+    """
+    from rodctl.features.autoencoder import (
+        DEFAULT_CHECKPOINT,
+        EncoderCheckpoint,
+        architecture_of,
+        encoder_fingerprint,
     )
 
-
-class FourierFeatureConfig(StrictModel):
-    """Chord line plus truncated sine series of x(rho), y(rho), rho the normalised arc length."""
-
-    type: Literal["fourier"] = "fourier"
-    harmonics: int = Field(
-        4, ge=1, le=40, description="Harmonics H; the feature has 2(H+2) components."
-    )
-
-
-class NodesFeatureConfig(StrictModel):
-    """Pixel positions of a few centerline points (the Aghajanzadeh et al. baseline)."""
-
-    type: Literal["nodes"] = "nodes"
-    positions: list[float] = Field(
-        [1 / 3, 2 / 3, 1.0],
-        min_length=1,
-        description="Servoed points as normalised arc length in (0, 1] from the clamp.",
-    )
-
-    @field_validator("positions")
-    @classmethod
-    def _in_range(cls, value: list[float]) -> list[float]:
-        if any(not 0.0 < p <= 1.0 for p in value):
-            raise ValueError(f"positions must lie in (0, 1], got {value}")
-        if len(set(value)) != len(value):
-            raise ValueError(f"positions must be distinct, got {value}")
-        return value
+    path = Path(cfg.checkpoint) if cfg.checkpoint is not None else DEFAULT_CHECKPOINT
+    ckpt = EncoderCheckpoint.load(path)
+    if experiment is not None:
+        expected = encoder_fingerprint(experiment)
+    else:
+        expected = {
+            **ckpt.fingerprint,
+            "points": points,
+            "architecture": architecture_of(cfg, points),
+        }
+    ckpt.check_compatible(expected, str(path))
+    return ckpt.feature_map(source=str(path))
 
 
-FeatureConfig = Annotated[
-    AutoencoderFeatureConfig | BezierFeatureConfig | FourierFeatureConfig | NodesFeatureConfig,
-    Field(discriminator="type"),
-]
+@FEATURES.register(AutoencoderFeatureConfig)
+def _build(cfg: AutoencoderFeatureConfig, ctx: BuildContext):
+    return load_autoencoder(cfg, points=ctx.points, experiment=ctx.experiment)

@@ -1,0 +1,392 @@
+"""`ShapeServoEnv`: the simulated rod, the gripper and the camera as a Gymnasium environment.
+
+Why an environment: every consumer of an episode — `rodctl simulate`, each `compare` episode,
+`replay --verify`, and a researcher's own RL or control code — needs the same thing: a fresh rod,
+camera-noise stream and target from a seed, then "move the gripper by Δr, let the rod settle,
+look at it". `gymnasium.Env` is the interface the field already knows, so the environment is
+usable outside rodctl (`gymnasium.make("rodctl/ShapeServo-v0")`) and `check_env` holds it to the
+contract (spaces, seeding, determinism).
+
+One step (architecture: the data path):
+
+    RodSim.apply(Δr) → settle → ground truth → Camera.render → CenterlineExtractor → observation
+
+Observation (a `Dict` space):
+    centerline: (N, 2) float64 pixels, clamp end first, as extracted from the camera image;
+        zeros when the frame failed (then `extraction_ok` is 0).
+    gripper: (3,) float64 gripper pose [x, y, theta] (world frame, m, rad): the robot's own
+        proprioception.
+    applied: (3,) float64 the pose increment the robot really made in the last step (after its
+        per-axis speed limit and the workspace), zeros after `reset`.
+    extraction_ok: 1 when the whole rod was seen and traced, else 0.
+
+Reward: minus the pixel error, the mean distance in pixels between the extracted centerline and
+the target's (a failed frame costs the image diagonal). `terminated` on convergence (pixel error
+below `run.pixel_tolerance`) or divergence, `truncated` at `run.max_steps`. `info` carries what a
+real robot would not see: ground truth, projected truth, the settle result, the rod's health.
+`render()` (render_mode "rgb_array") returns the camera frame.
+
+The episode is a pure function of (config, seed): `reset(seed)` rebuilds the rod, the camera
+and its noise stream, and the target, from named seed streams (`rodctl.runs.rng`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from rodctl.config import ExperimentConfig, load_config, validate_config
+from rodctl.errors import UserError
+from rodctl.geometry import resample_polyline
+from rodctl.runs import rng
+from rodctl.sim import RodSim
+from rodctl.targets import difficulty, sample_target_pose
+from rodctl.vision import Camera, CenterlineExtractor
+
+#: Gripper degrees of freedom: x, y, theta.
+Q = 3
+#: Sampled target candidates tried before a config is declared unusable.
+TARGET_TRIES = 20
+
+
+def pixel_error(extracted: np.ndarray, target: np.ndarray) -> float:
+    """Mean distance (px) between corresponding points of two (N, 2) clamp-first centerlines."""
+    return float(np.mean(np.linalg.norm(extracted - target, axis=1)))
+
+
+@dataclass
+class Frame:
+    """One look at the rod: ground truth, the camera frame and what was extracted from it.
+
+    Attributes:
+        centerline: (M, 2) simulator joints, world metres, clamp first.
+        projected_truth: (N, 2) ground truth through the camera model, pixels.
+        image: (H, W, 3) uint8 RGB camera frame.
+        extracted: (N, 2) pixels from the image; all NaN when the frame failed.
+        ok: the whole rod was seen and traced.
+        note: why `ok` is False ("" otherwise).
+    """
+
+    centerline: np.ndarray
+    projected_truth: np.ndarray
+    image: np.ndarray
+    extracted: np.ndarray
+    ok: bool
+    note: str
+
+
+@dataclass
+class Target:
+    """A reachable target: the gripper pose that produces it and what the camera saw there.
+
+    Attributes:
+        pose: (3,) gripper pose, world frame, as the rod settled there.
+        centerline: (M, 2) ground truth, world metres.
+        pixels: (N, 2) the extracted target centerline, pixels.
+        difficulty: normalised distance from the home pose (`rodctl.targets`).
+    """
+
+    pose: np.ndarray
+    centerline: np.ndarray
+    pixels: np.ndarray
+    difficulty: float
+
+
+@dataclass(frozen=True)
+class Task:
+    """What a method is told at the start of an episode: the set-up, not the rod's internals.
+
+    Attributes:
+        target_pixels: (N, 2) the target centerline as the camera extracted it.
+        home_pose: (3,) gripper pose at the start, world frame (r is measured from it).
+        clamp_pose: (3,) pose of the clamped end, world frame.
+        max_step: (3,) the robot's per-axis speed limit per step [m, m, rad].
+        probe_size: (3,) size of the probing moves the run allows.
+        camera: the calibrated camera model (project / unproject / projection_jacobian).
+        points: N, the centerline points.
+    """
+
+    target_pixels: np.ndarray
+    home_pose: np.ndarray
+    clamp_pose: np.ndarray
+    max_step: np.ndarray
+    probe_size: np.ndarray
+    camera: Any
+    points: int
+
+
+@dataclass
+class StageTimes:
+    """Wall time per stage, summed over an episode (seconds)."""
+
+    sim: float = 0.0
+    vision: float = 0.0
+    feature: float = 0.0
+    control: float = 0.0
+    logging: float = 0.0
+
+    def per_step_ms(self, steps: int) -> dict[str, float]:
+        n = max(steps, 1)
+        return {k: round(1e3 * v / n, 4) for k, v in self.__dict__.items()}
+
+
+def _as_config(config: ExperimentConfig | dict | str | None) -> ExperimentConfig:
+    if config is None:
+        return ExperimentConfig()
+    if isinstance(config, ExperimentConfig):
+        return config
+    if isinstance(config, dict):
+        return validate_config(config, "ShapeServoEnv config")
+    return load_config(config)
+
+
+class ShapeServoEnv(gym.Env):
+    """Deform a planar elastic rod, seen through a fixed camera, by moving its gripper.
+
+    Args:
+        config: an `ExperimentConfig`, a mapping or the path of a YAML config (None: defaults).
+            Only the rod, camera and run sections matter here; the method is not the env's.
+        render_mode: None or "rgb_array" (the camera frame).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+
+    def __init__(
+        self,
+        config: ExperimentConfig | dict | str | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self._configure(_as_config(config))
+        self._seeded = False
+        self.sim: RodSim | None = None
+        self.frame: Frame | None = None
+        self.target: Target | None = None
+        self.task: Task | None = None
+        self.steps = 0
+        self.times = StageTimes()
+
+    def _configure(self, cfg: ExperimentConfig) -> None:
+        self.cfg = cfg
+        self.clamp_pose = np.asarray(cfg.rod.clamp_pose, dtype=float)
+        self.max_step = np.asarray(cfg.rod.max_step, dtype=float)
+        n = cfg.camera.points
+        big = float(np.hypot(cfg.camera.width, cfg.camera.height))
+        self.action_space = spaces.Box(-self.max_step, self.max_step, dtype=np.float64)
+        self.observation_space = spaces.Dict(
+            {
+                "centerline": spaces.Box(-np.inf, np.inf, shape=(n, 2), dtype=np.float64),
+                "gripper": spaces.Box(-np.inf, np.inf, shape=(Q,), dtype=np.float64),
+                "applied": spaces.Box(-np.inf, np.inf, shape=(Q,), dtype=np.float64),
+                "extraction_ok": spaces.Discrete(2),
+            }
+        )
+        self._lost_frame_cost = big
+
+    # --- Gymnasium API -------------------------------------------------------------------------
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Start an episode: a fresh rod at home, camera-noise stream and target.
+
+        Args:
+            seed: the episode seed. None: the config's `seed` on the first reset, then a seed
+                drawn from the environment's own generator (Gymnasium's convention).
+            options: optional `config` (replaces the config: `ExperimentConfig`, mapping or
+                path), `target_pose` ([x, y, theta], else `run.target` decides) and
+                `start_pose` (the gripper pose the episode starts from, else the home pose).
+
+        Raises:
+            UserError: a target or start pose that is out of reach or unusable.
+        """
+        options = dict(options or {})
+        if "config" in options:
+            self._configure(_as_config(options.pop("config")))
+        if seed is None:
+            seed = self.cfg.seed if not self._seeded else int(self.np_random.integers(2**31))
+        super().reset(seed=seed)
+        self._seeded = True
+        self.episode_seed = int(seed)
+        cfg = self.cfg
+        if options.get("start_pose") is not None:
+            rod = cfg.rod.model_copy(update={"home_pose": tuple(map(float, options["start_pose"]))})
+        else:
+            rod = cfg.rod
+        self._rod_cfg = rod
+        unknown = set(options) - {"target_pose", "start_pose"}
+        if unknown:
+            raise ValueError(f"reset: unknown options {sorted(unknown)}")
+        self.times = StageTimes()
+        self._new_camera(seed)
+        self.target = self._make_target(options.get("target_pose"), seed)
+        self.sim = RodSim(rod)
+        self.home_pose = self.sim.home_pose
+        self.steps = 0
+        self.frame = self._look()
+        if not self.frame.ok:
+            raise UserError(
+                f"initial frame: the rod's centerline could not be extracted ({self.frame.note})"
+            )
+        self.task = Task(
+            target_pixels=self.target.pixels,
+            home_pose=self.home_pose,
+            clamp_pose=self.clamp_pose,
+            max_step=self.max_step,
+            probe_size=np.asarray(cfg.run.probe_size, dtype=float),
+            camera=self.camera,
+            points=cfg.camera.points,
+        )
+        self._last_info = self._info(None)
+        return self._observation(np.zeros(Q)), dict(self._last_info)
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
+        """Move the gripper by `action` = [dx, dy, dtheta], let the rod settle, look at it.
+
+        The robot saturates each axis at `rod.max_step` and the workspace clips or refuses
+        poses out of reach; `info["saturated"]`, `info["clipped"]` say so, and the
+        observation's `applied` is the move really made.
+        """
+        if self.sim is None:
+            raise RuntimeError("call reset() before step()")
+        t = time.perf_counter()
+        res = self.sim.apply(np.asarray(action, dtype=float))
+        self.times.sim += time.perf_counter() - t
+        self.steps += 1
+        self.frame = self._look()
+        info = self._info(res)
+        self._last_info = info
+        err = info["pixel_error"]
+        reward = -err if np.isfinite(err) else -self._lost_frame_cost
+        diverged = bool(res.diverged)
+        converged = self.frame.ok and err < self.cfg.run.pixel_tolerance
+        terminated = diverged or bool(converged)
+        truncated = not terminated and self.steps >= self.cfg.run.max_steps
+        return self._observation(res.u_applied), float(reward), terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """The last camera frame, (H, W, 3) uint8 RGB (render_mode "rgb_array")."""
+        if self.render_mode != "rgb_array" or self.frame is None:
+            return None
+        return self.frame.image
+
+    def make_target(self, pose: Any = None, *, seed: int | None = None) -> Target:
+        """Check that a gripper pose gives a usable target, without starting an episode.
+
+        Drives a fresh rod to `pose` (None: sample one as `run.target` says), lets it settle and
+        extracts what the camera sees, with the camera of episode `seed` (default: the config's).
+
+        Raises:
+            UserError: the pose is out of reach, the rod does not settle there, or the camera
+                cannot extract it.
+        """
+        seed = self.cfg.seed if seed is None else int(seed)
+        self._rod_cfg = self.cfg.rod
+        self._new_camera(seed)
+        return self._make_target(pose, seed)
+
+    # --- internals -----------------------------------------------------------------------------
+
+    def _new_camera(self, seed: int) -> None:
+        """A camera with a fresh noise stream for episode `seed`, and its extractor."""
+        cfg = self.cfg
+        self.camera = Camera(cfg.camera, rng(seed, "camera"))
+        self.extractor = CenterlineExtractor(
+            cfg.camera, self.camera, self.clamp_pose, rod_length=cfg.rod.length
+        )
+
+    def _look(self, sim: RodSim | None = None) -> Frame:
+        """Render the rod as the camera sees it and extract its centerline."""
+        sim = sim or self.sim
+        t = time.perf_counter()
+        truth = sim.centerline()
+        gripper = sim.gripper_pose
+        image = self.camera.render(truth, gripper, self.clamp_pose)
+        ext = self.extractor.extract(image, gripper)
+        projected = self.camera.project(resample_polyline(truth, self.cfg.camera.points))
+        self.times.vision += time.perf_counter() - t
+        return Frame(truth, projected, image, ext.points, ext.ok, ext.note)
+
+    def _observation(self, applied: np.ndarray) -> dict[str, Any]:
+        f = self.frame
+        pts = f.extracted if f.ok else np.zeros_like(f.extracted)
+        return {
+            "centerline": np.array(pts, dtype=np.float64),
+            "gripper": np.asarray(self.sim.gripper_pose, dtype=np.float64),
+            "applied": np.array(applied, dtype=np.float64),
+            "extraction_ok": int(f.ok),
+        }
+
+    def _info(self, res: Any) -> dict[str, Any]:
+        """What the simulator knows and a real robot would not, plus the settle result."""
+        f = self.frame
+        health = self.sim.health()
+        return {
+            "step": self.steps,
+            "sim_time": float(self.sim.sim_time),
+            "pixel_error": pixel_error(f.extracted, self.target.pixels),
+            "extracted": f.extracted,
+            "extraction_note": f.note,
+            "ground_truth": f.centerline,
+            "projected_truth": f.projected_truth,
+            "settled": True if res is None else bool(res.settled),
+            "saturated": np.zeros(Q, bool) if res is None else np.asarray(res.saturated, bool),
+            "clipped": False if res is None else bool(res.clipped or res.refused),
+            "diverged": False if res is None else bool(res.diverged),
+            "max_joint_gap": float(health.max_joint_gap),
+            "kinetic_energy": float(health.kinetic_energy),
+        }
+
+    def _make_target(self, pose: Any, seed: int) -> Target:
+        """Drive a fresh rod to the target gripper pose (given or sampled) and look at it."""
+        cfg = self.cfg
+        given = pose if pose is not None else cfg.run.target.pose
+        sim = RodSim(self._rod_cfg)
+        home = sim.home_pose
+        tcfg = cfg.run.target
+        if given is not None:
+            pose, clipped = sim.clip_pose(np.asarray(given, dtype=float))
+            if clipped:
+                raise UserError(
+                    f"run.target.pose {list(given)} is outside the workspace or out of reach "
+                    f"(nearest allowed pose: {[round(float(v), 4) for v in pose]})"
+                )
+            candidates: Any = [pose]
+        else:
+            gen = rng(seed, "targets")
+            candidates = (
+                sample_target_pose(
+                    gen,
+                    home,
+                    cfg.rod.length,
+                    lambda p: not sim.clip_pose(p)[1],
+                    tcfg.min_offset,
+                    tcfg.max_offset,
+                )
+                for _ in range(TARGET_TRIES)
+            )
+        for pose in candidates:
+            res = sim.move_to(pose)
+            frame = self._look(sim)
+            if res.diverged or not res.settled or not frame.ok:
+                why = frame.note or ("diverged" if res.diverged else "did not settle")
+                if given is not None:
+                    raise UserError(f"run.target.pose {list(given)}: unusable target ({why})")
+                sim = RodSim(self._rod_cfg)
+                continue
+            return Target(
+                pose=sim.gripper_pose,
+                centerline=frame.centerline,
+                pixels=frame.extracted,
+                difficulty=difficulty(sim.gripper_pose, home, cfg.rod.length),
+            )
+        raise UserError(
+            f"run.target: {TARGET_TRIES} sampled targets in a row were unusable; check the config"
+        )

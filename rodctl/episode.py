@@ -1,0 +1,427 @@
+"""`run_episode`: the only control loop, its stop rules and outcomes, and the sinks' lifecycle.
+
+One episode, top to bottom:
+
+    obs = env.reset(seed)           a fresh rod, camera-noise stream and target
+    method.start(env.task)          fresh estimator and controller, target feature, probing plan
+    u = method.act(obs)             record 0 (the initial observation) → sinks
+    repeat:                         stop requested?  → interrupted
+        obs = env.step(u)           move, settle, render, extract
+        u = method.act(obs)         fold the observation in, choose the next move
+        record k → sinks            the stop rule decides: converged / stalled / … / go on
+
+`rodctl simulate`, every `rodctl compare` episode and `rodctl replay --verify` call it. The sinks
+(MCAP, Rerun) are opened, written and closed here and nowhere else, always with the episode's
+real status, whichever way it ends: `completed`, `failed` (diverged, lost the rod, an error) or
+`interrupted`. A step is never cut in half: a stop request is honoured between steps, so every
+record made is complete and in every sink.
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rodctl.config import ExperimentConfig, dump_config
+from rodctl.env import Q, ShapeServoEnv, StageTimes
+from rodctl.errors import UserError
+from rodctl.logs.base import Sink
+from rodctl.method import CONTROL, INITIAL, Method
+from rodctl.records import RunHeader, RunSummary, StepRecord
+
+
+class Outcome(enum.StrEnum):
+    """How an episode ended; the value is what records, summaries and results.csv hold."""
+
+    CONVERGED = "converged"  # pixel error (and T1 if asked) below tolerance
+    STALLED = "stalled"  # no progress while the descent direction J^T e has vanished
+    STEP_LIMIT = "step_limit"  # run.max_steps reached
+    DIVERGED = "diverged"  # NaN, a joint gap, or a non-finite command
+    LOST_TRACKING = "lost_tracking"  # the camera lost the rod for too many frames
+    COMPLETED = "completed"  # an open-loop (scripted) path reached its end
+    INTERRUPTED = "interrupted"  # SIGINT / SIGTERM between two steps
+    ERROR = "error"  # an exception inside the episode
+
+    @property
+    def status(self) -> str:
+        """The run status this outcome closes the logs and meta.json with."""
+        if self is Outcome.INTERRUPTED:
+            return "interrupted"
+        if self in (Outcome.DIVERGED, Outcome.LOST_TRACKING, Outcome.ERROR):
+            return "failed"
+        return "completed"
+
+
+class Interrupted(Exception):
+    """Raised between two steps when the user (Ctrl-C) or the system (SIGTERM) stops a run."""
+
+
+class EpisodeFailed(Exception):
+    """An exception ended the episode; `result` holds what was recorded until then."""
+
+    def __init__(self, result: EpisodeResult) -> None:
+        super().__init__(result.error)
+        self.result = result
+
+
+@dataclass
+class StopRule:
+    """When an episode ends (README: "A run stops on …"), from the records as they come.
+
+    Args:
+        cfg: the run section of the experiment config (tolerances, windows, limits).
+    """
+
+    cfg: Any
+    _lost: int = 0
+    _window: deque = field(default_factory=deque)
+
+    @classmethod
+    def from_config(cls, cfg: ExperimentConfig) -> StopRule:
+        return cls(cfg.run)
+
+    def reset(self) -> None:
+        self._lost = 0
+        # Pixel errors of the last stall_window + 1 good frames: progress over stall_window steps.
+        self._window = deque(maxlen=self.cfg.stall_window + 1)
+
+    def converged(self, rec: StepRecord) -> bool:
+        """Pixel error below `pixel_tolerance` (and T1 below `t1_tolerance` when set)."""
+        tol = self.cfg.t1_tolerance
+        return rec.pixel_error < self.cfg.pixel_tolerance and (tol is None or rec.T1 < tol)
+
+    def check(self, rec: StepRecord, method: Method, diverged: bool = False) -> Outcome | None:
+        """The outcome record `rec` ends the episode on, or None to go on.
+
+        Args:
+            rec: the step's record.
+            method: the method (its own failure, whether it is open-loop or finished).
+            diverged: the simulator reported a NaN or a joint gap in this step.
+        """
+        if method.failure:
+            return Outcome(method.failure)
+        if rec.phase != CONTROL:
+            # Probing moves decide only divergence; their frames are for J_0.
+            return Outcome.DIVERGED if diverged else None
+        if diverged or not np.isfinite(rec.T1):
+            return Outcome.DIVERGED
+        self._lost = 0 if rec.extraction_ok else self._lost + 1
+        if self._lost >= self.cfg.max_lost_frames:
+            return Outcome.LOST_TRACKING
+        if not rec.extraction_ok:
+            return None  # a bridged or failed frame decides nothing
+        if method.open_loop:
+            return Outcome.COMPLETED if method.finished and rec.settled else None
+        if self.converged(rec):
+            return Outcome.CONVERGED
+        self._window.append(rec.pixel_error)
+        if len(self._window) == self._window.maxlen and self._stalled(rec):
+            return Outcome.STALLED
+        return None
+
+    def _stalled(self, rec: StepRecord) -> bool:
+        """No progress over the window while the descent direction J^T e has vanished.
+
+        With p = 6 > q = 3 any law descending ||e||^2 along J can rest where J^T e = 0 but
+        e != 0 (docs/method.md): that is a stall, not a slow convergence.
+        """
+        window = list(self._window)
+        start, best = window[0], min(window[1:])
+        no_progress = best > start * (1.0 - self.cfg.stall_improvement)
+        e = rec.s_target - rec.s
+        denom = np.linalg.norm(rec.J) * np.linalg.norm(e)
+        grad = np.linalg.norm(rec.J.T @ e) / denom if denom > 0 else 0.0
+        return bool(no_progress and grad < self.cfg.stall_gradient)
+
+
+@dataclass
+class EpisodeResult:
+    """What one episode produced.
+
+    Attributes:
+        outcome: how it ended.
+        summary: the run summary (summary.json).
+        header: what the sinks were opened with (None if the episode ended before).
+        records: every step record, without camera images.
+        error: the message of the exception that ended it (outcome ERROR), else None.
+        traceback: that exception's traceback text, else None.
+    """
+
+    outcome: Outcome
+    summary: RunSummary
+    header: RunHeader | None
+    records: list[StepRecord]
+    error: str | None = None
+    traceback: str | None = None
+
+    @property
+    def status(self) -> str:
+        return self.outcome.status
+
+
+def run_episode(
+    env: ShapeServoEnv,
+    method: Method,
+    stop_rule: StopRule | None = None,
+    sinks: Sequence[Sink] = (),
+    *,
+    seed: int | None = None,
+    options: dict[str, Any] | None = None,
+    run_id: str = "adhoc",
+    on_step: Callable[[StepRecord], None] | None = None,
+    stop_requested: Callable[[], str | None] | None = None,
+) -> EpisodeResult:
+    """Run one episode of `method` in `env` to its end; every record goes to every sink.
+
+    Args:
+        env: the environment (its config decides rod, camera, run limits).
+        method: the method under test.
+        stop_rule: when to stop (default: from the env's run config).
+        sinks: outputs; opened with the header, closed here with the episode's real status.
+        seed, options: passed to `env.reset` (seed None: the config's seed).
+        run_id: the run's id, written into the header.
+        on_step: called with each record after the sinks have it (progress display).
+        stop_requested: polled between steps; a non-empty reason (e.g. "SIGINT") ends the
+            episode there with outcome `interrupted`.
+
+    Returns:
+        The result; its outcome says how the episode ended.
+
+    Raises:
+        UserError: the episode could not start (an unusable target, a checkpoint that does not
+            fit); nothing was logged.
+        EpisodeFailed: an exception ended it after it started; `.result` holds the records,
+            and the sinks were closed with status `failed`.
+    """
+    cfg = env.cfg
+    stop_rule = stop_rule or StopRule.from_config(cfg)
+    stop_rule.reset()
+    wall0 = time.perf_counter()
+    obs, info = env.reset(seed=cfg.seed if seed is None else seed, options=options)
+    method.start(env.task)
+    loop = _Loop(env, method, sinks, on_step, wall0)
+    loop.open(run_id)
+    outcome: Outcome | None = None
+    try:
+        u = method.act(obs)
+        rec = loop.record(info, u=np.zeros(Q), u_raw=np.zeros(Q), phase=INITIAL)
+        loop.emit(rec)
+        k = 0
+        while outcome is None and k < cfg.run.max_steps:
+            reason = stop_requested() if stop_requested is not None else None
+            if reason:
+                raise Interrupted(reason)
+            k += 1
+            phase = method.phase
+            if not np.all(np.isfinite(u)):
+                # A NaN estimate or feature: the method has broken down; do not move the robot.
+                loop.emit(loop.record(loop.info, u=np.zeros(Q), u_raw=u, phase=phase, moved=False))
+                outcome = Outcome.DIVERGED
+                break
+            obs, _, _, _, info = env.step(u)
+            u_raw = u
+            u = method.act(obs)
+            rec = loop.record(info, u=obs["applied"], u_raw=u_raw, phase=phase)
+            loop.emit(rec)
+            outcome = stop_rule.check(rec, method, diverged=info["diverged"])
+        outcome = outcome or Outcome.STEP_LIMIT
+    except (Interrupted, KeyboardInterrupt) as exc:
+        outcome = Outcome.INTERRUPTED
+        loop.note = f"interrupted by {exc or 'SIGINT'}"
+    except Exception as exc:
+        if isinstance(exc, UserError) and not loop.records:
+            loop.close(None, "failed")
+            raise
+        result = loop.finish(Outcome.ERROR, error=exc)
+        raise EpisodeFailed(result) from exc
+    return loop.finish(outcome)
+
+
+class _Loop:
+    """The bookkeeping of one episode: records, image rate, timing, sinks, the summary."""
+
+    def __init__(
+        self,
+        env: ShapeServoEnv,
+        method: Method,
+        sinks: Sequence[Sink],
+        on_step: Callable[[StepRecord], None] | None,
+        wall0: float,
+    ) -> None:
+        self.env, self.method, self.sinks, self.on_step = env, method, list(sinks), on_step
+        self.wall0 = wall0
+        self.records: list[StepRecord] = []
+        self.header: RunHeader | None = None
+        self.logging = 0.0
+        self.note: str | None = None
+        cfg = env.cfg
+        self.image_every = _image_every(cfg.logging.image_rate_hz, cfg.rod.control_period)
+        self.setup_time = 0.0
+
+    @property
+    def info(self) -> dict[str, Any]:
+        return self.env._last_info
+
+    def open(self, run_id: str) -> None:
+        env, method, cfg = self.env, self.method, self.env.cfg
+        target = env.target
+        self.header = RunHeader(
+            run_id=run_id,
+            method=method.label,
+            config_yaml=dump_config(cfg),
+            image_size=(cfg.camera.width, cfg.camera.height),
+            clamp_pose=env.clamp_pose,
+            home_pose=env.home_pose,
+            target_centerline=target.centerline,
+            target_pixels=target.pixels,
+            target_feature=method.s_target,
+            target_pose=target.pose,
+            rod_length=cfg.rod.length,
+        )
+        self.setup_time = time.perf_counter() - self.wall0
+        opened: list[Sink] = []
+        try:
+            for sink in self.sinks:
+                sink.open(self.header)
+                opened.append(sink)
+        except BaseException:
+            self.sinks = opened
+            self.close(None, "failed")
+            raise
+
+    def record(
+        self,
+        info: dict[str, Any],
+        *,
+        u: np.ndarray,
+        u_raw: np.ndarray,
+        phase: str,
+        moved: bool = True,
+    ) -> StepRecord:
+        """The record of the current step from the env's info and the method's state."""
+        m = self.method
+        k = len(self.records)
+        J = np.array(m.J, dtype=float)
+        return StepRecord(
+            step=k,
+            sim_time=info["sim_time"],
+            phase=phase,
+            gripper=self.env.sim.gripper_pose,
+            centerline=info["ground_truth"],
+            extracted=info["extracted"],
+            projected_truth=info["projected_truth"],
+            u=np.array(u, dtype=float),
+            u_raw=np.array(u_raw, dtype=float),
+            s=m.s,
+            s_target=m.s_target,
+            T1=m.T1,
+            J=J,
+            J_singular_values=np.linalg.svd(J, compute_uv=False),
+            pixel_error=info["pixel_error"],
+            settled=info["settled"] if moved else True,
+            saturated=info["saturated"] if moved else np.zeros(Q, dtype=bool),
+            clipped=info["clipped"] if moved else False,
+            max_joint_gap=info["max_joint_gap"],
+            kinetic_energy=info["kinetic_energy"],
+            extraction_ok=self.env.frame.ok,
+            extraction_note=info["extraction_note"],
+            estimator_info=m.estimator_info(),
+        )
+
+    def emit(self, rec: StepRecord) -> None:
+        if self.image_every and rec.step % self.image_every == 0:
+            rec.image = self.env.frame.image
+        t = time.perf_counter()
+        for sink in self.sinks:
+            sink.write(rec)
+        self.logging += time.perf_counter() - t
+        rec.image = None
+        self.records.append(rec)
+        if self.on_step is not None:
+            self.on_step(rec)
+
+    def close(self, summary: RunSummary | None, status: str) -> None:
+        """Close every sink even if one fails; the first failure is re-raised afterwards."""
+        first: BaseException | None = None
+        for sink in self.sinks:
+            try:
+                sink.close(summary, status)
+            except BaseException as exc:  # noqa: BLE001 - all sinks must get their chance
+                first = first or exc
+        if first is not None:
+            raise first
+
+    def finish(self, outcome: Outcome, error: BaseException | None = None) -> EpisodeResult:
+        """Summarise, close the sinks with the real status, and return the result."""
+        message = None
+        tb = None
+        if error is not None:
+            message = (
+                str(error) if isinstance(error, UserError) else f"{type(error).__name__}: {error}"
+            )
+            tb = "".join(traceback.format_exception(error))
+        summary = self.summary(outcome)
+        if self.header is not None:
+            self.close(summary, outcome.status)
+        return EpisodeResult(outcome, summary, self.header, self.records, message, tb)
+
+    def summary(self, outcome: Outcome) -> RunSummary:
+        env, method, recs = self.env, self.method, self.records
+        wall = time.perf_counter() - self.wall0
+        steps = recs[-1].step if recs else 0
+        last = recs[-1] if recs else None
+        times = StageTimes(
+            sim=env.times.sim,
+            vision=env.times.vision,
+            feature=method.times.feature,
+            control=method.times.control,
+            logging=self.logging,
+        )
+        extra: dict[str, Any] = {"run_id": self.header.run_id if self.header else ""}
+        if outcome not in (Outcome.INTERRUPTED, Outcome.ERROR) and last is not None:
+            us = np.array([r.u for r in recs[1:]]).reshape(-1, Q)
+            extra.update(
+                setup_time_s=round(self.setup_time, 4),
+                probe_steps=sum(r.phase == "probe" for r in recs),
+                target_pose=[float(v) for v in env.target.pose],
+                target_difficulty=round(env.target.difficulty, 6),
+                home_pose=[float(v) for v in env.home_pose],
+                final_gripper=[float(v) for v in last.gripper],
+                final_J_singular_values=[float(v) for v in last.J_singular_values],
+                path_length=float(np.sum(np.linalg.norm(us[:, :2], axis=1))),
+                rotation_length=float(np.sum(np.abs(us[:, 2]))),
+                smoothness=float(np.sum(np.linalg.norm(np.diff(us, axis=0), axis=1))),
+                saturated_steps=int(sum(bool(np.any(r.saturated)) for r in recs)),
+                clipped_steps=int(sum(r.clipped for r in recs)),
+                unsettled_steps=int(sum(not r.settled for r in recs)),
+                lost_frames=int(sum(not r.extraction_ok for r in recs)),
+                time_per_step_ms=times.per_step_ms(len(recs)),
+            )
+        run_time = wall - self.setup_time
+        return RunSummary(
+            status=outcome.status,
+            outcome=outcome.value,
+            method=method.label,
+            steps=steps,
+            converged=outcome is Outcome.CONVERGED,
+            steps_to_converge=steps if outcome is Outcome.CONVERGED else None,
+            final_T1=float(last.T1) if last else float("nan"),
+            final_pixel_error=float(last.pixel_error) if last else float("nan"),
+            wall_time_s=round(wall, 4),
+            steps_per_s=round(steps / run_time, 3) if run_time > 0 else 0.0,
+            extra=extra,
+        )
+
+
+def _image_every(rate_hz: float, control_period: float) -> int:
+    """Log a camera frame every this many steps (0: never) for a rate in simulated time."""
+    if rate_hz <= 0:
+        return 0
+    return max(1, round(1.0 / (rate_hz * control_period)))

@@ -1,0 +1,207 @@
+"""`Method`: a feature map, a Jacobian estimator and a controller behind one small interface.
+
+Why: the loop must not know which method it runs. Everything that differs between the paper's
+method, the baselines and a scripted path happens here, through what each stage declares:
+
+- `start(task)`: the start hook. Builds a fresh estimator and controller (so a method object
+  can run many episodes), encodes the target, and plans the probing moves when the estimator
+  learns online and the controller needs a Jacobian.
+- `act(observation) -> Δr`: folds the new observation in (encode it, update the estimate with
+  the move really made) and returns the next gripper pose increment. The first observation of
+  an episode goes to the estimator's `prepare` hook instead: the offline ASAP model builds its
+  Jacobian from the first image there (and then needs no probing).
+
+Probing (method-notes "how J_0 starts"; docs/method.md): q + 1 small moves and a least-squares
+fit give J_0 for the online estimators. A frame whose centerline was not extracted gives no
+feature: the moves made since the last good frame are summed, so each Δs is paired with the Δr
+that caused it.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from rodctl.env import Q, StageTimes, Task
+from rodctl.errors import UserError
+from rodctl.estimation.probing import fit_jacobian, probe_moves
+from rodctl.registry import CONTROLLERS, ESTIMATORS, FEATURES, BuildContext, load_plugins
+
+#: Phases of a command: the first observation, a probing move, a move of the control law.
+INITIAL, PROBE, CONTROL = "initial", "probe", "control"
+
+
+class Method:
+    """One shape-servoing method: feature map + Jacobian estimator + controller.
+
+    Args:
+        feature, estimator, controller: registered stage configs (their `type` picks each).
+        experiment: the whole experiment config, for stages that check it (an encoder
+            checkpoint is checked against the rod and camera).
+        points: N, the centerline points (default: the experiment's camera.points).
+
+    Attributes (valid after `act`):
+        s: (p,) the feature of the last good frame.
+        s_target: (p,) the target feature s*.
+        J: (p, q) the current Jacobian estimate.
+        phase: the phase of the command `act` returned last (probe / control).
+        failure: an outcome the method itself ended on (e.g. "lost_tracking" when probing saw
+            too few frames), else None.
+    """
+
+    def __init__(
+        self,
+        feature: Any,
+        estimator: Any,
+        controller: Any,
+        *,
+        experiment: Any = None,
+        points: int | None = None,
+    ) -> None:
+        load_plugins()
+        if points is None:
+            points = experiment.camera.points
+        self.configs = {"feature": feature, "estimator": estimator, "controller": controller}
+        self.label = f"{feature.type}/{estimator.type}/{controller.type}"
+        self.points = int(points)
+        self.feature = FEATURES.build(
+            feature, BuildContext(points=self.points, experiment=experiment)
+        )
+        self.times = StageTimes()
+        self.task: Task | None = None
+
+    @classmethod
+    def from_config(cls, cfg: Any) -> Method:
+        """The method an `ExperimentConfig` describes (its feature, estimator, controller)."""
+        return cls(cfg.feature, cfg.estimator, cfg.controller, experiment=cfg)
+
+    # --- the start hook ------------------------------------------------------------------------
+
+    def start(self, task: Task) -> None:
+        """Begin an episode: fresh estimator and controller, target feature, probing plan."""
+        self.task = task
+        self.times = StageTimes()
+        self.s_target = self._encode(task.target_pixels)
+        self.p = int(self.s_target.shape[0])
+        ctx = BuildContext(
+            points=self.points,
+            p=self.p,
+            q=Q,
+            home_pose=task.home_pose,
+            max_step=task.max_step,
+            camera=task.camera,
+        )
+        self.estimator = ESTIMATORS.build(self.configs["estimator"], ctx)
+        self.controller = CONTROLLERS.build(self.configs["controller"], ctx)
+        self.J = np.zeros((self.p, Q))
+        self.s: np.ndarray | None = None
+        self.phase = INITIAL
+        self.failure: str | None = None
+        self._unseen = np.zeros(Q)  # gripper motion since the last good frame
+        self._probes: list[np.ndarray] = []
+        self._probe_pairs: tuple[list, list] = ([], [])
+        self._probing_left = 0
+
+    @property
+    def open_loop(self) -> bool:
+        """The controller ignores the feature and J (a scripted path): nothing to converge."""
+        return bool(getattr(self.controller, "open_loop", False))
+
+    @property
+    def finished(self) -> bool:
+        """The controller has nothing left to do (the end of a scripted path)."""
+        return bool(getattr(self.controller, "done", False))
+
+    @property
+    def T1(self) -> float:
+        """||s* - s||, the paper's deformation metric (feature units)."""
+        return float(np.linalg.norm(self.s_target - self.s))
+
+    def estimator_info(self) -> dict[str, float]:
+        """The estimator's scalar diagnostics for the log."""
+        return self.estimator.info()
+
+    # --- one step ------------------------------------------------------------------------------
+
+    def act(self, observation: dict[str, Any]) -> np.ndarray:
+        """Fold in an observation and return the next pose increment (3,) [dx, dy, dtheta].
+
+        Args:
+            observation: the environment's observation (`ShapeServoEnv`): `centerline`,
+                `extraction_ok`, `gripper` and `applied` (the move really made last step).
+        """
+        if self.s is None:
+            self._first(observation)
+        else:
+            self._fold(observation)
+        return self._command(observation)
+
+    def _first(self, obs: dict[str, Any]) -> None:
+        pixels = np.asarray(obs["centerline"])
+        self.s = self._encode(pixels)
+        prepare = getattr(self.estimator, "prepare", None)
+        model = prepare(pixels) if prepare is not None else None
+        if model is not None:
+            self.J = np.array(model, dtype=float)
+        elif not self.open_loop:
+            self._probes = list(probe_moves(Q, self.task.probe_size))
+            self._probing_left = len(self._probes)
+
+    def _fold(self, obs: dict[str, Any]) -> None:
+        """Pair the new feature with the moves since the last good frame; update J."""
+        self._unseen += np.asarray(obs["applied"], dtype=float)
+        ok = bool(obs["extraction_ok"])
+        if self.phase == PROBE:
+            self._probing_left -= 1
+            if ok:
+                s_new = self._encode(obs["centerline"])
+                self._probe_pairs[0].append(s_new - self.s)
+                self._probe_pairs[1].append(self._unseen.copy())
+                self._unseen[:] = 0.0
+                self.s = s_new
+            if self._probing_left == 0:
+                self._fit_initial_jacobian()
+            return
+        if ok:
+            s_new = self._encode(obs["centerline"])
+            t = time.perf_counter()
+            self.J = self.estimator.update(s_new - self.s, self._unseen)
+            self.times.control += time.perf_counter() - t
+            self._unseen[:] = 0.0
+            self.s = s_new
+
+    def _fit_initial_jacobian(self) -> None:
+        """J_0 from the probing moves (least squares); too few good frames end the episode."""
+        dS, dR = self._probe_pairs
+        if len(dR) < Q:
+            self.failure = "lost_tracking"
+            return
+        t = time.perf_counter()
+        try:
+            self.J = fit_jacobian(np.array(dS), np.array(dR))
+        except ValueError as exc:
+            raise UserError(
+                f"probing: {exc}. The workspace clipped or refused the probing moves; make "
+                "run.probe_size smaller or start further inside rod.workspace"
+            ) from None
+        self.estimator.reset(self.J)
+        self.times.control += time.perf_counter() - t
+
+    def _command(self, obs: dict[str, Any]) -> np.ndarray:
+        if self._probes:
+            self.phase = PROBE
+            return np.array(self._probes.pop(0), dtype=float)
+        self.phase = CONTROL
+        t = time.perf_counter()
+        r = np.asarray(obs["gripper"], dtype=float) - self.task.home_pose
+        u = np.asarray(self.controller.command(self.s, self.s_target, self.J, r), dtype=float)
+        self.times.control += time.perf_counter() - t
+        return u
+
+    def _encode(self, pixels: np.ndarray) -> np.ndarray:
+        t = time.perf_counter()
+        s = self.feature.encode(np.asarray(pixels))
+        self.times.feature += time.perf_counter() - t
+        return s

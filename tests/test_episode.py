@@ -1,0 +1,203 @@
+"""The episode loop's bookkeeping: what the estimator is told, and how bad setups end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from paths import REPO
+from typer.testing import CliRunner
+
+from rodctl.cli import app
+from rodctl.config import load_config
+from rodctl.env import ShapeServoEnv
+from rodctl.episode import Outcome, run_episode
+from rodctl.method import Method
+from rodctl.vision import Extraction
+
+FAST = ["feature.type=bezier", "logging.mcap=false", "logging.rerun=false", "logging.figures=false"]
+
+
+class _Spying(Method):
+    """A method whose estimator records every move it is told about."""
+
+    seen: list[np.ndarray]
+
+    def start(self, task):
+        super().start(task)
+        self.seen = []
+        update = self.estimator.update
+
+        def spy(ds, dr):
+            self.seen.append(np.array(dr, dtype=float))
+            return update(ds, dr)
+
+        self.estimator.update = spy
+
+
+def test_a_lost_frame_pairs_the_next_feature_change_with_both_moves():
+    """When the camera loses the rod for a step, the next good frame's Delta s was caused by
+    two moves: the estimator must get their sum, not the last move alone."""
+    cfg = load_config(REPO / "configs/default.yaml", [*FAST, "run.max_steps=12"])
+    env = ShapeServoEnv(cfg)
+    method = _Spying.from_config(cfg)
+    calls = {"n": 0}
+
+    real_new_camera = env._new_camera
+
+    def new_camera(seed):
+        real_new_camera(seed)
+        extract = env.extractor.extract
+
+        def flaky(image, gripper_pose=None):
+            calls["n"] += 1
+            # Call 1 is the target, 2 the initial frame, 3-6 the probes; lose control step 7.
+            if calls["n"] == 2 + 4 + 3:
+                return Extraction(np.full((100, 2), np.nan), ok=False, note="occluded (test)")
+            return extract(image, gripper_pose)
+
+        env.extractor.extract = flaky
+
+    env._new_camera = new_camera
+    recs = run_episode(env, method).records
+    seen = method.seen
+    lost = [r.step for r in recs if not r.extraction_ok]
+    assert lost == [7]
+    # Updates happen at good control steps only: 5, 6, 8, 9, ... (step 7 had no feature).
+    control_good = [r for r in recs if r.phase == "control" and r.extraction_ok]
+    assert len(seen) == len(control_good)
+    by_step = {r.step: r for r in recs}
+    i8 = [r.step for r in control_good].index(8)
+    np.testing.assert_array_equal(seen[i8], by_step[7].u + by_step[8].u)
+    i6 = [r.step for r in control_good].index(6)
+    np.testing.assert_array_equal(seen[i6], by_step[6].u)
+    # The lost frame decides nothing: the run did not converge on it.
+    assert by_step[7].s.tolist() == by_step[6].s.tolist()
+
+
+def test_a_nan_command_ends_the_run_as_diverged_without_moving():
+    cfg = load_config(REPO / "configs/default.yaml", [*FAST, "run.max_steps=30"])
+
+    class Broken(Method):
+        def start(self, task):
+            super().start(task)
+            self.controller.command = lambda s, s_star, J, r: np.array([np.nan, 0.0, 0.0])
+
+    result = run_episode(ShapeServoEnv(cfg), Broken.from_config(cfg))
+    assert result.outcome is Outcome.DIVERGED and result.summary.status == "failed"
+    last, before = result.records[-1], result.records[-2]
+    assert np.array_equal(last.gripper, before.gripper) and not np.any(last.u)
+
+
+def test_one_method_and_env_run_twice_give_identical_episodes():
+    """Re-entrant: every stream (camera noise included) is rebuilt by reset."""
+    cfg = load_config(REPO / "configs/camera-noise.yaml", [*FAST, "run.max_steps=8"])
+    env, method = ShapeServoEnv(cfg), Method.from_config(cfg)
+    a = run_episode(env, method)
+    b = run_episode(env, method)
+    assert [r.pixel_error for r in a.records] == [r.pixel_error for r in b.records]
+    assert [r.extracted.tolist() for r in a.records] == [r.extracted.tolist() for r in b.records]
+    c = run_episode(env, method, seed=cfg.seed + 1)
+    assert [r.pixel_error for r in c.records] != [r.pixel_error for r in a.records]
+
+
+def test_a_stop_request_ends_between_steps_as_interrupted():
+    cfg = load_config(REPO / "configs/default.yaml", [*FAST, "run.max_steps=30"])
+    asked = iter([None, None, None, "SIGTERM"])
+    result = run_episode(
+        ShapeServoEnv(cfg), Method.from_config(cfg), stop_requested=lambda: next(asked)
+    )
+    assert result.outcome is Outcome.INTERRUPTED and result.status == "interrupted"
+    assert [r.step for r in result.records] == [0, 1, 2, 3]
+
+
+def test_sinks_are_closed_with_the_real_status():
+    cfg = load_config(REPO / "configs/default.yaml", [*FAST, "run.max_steps=6"])
+
+    class Recorder:
+        def __init__(self):
+            self.opened = self.closed = None
+            self.written = 0
+
+        def open(self, header):
+            self.opened = header.run_id
+
+        def write(self, record):
+            self.written += 1
+
+        def close(self, summary, status):
+            self.closed = (summary.outcome, status)
+
+    sink = Recorder()
+    result = run_episode(ShapeServoEnv(cfg), Method.from_config(cfg), sinks=[sink], run_id="x")
+    assert sink.opened == "x" and sink.written == len(result.records) == 7
+    assert sink.closed == ("step_limit", "completed")
+
+    class Broken(Method):
+        def start(self, task):
+            super().start(task)
+            self.controller.command = lambda s, s_star, J, r: np.array([np.nan, 0.0, 0.0])
+
+    sink = Recorder()
+    run_episode(ShapeServoEnv(cfg), Broken.from_config(cfg), sinks=[sink])
+    assert sink.closed == ("diverged", "failed")
+
+
+def test_bad_setup_found_before_any_step_leaves_no_running_run(tmp_path):
+    runner = CliRunner()
+    # A missing checkpoint is found while building the stages: no run directory at all.
+    res = runner.invoke(
+        app,
+        [
+            "simulate",
+            str(REPO / "configs/default.yaml"),
+            "--out",
+            str(tmp_path / "a"),
+            "--set",
+            "feature.checkpoint=/nope.pt",
+        ],
+    )
+    assert res.exit_code == 2 and "/nope.pt" in res.output
+    assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
+    # A rod the simulator cannot damp is found when the rod is built: the run directory says
+    # failed, with the reason, never "running".
+    res = runner.invoke(
+        app,
+        [
+            "simulate",
+            str(REPO / "configs/default.yaml"),
+            "--out",
+            str(tmp_path / "b"),
+            "--set",
+            "feature.type=bezier",
+            "--set",
+            "rod.length=0.1",
+        ],
+    )
+    assert res.exit_code == 2 and "rod.inertia_radius" in res.output
+    (run_dir,) = (tmp_path / "b").iterdir()
+    meta = json.loads((run_dir / "meta.json").read_text())
+    assert meta["status"] == "failed" and "rod" in meta["error"]
+    # An impossible feature/N combination: exit 2, not a traceback.
+    res = runner.invoke(
+        app,
+        [
+            "simulate",
+            str(REPO / "configs/default.yaml"),
+            "--out",
+            str(tmp_path / "c"),
+            "--set",
+            "feature.type=bezier",
+            "--set",
+            "camera.points=3",
+        ],
+    )
+    assert res.exit_code == 2 and "camera.points=3" in res.output
+    assert "Traceback" not in res.output
+
+
+def test_a_compare_config_given_to_simulate_says_so(tmp_path):
+    res = CliRunner().invoke(
+        app, ["simulate", str(REPO / "configs/compare-smoke.yaml"), "--out", str(tmp_path)]
+    )
+    assert res.exit_code == 2 and "rodctl compare" in res.output
