@@ -12,14 +12,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rodctl.control import make_controller
 from rodctl.control.mfac import MfacControllerConfig
 from rodctl.control.pinv import PinvControllerConfig
 from rodctl.control.qp import QpControllerConfig
+from rodctl.estimation import fit_jacobian, make_estimator, probe_moves
 from rodctl.estimation.akf import AkfEstimatorConfig
 from rodctl.estimation.asap import OfflineEstimatorConfig
 from rodctl.estimation.broyden import BroydenEstimatorConfig
-from rodctl.control import make_controller
-from rodctl.estimation import fit_jacobian, make_estimator, probe_moves
 
 P, Q = 6, 3
 MAX = np.array([0.01, 0.01, 0.05])

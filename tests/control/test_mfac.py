@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from rodctl.control.mfac import DEFAULT_MFAC_WEIGHTS, MfacControllerConfig
-from rodctl.control.mfac import MfacController, mfac_cost, mfac_step
+from rodctl.control.mfac import (
+    DEFAULT_MFAC_WEIGHTS,
+    MfacController,
+    MfacControllerConfig,
+    mfac_cost,
+    mfac_step,
+)
 
 P, Q = 6, 3
 
