@@ -5,6 +5,7 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+PLUGIN := $(VENV)/.plugin-installed
 
 .PHONY: demo test bench lint clean-venv
 
@@ -15,18 +16,24 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e ".[test]"
 	touch $(STAMP)
 
+# The example plug-in (examples/plugin/) is part of the test suite: the tests run it through
+# the CLI and compare, as a user who installed it would.
+$(PLUGIN): $(STAMP) examples/plugin/pyproject.toml
+	$(BIN)/pip install --quiet -e examples/plugin
+	touch $(PLUGIN)
+
 demo: $(STAMP)
 	$(BIN)/rodctl simulate configs/default.yaml
 
-test: $(STAMP)
+test: $(STAMP) $(PLUGIN)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
 
 lint: $(STAMP)
-	$(BIN)/ruff check rodctl tests benchmarks
-	$(BIN)/ruff format --check rodctl tests benchmarks
+	$(BIN)/ruff check rodctl tests benchmarks examples
+	$(BIN)/ruff format --check rodctl tests benchmarks examples
 
 clean-venv:
 	rm -rf $(VENV)

@@ -342,9 +342,13 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
 
 
 def _init_worker() -> None:
-    """Worker start: one torch thread (BLAS threads are limited through the environment)."""
+    """Worker start: plug-ins registered as in the parent; one torch thread (BLAS threads are
+    limited through the environment)."""
     import torch
 
+    from rodctl.registry import load_plugins
+
+    load_plugins()
     torch.set_num_threads(1)
 
 

@@ -178,13 +178,21 @@ class ShapeServoEnv(gym.Env):
         self.clamp_pose = np.asarray(cfg.rod.clamp_pose, dtype=float)
         self.max_step = np.asarray(cfg.rod.max_step, dtype=float)
         n = cfg.camera.points
-        big = float(np.hypot(cfg.camera.width, cfg.camera.height))
+        size = np.array([cfg.camera.width, cfg.camera.height], dtype=float)
+        big = float(np.hypot(*size))
+        ws = cfg.rod.workspace
+        margin = 1e-6  # poses on a workspace limit, give or take rounding
+        lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]]) - margin
+        hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]]) + margin
         self.action_space = spaces.Box(-self.max_step, self.max_step, dtype=np.float64)
         self.observation_space = spaces.Dict(
             {
-                "centerline": spaces.Box(-np.inf, np.inf, shape=(n, 2), dtype=np.float64),
-                "gripper": spaces.Box(-np.inf, np.inf, shape=(Q,), dtype=np.float64),
-                "applied": spaces.Box(-np.inf, np.inf, shape=(Q,), dtype=np.float64),
+                # Extracted points lie in the image; the bounds leave room for sub-pixel fits.
+                "centerline": spaces.Box(
+                    np.tile(-size, (n, 1)), np.tile(2 * size, (n, 1)), dtype=np.float64
+                ),
+                "gripper": spaces.Box(lo, hi, dtype=np.float64),
+                "applied": spaces.Box(-self.max_step, self.max_step, dtype=np.float64),
                 "extraction_ok": spaces.Discrete(2),
             }
         )

@@ -163,7 +163,9 @@ def _type_name(config: type[BaseModel]) -> str:
 def _source_of(fn: Callable[..., Any]) -> str:
     module = getattr(fn, "__module__", "") or ""
     top = module.split(".")[0]
-    return "rodctl (built-in)" if top == "rodctl" else f"{_LOADING or top} ({module})"
+    if top == "rodctl":
+        return "rodctl (built-in)"
+    return f"plug-in {_LOADING or top} ({module})"
 
 
 FEATURES: Registry = Registry("feature", default="autoencoder")
@@ -260,7 +262,8 @@ def load_plugins(*, strict: bool = True) -> list[PluginError]:
     _PLUGINS_LOADED = True
     failures: list[PluginError] = []
     for ep in sorted(metadata.entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):
-        _LOADING = ep.name
+        dist = getattr(ep, "dist", None)
+        _LOADING = f"{dist.name} {dist.version}" if dist is not None else ep.name
         try:
             obj = ep.load()
             if callable(obj) and not isinstance(obj, type(sys)):

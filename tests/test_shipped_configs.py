@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from paths import CONFIGS
+from paths import CONFIGS, PLUGIN_CONFIGS, plugin_installed
 
 from rodctl.config import load_config
 from rodctl.env import ShapeServoEnv
@@ -16,6 +16,8 @@ from rodctl.episode import run_episode
 from rodctl.method import Method
 
 EXPERIMENTS = [p for p in CONFIGS if not p.name.startswith("compare")]
+if plugin_installed():
+    EXPERIMENTS += [p for p in PLUGIN_CONFIGS if not p.name.startswith("compare")]
 SHORT = ["logging.mcap=false", "logging.rerun=false", "logging.figures=false"]
 
 

@@ -15,7 +15,7 @@ from pydantic import BaseModel, ValidationError
 
 from rodctl.config.experiment import ExperimentConfig
 from rodctl.errors import UserError
-from rodctl.registry import STAGES
+from rodctl.registry import STAGES, load_plugins
 
 
 class ConfigError(UserError):
@@ -174,7 +174,11 @@ def format_validation_error(exc: ValidationError, data: Any, source: str) -> str
 
 
 def validate_config(data: dict[str, Any], source: str, model: type[BaseModel] = ExperimentConfig):
-    """Validate a raw mapping into `model`; `source` names it in error messages."""
+    """Validate a raw mapping into `model`; `source` names it in error messages.
+
+    Plug-ins are loaded first (once per process), so their types validate like built-ins.
+    """
+    load_plugins()
     try:
         return model.model_validate(data)
     except ValidationError as exc:

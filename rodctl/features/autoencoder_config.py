@@ -80,8 +80,14 @@ class AutoencoderFeatureConfig(StrictModel):
         None,
         description="Trained encoder (encoder.pt). None: the default packaged in rodctl/assets/.",
     )
-    data: EncoderDataConfig = EncoderDataConfig()
-    training: EncoderTrainingConfig = EncoderTrainingConfig()
+    data: EncoderDataConfig = Field(
+        EncoderDataConfig(),
+        description="How `rodctl train-encoder` collects centerlines (ignored when encoding).",
+    )
+    training: EncoderTrainingConfig = Field(
+        EncoderTrainingConfig(),
+        description="How `rodctl train-encoder` trains the network (ignored when encoding).",
+    )
 
     @field_validator("hidden")
     @classmethod
