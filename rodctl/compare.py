@@ -614,48 +614,11 @@ def run_compare(
             )
             write_targets(targets, run.path / "targets.yaml")
             fig_target = _figure_target(cfg, targets)
-            bands = _band_names(cfg)
-            tasks = []
-            for t in targets:  # target-major order: partial progress covers every method
-                for name, ecfg in configs.items():
-                    tasks.append(
-                        {
-                            "config": ecfg.model_dump(mode="json"),
-                            "method": name,
-                            "target": t.index,
-                            "pose": [float(v) for v in t.pose],
-                            "seed": t.seed,
-                            "want_records": t.index == fig_target,
-                            "log_dir": str(run.path / "episodes" / name / f"t{t.index:03d}")
-                            if cfg.keep_logs
-                            else None,
-                        }
-                    )
+            tasks = _episode_tasks(cfg, configs, targets, fig_target, run.path)
             rows = runner.run(
                 tasks, _episode, "episodes", describe=lambda r: f"{r['method']}: {r['outcome']}"
             )
-        records = {r["method"]: r.pop("_records") for r in rows if "_records" in r}
-        by_index = {t.index: t for t in targets}
-        for r in rows:
-            t = by_index[r["target"]]
-            r.update(
-                band=t.band(cfg.targets.bands),
-                difficulty=round(t.difficulty, 6),
-                target_x=float(t.pose[0]),
-                target_y=float(t.pose[1]),
-                target_theta=float(t.pose[2]),
-                converged=r["outcome"] == "converged",
-            )
-        summary = summarize(rows, list(cfg.methods), bands)
-        wall = time.perf_counter() - wall0
-        write_results(run.path, cfg, targets, rows, summary, wall, n_workers)
-        header, lines = summary_rows(summary, bands)
-        write_summary_md(
-            run.path / "summary.md", cfg, header, lines, summary, wall, n_workers, fig_target
-        )
-        _write_figures(run.path / "figures", records, rows, list(cfg.methods))
-        if progress:
-            _print_table(header, lines, f"{cfg.name}: {len(targets)} targets, {wall:.0f} s")
+        _report(cfg, run.path, targets, rows, fig_target, wall0, n_workers, progress)
         status = "completed"
         return run.path
     except KeyboardInterrupt:
@@ -663,6 +626,68 @@ def run_compare(
         raise
     finally:
         run.finish(status)
+
+
+def _episode_tasks(
+    cfg: CompareConfig,
+    configs: dict[str, ExperimentConfig],
+    targets: Sequence[CompareTarget],
+    fig_target: int,
+    folder: Path,
+) -> list[dict[str, Any]]:
+    """One task per (target, method), target-major: partial progress covers every method."""
+    tasks = []
+    for t in targets:
+        for name, ecfg in configs.items():
+            log_dir = folder / "episodes" / name / f"t{t.index:03d}" if cfg.keep_logs else None
+            tasks.append(
+                {
+                    "config": ecfg.model_dump(mode="json"),
+                    "method": name,
+                    "target": t.index,
+                    "pose": [float(v) for v in t.pose],
+                    "seed": t.seed,
+                    "want_records": t.index == fig_target,
+                    "log_dir": str(log_dir) if log_dir else None,
+                }
+            )
+    return tasks
+
+
+def _report(
+    cfg: CompareConfig,
+    folder: Path,
+    targets: Sequence[CompareTarget],
+    rows: list[dict[str, Any]],
+    fig_target: int,
+    wall0: float,
+    n_workers: int,
+    progress: bool,
+) -> None:
+    """results.csv/json, summary.md, figures, and the table on the terminal."""
+    bands = _band_names(cfg)
+    records = {r["method"]: r.pop("_records") for r in rows if "_records" in r}
+    by_index = {t.index: t for t in targets}
+    for r in rows:
+        t = by_index[r["target"]]
+        r.update(
+            band=t.band(cfg.targets.bands),
+            difficulty=round(t.difficulty, 6),
+            target_x=float(t.pose[0]),
+            target_y=float(t.pose[1]),
+            target_theta=float(t.pose[2]),
+            converged=r["outcome"] == "converged",
+        )
+    summary = summarize(rows, list(cfg.methods), bands)
+    wall = time.perf_counter() - wall0
+    write_results(folder, cfg, targets, rows, summary, wall, n_workers)
+    header, lines = summary_rows(summary, bands)
+    write_summary_md(
+        folder / "summary.md", cfg, header, lines, summary, wall, n_workers, fig_target
+    )
+    _write_figures(folder / "figures", records, rows, list(cfg.methods))
+    if progress:
+        _print_table(header, lines, f"{cfg.name}: {len(targets)} targets, {wall:.0f} s")
 
 
 def _band_names(cfg: CompareConfig) -> list[str]:
