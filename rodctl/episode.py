@@ -241,7 +241,10 @@ def run_episode(
             raise
         result = loop.finish(Outcome.ERROR, error=exc)
         raise EpisodeFailed(result) from exc
-    return loop.finish(outcome)
+    result = loop.finish(outcome)
+    if result.error is not None:  # the logs could not be finalised
+        raise EpisodeFailed(result)
+    return result
 
 
 class _Loop:
