@@ -45,22 +45,3 @@ def small_disk(tmp_path) -> Iterator[callable]:
     yield make
     for target in mounted:
         _umount(target)
-
-
-def fill(folder: Path) -> None:
-    """Fill a filesystem to the last byte."""
-    chunk = b"\0" * 65536
-    with open(folder / "filler", "wb") as fh:
-        try:
-            while True:
-                fh.write(chunk)
-                fh.flush()
-        except OSError:
-            pass
-    with open(folder / "filler2", "wb") as fh:
-        try:
-            while True:
-                fh.write(b"\0")
-                fh.flush()
-        except OSError:
-            pass
