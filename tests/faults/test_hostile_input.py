@@ -50,8 +50,8 @@ def test_a_window_of_1e26_is_refused():
 
 
 def test_a_run_that_cannot_fit_in_memory_is_refused():
-    res = _run("config", "show", DEFAULT, "--set", "camera.width=8192",
-               "--set", "camera.height=8192", "--set", "logging.flush_every_steps=100000")  # fmt: skip
+    big = ["--set", "camera.width=8192", "--set", "camera.height=8192"]
+    res = _run("config", "show", DEFAULT, *big, "--set", "logging.flush_every_steps=100000")
     assert res.exit_code == 2 and "GiB" in res.output
 
 
