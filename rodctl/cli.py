@@ -129,11 +129,52 @@ def config_show(config: ConfigArg, set_: SetOpt = None) -> None:
     model = _config_model(config)
     if model is ExperimentConfig:
         cfg = load_config(config, set_ or [])
+        derived = _derived_values(cfg)
     else:
         from rodctl.compare import load_compare_config
 
         cfg = load_compare_config(config, set_ or [])
-    typer.echo(dump_config(cfg), nl=False)
+        derived = {}
+    typer.echo(dump_config(cfg, clean=True), nl=False)
+    if derived:
+        typer.echo("# derived from the keys above where they are null (set them to override):")
+        for key, value in derived.items():
+            typer.echo(f"#   {key}: {value}")
+
+
+def _derived_values(cfg: ExperimentConfig) -> dict[str, Any]:
+    """What the null keys resolve to when the run starts (shown by `config show`)."""
+    import math
+
+    from rodctl.sim.chain import stable_dt_limit
+    from rodctl.sim.rod import DEFAULT_HOME_IN_CLAMP_FRAME, DT_SAFETY
+
+    def clean(v: float) -> float:
+        return float(f"{v:.6g}")
+
+    rod, cam = cfg.rod, cfg.camera
+    out: dict[str, Any] = {}
+    if rod.home_pose is None:
+        cx, cy, cth = rod.clamp_pose
+        hx, hy, hth = DEFAULT_HOME_IN_CLAMP_FRAME
+        c, s = math.cos(cth), math.sin(cth)
+        x, y = hx * rod.length, hy * rod.length
+        out["rod.home_pose"] = [
+            clean(cx + c * x - s * y),
+            clean(cy + s * x + c * y),
+            clean(cth + hth),
+        ]
+    if rod.dt is None:
+        args = (rod.length, rod.bending_stiffness, rod.mass_per_length, rod.segments)
+        out["rod.dt"] = clean(DT_SAFETY * stable_dt_limit(*args, rod.inertia_radius))
+    if cam.cx is None:
+        out["camera.cx"] = clean((cam.width - 1) / 2.0)
+    if cam.cy is None:
+        out["camera.cy"] = clean((cam.height - 1) / 2.0)
+    checkpoint = getattr(cfg.feature, "checkpoint", "")
+    if checkpoint is None:
+        out["feature.checkpoint"] = "the packaged rodctl/assets/encoder.pt"
+    return out
 
 
 @config_app.command("schema")

@@ -254,6 +254,24 @@ def load_config(
     return validate_config(data, config_source(path, overrides), model)
 
 
-def dump_config(cfg: BaseModel) -> str:
-    """The resolved config as YAML, every default filled in; loads back to an equal config."""
-    return yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False, default_flow_style=None)
+def dump_config(cfg: BaseModel, *, clean: bool = False) -> str:
+    """The resolved config as YAML, every default filled in; loads back to an equal config.
+
+    Args:
+        clean: for display, print floats with 12 significant digits (-0.02, not
+            -0.020000000000000004). Run directories and logs keep the exact values.
+    """
+    data = cfg.model_dump(mode="json")
+    if clean:
+        data = _clean_floats(data)
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+
+
+def _clean_floats(value: Any) -> Any:
+    if isinstance(value, float):
+        return float(f"{value:.12g}")
+    if isinstance(value, dict):
+        return {k: _clean_floats(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_clean_floats(v) for v in value]
+    return value
