@@ -49,7 +49,7 @@ from rodctl.errors import UserError
 from rodctl.runs import RunDir, seed_sequence, write_json_atomic
 
 #: Episode outcomes, in the order the summary lists them ("error": the episode raised).
-OUTCOMES = ("converged", "stalled", "step_limit", "diverged", "lost_tracking", "error")
+OUTCOMES = ("converged", "stalled", "pinned", "step_limit", "diverged", "lost_tracking", "error")
 
 #: Columns of results.csv, in order.
 CSV_COLUMNS = (

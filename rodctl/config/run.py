@@ -11,7 +11,9 @@ from pydantic import Field, PositiveFloat, PositiveInt, model_validator
 
 from rodctl.config.base import Pose, StrictModel, bounded
 
-Outcome = Literal["converged", "stalled", "step_limit", "diverged", "lost_tracking", "completed"]
+Outcome = Literal[
+    "converged", "stalled", "pinned", "step_limit", "diverged", "lost_tracking", "completed"
+]
 
 
 class TargetConfig(StrictModel):
