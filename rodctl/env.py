@@ -209,7 +209,8 @@ class ShapeServoEnv(gym.Env):
             seed: the episode seed. None: the config's `seed` on the first reset, then a seed
                 drawn from the environment's own generator (Gymnasium's convention).
             options: optional `config` (replaces the config: `ExperimentConfig`, mapping or
-                path), `target_pose` ([x, y, theta], else `run.target` decides) and
+                path), `target_pose` ([x, y, theta], else `run.target` decides), `target` (a
+                `Target` from `make_target`, reused without driving the rod there again) and
                 `start_pose` (the gripper pose the episode starts from, else the home pose).
 
         Raises:
@@ -229,12 +230,17 @@ class ShapeServoEnv(gym.Env):
         else:
             rod = cfg.rod
         self._rod_cfg = rod
-        unknown = set(options) - {"target_pose", "start_pose"}
+        unknown = set(options) - {"target_pose", "start_pose", "target"}
         if unknown:
             raise ValueError(f"reset: unknown options {sorted(unknown)}")
         self.times = StageTimes()
         self._new_camera(seed)
-        self.target = self._make_target(options.get("target_pose"), seed)
+        given = options.get("target")
+        if given is not None and not isinstance(given, Target):
+            raise ValueError("reset: options['target'] must be a Target (from make_target)")
+        # A target made earlier (`make_target`) is reused as is: the clean camera that sees it
+        # has no noise stream, so it is the same target this episode would make.
+        self.target = given or self._make_target(options.get("target_pose"), seed)
         self.sim = RodSim(rod)
         self.home_pose = self.sim.home_pose
         self.steps = 0
