@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from rodctl import fixedla as fla
 from rodctl.config.experiment import ExperimentConfig
 from rodctl.config.feature import AutoencoderFeatureConfig
 from rodctl.errors import UserError
@@ -349,7 +350,7 @@ class AutoencoderFeatureMap:
         # Fold x_n = (x - mean) / s into the first encoder layer:
         # W x_n + b = (W/s) x + (b - W mean / s)
         w0, b0 = enc[0]
-        enc[0] = [w0 / s, b0 - (w0 / s) @ mean]
+        enc[0] = [w0 / s, b0 - fla.matvec(w0 / s, mean)]
         # ... and x = s x_n + mean into the last decoder layer.
         wl, bl = dec[-1]
         dec[-1] = [wl * s, bl * s + mean]
@@ -366,7 +367,9 @@ class AutoencoderFeatureMap:
         x = x.reshape(-1)
         last = len(self._enc) - 1
         for i, (w, b) in enumerate(self._enc):
-            x = w @ x + b
+            # Fixed-order mat-vec, not `w @ x`: BLAS dgemv's sums differ between CPU kernels,
+            # and s feeds the closed loop (README, "Reproducibility").
+            x = fla.matvec(w, x) + b
             if i < last:
                 np.maximum(x, 0.0, out=x)
         return x
@@ -392,7 +395,7 @@ def _forward(x: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]]) -> np.n
     """Batched MLP pass with ReLU between layers; `layers` hold transposed weights (in, out)."""
     last = len(layers) - 1
     for i, (wt, b) in enumerate(layers):
-        x = x @ wt + b
+        x = x @ wt + b  # BLAS: batches (training figures, datasets) are not in the loop
         if i < last:
             np.maximum(x, 0.0, out=x)
     return x
