@@ -150,11 +150,23 @@ def replay(
     open_viewer: Annotated[
         bool, typer.Option("--open", help="Open the rebuilt run.rrd in the Rerun viewer.")
     ] = False,
+    tolerance: Annotated[
+        float,
+        typer.Option(
+            "--tolerance",
+            min=0.0,
+            help="With --verify, accept numbers that differ by at most TOL * max(1, |value|) "
+            "(a rerun on another CPU or BLAS kernel). 0 = bit for bit.",
+            metavar="TOL",
+        ),
+    ] = 0.0,
 ) -> None:
     """Rebuild run.rrd and the figures from a run's MCAP alone and print its summary.
 
-    With --verify, also re-run the simulation from the embedded config and check every
-    logged step bit for bit; exit 1 at the first mismatch. Prints the output folder last.
+    With --verify, also re-run the simulation from the embedded config and compare every
+    logged step: bit-identical, identical within --tolerance (the largest deviation per field
+    and the two numeric environments are shown), or a mismatch (the first step and field;
+    exit 1). Prints the output folder last.
     """
     from rodctl.replay import format_summary, rebuild
     from rodctl.replay import verify as verify_run
@@ -165,15 +177,10 @@ def replay(
         typer.echo(f"note: {note}", err=True)
     code = 0
     if verify:
-        diffs = verify_run(result.run)
-        if diffs:
-            typer.echo(
-                f"verify: FAILED, first mismatch: {diffs[0]} ({len(diffs)} differences in all)",
-                err=True,
-            )
-            code = 1
-        else:
-            typer.echo(f"verify: OK, {len(result.run.records)} steps identical", err=True)
+        verdict = verify_run(result.run, tolerance=tolerance)
+        for line in verdict.report():
+            typer.echo(line, err=True)
+        code = verdict.exit_code
     if open_viewer:
         _open_rerun(result.rrd)
     typer.echo(str(result.rrd.parent if result.rrd else result.run.path.parent))
