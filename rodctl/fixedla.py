@@ -63,14 +63,9 @@ def matvec(a: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a (m, k) times b (k, n) -> (m, n) in a fixed order of operations.
-
-    Forms the (m, n, k) products and sums the last (contiguous) axis pairwise. Meant for small
-    matrices: memory and time grow with m * n * k.
-    """
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    return np.multiply(a[:, None, :], np.ascontiguousarray(b.T)[None, :, :]).sum(axis=-1)
+    """a (m, k) times b (k, n) -> (m, n) in a fixed order of operations (`numpy.einsum`
+    without `optimize`, see `matvec`). Meant for small matrices."""
+    return np.einsum("ik,kj->ij", a, b)
 
 
 def cholesky(a: np.ndarray) -> list[list[float]] | None:

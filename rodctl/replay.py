@@ -283,6 +283,8 @@ class Deviation:
         max_abs: largest |logged - fresh| over every value of every step, in `unit`.
         step: the step where it occurred.
         within: whether every value of the field agreed within the tolerance.
+        max_scaled: largest |logged - fresh| / max(1, |logged|): the smallest tolerance that
+            accepts this field.
     """
 
     field: str
@@ -290,6 +292,7 @@ class Deviation:
     max_abs: float
     step: int
     within: bool
+    max_scaled: float = 0.0
 
 
 @dataclass
@@ -462,10 +465,16 @@ def compare_runs(
                 prev = worst.get(name)
                 if prev is None or absdev > prev.max_abs:
                     worst[name] = Deviation(
-                        name, unit, absdev, a.step, within and (prev is None or prev.within)
+                        name,
+                        unit,
+                        absdev,
+                        a.step,
+                        within and (prev is None or prev.within),
+                        max(scaled, prev.max_scaled if prev else 0.0),
                     )
-                elif not within:
-                    prev.within = False
+                else:
+                    prev.within = prev.within and within
+                    prev.max_scaled = max(prev.max_scaled, scaled)
                 if not within and mismatch is None:
                     by = f"{absdev:.3g} {unit}".strip()
                     mismatch = f"step {a.step}: {name} differs (by {by})"
