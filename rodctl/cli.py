@@ -217,9 +217,9 @@ def train_encoder(
 ) -> None:
     """Collect rod centerlines through the camera and train the autoencoder feature.
 
-    Writes dataset.npz, encoder.pt (weights + normalisation + config + metrics) and
-    metrics.json into a new run directory; prints it as the last line. Use the checkpoint
-    with --set feature.checkpoint=RUN_DIR/encoder.pt.
+    Writes dataset.npz, encoder.npz and encoder.pt (the same weights + normalisation + config
+    + metrics, for numpy and for torch) and metrics.json into a new run directory; prints it
+    as the last line. Use the checkpoint with --set feature.checkpoint=RUN_DIR/encoder.npz.
     """
     from pathlib import Path
 

@@ -75,7 +75,8 @@ class AutoencoderFeatureConfig(StrictModel):
     )
     checkpoint: str | None = Field(
         None,
-        description="Trained encoder (encoder.pt). None: the default packaged in rodctl/assets/.",
+        description="Trained encoder (encoder.npz, or encoder.pt which needs torch to load). "
+        "None: the default packaged in rodctl/assets/.",
     )
     data: EncoderDataConfig = EncoderDataConfig()
     training: EncoderTrainingConfig = EncoderTrainingConfig()

@@ -17,8 +17,9 @@ monotonically with d.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from scipy.special import comb
 
 from rodctl.features.linear import LinearBasisFeatureMap
 
@@ -34,7 +35,8 @@ def bernstein_basis(degree: int, rho: np.ndarray) -> np.ndarray:
         (N, d + 1) basis matrix.
     """
     k = np.arange(degree + 1)
-    return comb(degree, k)[None, :] * rho[:, None] ** k * (1.0 - rho[:, None]) ** (degree - k)
+    binom = np.array([math.comb(degree, i) for i in range(degree + 1)], dtype=np.float64)
+    return binom[None, :] * rho[:, None] ** k * (1.0 - rho[:, None]) ** (degree - k)
 
 
 class BezierFeatureMap(LinearBasisFeatureMap):

@@ -120,7 +120,7 @@ def fit_autoencoder(
                 advance(f"rms {losses[-1]:.3f} px")
         train_time = time.perf_counter() - t0
         net.eval()
-        state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+        state = {k: v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()}
     finally:
         torch.set_num_threads(previous_threads)
 
@@ -180,7 +180,8 @@ def train_encoder(
     """Collect (or load) centerlines, train the autoencoder, write its checkpoint and metrics.
 
     Writes into `run.path`: `dataset.npz` (the collected centerlines, unless `dataset` names an
-    existing one), `encoder.pt` (the checkpoint) and `metrics.json`.
+    existing one), `encoder.npz` and `encoder.pt` (the same checkpoint for numpy and for torch)
+    and `metrics.json`.
 
     Args:
         cfg: the experiment config; `cfg.feature` must be an autoencoder.
@@ -233,10 +234,14 @@ def train_encoder(
         collection_rate_per_s=(len(data) / collect_time) if collected and collect_time else None,
         collection_attempts=data.attempts if collected else None,
     )
-    checkpoint_path = run.path / "encoder.pt"
+    # The same checkpoint twice: encoder.npz for experiments (loads without torch) and
+    # encoder.pt for torch tools (module doc of rodctl.features.autoencoder).
+    checkpoint_path = run.path / "encoder.npz"
     ckpt.save(checkpoint_path)
+    ckpt.save(run.path / "encoder.pt")
     metrics = {k: v for k, v in ckpt.metrics.items() if k != "loss_rms_px"}
     metrics["final_loss_rms_px"] = ckpt.metrics["loss_rms_px"][-1]
     metrics["checkpoint"] = str(checkpoint_path)
+    metrics["checkpoint_torch"] = str(run.path / "encoder.pt")
     write_json_atomic(run.path / "metrics.json", metrics)
     return metrics
