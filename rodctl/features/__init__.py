@@ -64,7 +64,14 @@ def load_autoencoder(
         encoder_fingerprint,
     )
 
-    path = Path(cfg.checkpoint) if cfg.checkpoint is not None else DEFAULT_CHECKPOINT
+    if cfg.checkpoint == "auto":
+        if experiment is None:
+            raise UserError("feature.checkpoint: 'auto' needs the whole experiment config")
+        from rodctl.features.auto import auto_checkpoint
+
+        path = auto_checkpoint(experiment)
+    else:
+        path = Path(cfg.checkpoint) if cfg.checkpoint is not None else DEFAULT_CHECKPOINT
     ckpt = EncoderCheckpoint.load(path)
     if experiment is not None:
         expected = encoder_fingerprint(experiment)
@@ -74,7 +81,7 @@ def load_autoencoder(
             "points": points,
             "architecture": architecture_of(cfg, points),
         }
-    ckpt.check_compatible(expected, str(path))
+    ckpt.check_compatible(expected, str(path), experiment)
     return ckpt.feature_map(source=str(path))
 
 

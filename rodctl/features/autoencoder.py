@@ -180,6 +180,78 @@ def fingerprint_differences(stored: Any, expected: Any, prefix: str = "") -> lis
     return [] if same else [f"{prefix}: checkpoint has {stored!r}, config has {expected!r}"]
 
 
+#: Fingerprint fields -> the config keys a user sets to change them.
+_FINGERPRINT_KEYS = {
+    "points": ["camera.points"],
+    "architecture.inputs": ["camera.points"],
+    "architecture.hidden": ["feature.hidden"],
+    "architecture.latent_dim": ["feature.latent_dim"],
+    "architecture.activation": ["feature.type"],
+    "rod.length": ["rod.length"],
+    "rod.clamp_pose": ["rod.clamp_pose"],
+    "camera.width": ["camera.width"],
+    "camera.height": ["camera.height"],
+    "camera.arc_length": ["camera.extract.arc_length"],
+    "camera.homography": [
+        "camera.fx",
+        "camera.fy",
+        "camera.cx",
+        "camera.cy",
+        "camera.look_at",
+        "camera.distance",
+        "camera.tilt_deg",
+        "camera.azimuth_deg",
+        "camera.width",
+        "camera.height",
+    ],
+}
+
+
+def _lookup(data: Any, dotted: str) -> Any:
+    for part in dotted.split("."):
+        if not isinstance(data, dict) or part not in data:
+            return None
+        data = data[part]
+    return data
+
+
+def config_key_differences(
+    checkpoint: EncoderCheckpoint, experiment: ExperimentConfig | None, diffs: list[str]
+) -> list[str]:
+    """The fingerprint differences `diffs` restated as the config keys that cause them.
+
+    Each differing fingerprint field is mapped to the config keys it derives from, and those
+    keys are compared between the config the checkpoint was trained with (`config_yaml`) and
+    `experiment`: "camera.tilt_deg: the encoder's 25.0, this config's 35.0". A field whose keys
+    cannot be compared (no experiment, an old checkpoint without its config) stays as it is,
+    with the keys that may cause it.
+    """
+    import yaml
+
+    try:
+        trained = yaml.safe_load(checkpoint.config_yaml) if checkpoint.config_yaml else None
+    except yaml.YAMLError:
+        trained = None
+    current = experiment.model_dump(mode="json") if experiment is not None else None
+    out: list[str] = []
+    for diff in diffs:
+        field_name = diff.split(":", 1)[0]
+        keys = _FINGERPRINT_KEYS.get(field_name, [])
+        named = []
+        if isinstance(trained, dict) and current is not None:
+            for key in keys:
+                a, b = _lookup(trained, key), _lookup(current, key)
+                if a != b:
+                    named.append(f"{key}: the encoder's {a!r}, this config's {b!r}")
+        if named:
+            out.extend(n for n in named if n not in out)
+        elif keys:
+            out.append(f"{diff} (set by {', '.join(keys)})")
+        else:
+            out.append(diff)
+    return out
+
+
 @dataclass
 class EncoderCheckpoint:
     """A trained autoencoder with everything needed to use and to trust it.
@@ -360,16 +432,34 @@ class EncoderCheckpoint:
             metrics=dict(data.get("metrics", {})),
         )
 
-    def check_compatible(self, expected: dict[str, Any], source: str) -> None:
-        """Raise `UserError` naming `source` and every field where the fingerprints differ."""
+    def check_compatible(
+        self,
+        expected: dict[str, Any],
+        source: str,
+        experiment: ExperimentConfig | None = None,
+    ) -> None:
+        """Raise `UserError` naming `source` and every config key where the setups differ.
+
+        Args:
+            expected: the fingerprint of the config it is to be used with.
+            source: the checkpoint's path, for the message.
+            experiment: that config; with it, the message names the user's config keys (e.g.
+                `camera.tilt_deg`) instead of the fingerprint's derived quantities (the camera
+                homography), by comparing the config the checkpoint was trained with.
+        """
         diffs = fingerprint_differences(self.fingerprint, expected)
-        if diffs:
-            raise UserError(
-                f"{source}: this encoder checkpoint was trained for a different setup:\n  "
-                + "\n  ".join(diffs)
-                + "\nTrain one for this config with `rodctl train-encoder CONFIG` and set "
-                "feature.checkpoint to its encoder.npz."
-            )
+        if not diffs:
+            return
+        lines = config_key_differences(self, experiment, diffs)
+        raise UserError(
+            f"{source}: this encoder was trained for another rod or camera:\n  "
+            + "\n  ".join(lines)
+            + "\nTrain a quick encoder for this config (3,000 samples, 300 epochs: about 20 s "
+            "on 2 cores) with `rodctl train-encoder CONFIG --quick` (same --set options) and "
+            "set feature.checkpoint to its encoder.npz, or set feature.checkpoint=auto to "
+            "train one once and reuse it. `rodctl train-encoder CONFIG` trains the paper's "
+            "full-size encoder (about 15 minutes)."
+        )
 
 
 def _as_numpy(value: Any) -> np.ndarray:
