@@ -357,15 +357,18 @@ class VerifyResult:
             for d in self.deviations:
                 mark = "" if d.within else "  > tolerance"
                 lines.append(f"  {d.field:<26} {d.max_abs:.3g} {d.unit} (step {d.step}){mark}")
-        env = self.environment_rows()
-        if env:
-            width = max(len(k) for k, _, _ in env)
-            lines.append("numeric environments differ (logged | rerun):")
-            lines += [f"  {k.ljust(width)}  {a!s} | {b!s}" for k, a, b in env]
-        elif self.logged_env is not None:
-            lines.append("numeric environments: identical (the difference is not theirs)")
-        else:
+        if self.logged_env is None:
             lines.append("numeric environment of the log: not recorded (older log)")
+            if self.fresh_env:
+                lines.append(f"numeric environment of the rerun: {_env_summary(self.fresh_env)}")
+        else:
+            env = self.environment_rows()
+            if env:
+                width = max(len(k) for k, _, _ in env)
+                lines.append("numeric environments differ (logged | rerun):")
+                lines += [f"  {k.ljust(width)}  {a!s} | {b!s}" for k, a, b in env]
+            else:
+                lines.append("numeric environments: identical (the difference is not theirs)")
         if self.verdict == "mismatch" and self.numbers_only:
             worst = max(d.max_abs for d in self.deviations)
             lines.append(
@@ -374,6 +377,19 @@ class VerifyResult:
                 f"--tolerance (the largest deviation here is {worst:.3g})"
             )
         return lines
+
+
+def _env_summary(env: dict[str, Any]) -> str:
+    """One line: CPU model, numpy version and SIMD, BLAS kernels and threads."""
+    cpu = env.get("cpu", {})
+    npy = env.get("numpy", {})
+    blas = ", ".join(
+        f"{b.get('internal_api')} {b.get('architecture')} x{b.get('num_threads')}"
+        for b in env.get("blas", [])
+        if b.get("user_api") == "blas"
+    )
+    simd = "+".join(npy.get("simd_dispatched", []) or npy.get("simd_baseline", []))
+    return f"{cpu.get('model', '?')}; numpy {npy.get('version', '?')} ({simd}); BLAS {blas or '?'}"
 
 
 def _deviation(a: Any, b: Any) -> tuple[float, float] | None:
