@@ -20,9 +20,12 @@ accuracy to be worth owning.
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
+from rodctl import fixedla as fla
 from rodctl.config.camera import CameraConfig
 
 #: Sub-pixel bits for OpenCV drawing calls: coordinates are passed in units of 1/16 px.
@@ -77,21 +80,26 @@ class Camera:
         # Camera pose: centre at `distance` from `look_at`, tilted towards world -y by tilt_deg,
         # the whole rig turned by azimuth_deg about world z. Rows of R are the camera axes
         # expressed in the world frame; at tilt 0: x_c = +x, y_c = -y, z_c = -z (det R = +1).
-        tilt = np.deg2rad(cfg.tilt_deg)
-        az = np.deg2rad(cfg.azimuth_deg)
-        rz = np.array([[np.cos(az), -np.sin(az), 0.0], [np.sin(az), np.cos(az), 0.0], [0, 0, 1.0]])
-        to_camera = rz @ np.array([0.0, -np.sin(tilt), np.cos(tilt)])  # look_at -> centre
+        # Fixed-order arithmetic (rodctl.fixedla, math's scalar functions) instead of BLAS and
+        # LAPACK: the homography feeds every pixel of every frame, so its last bits must not
+        # depend on the machine's BLAS kernel (README, "Reproducibility").
+        tilt = math.radians(cfg.tilt_deg)
+        az = math.radians(cfg.azimuth_deg)
+        ca, sa = math.cos(az), math.sin(az)
+        rz = np.array([[ca, -sa, 0.0], [sa, ca, 0.0], [0, 0, 1.0]])
+        to_camera = fla.matvec(rz, np.array([0.0, -math.sin(tilt), math.cos(tilt)]))
         self.center = np.array([cfg.look_at[0], cfg.look_at[1], 0.0]) + cfg.distance * to_camera
-        z_c = -to_camera
-        x_c = rz @ np.array([1.0, 0.0, 0.0])
+        z_c = -to_camera  # look_at -> centre, reversed
+        x_c = rz[:, 0].copy()
         y_c = np.cross(z_c, x_c)
         self.rotation = np.stack([x_c, y_c, z_c])
-        self.translation = -self.rotation @ self.center
-        self.homography = self.camera_matrix @ np.column_stack(
-            [self.rotation[:, 0], self.rotation[:, 1], self.translation]
+        self.translation = -fla.matvec(self.rotation, self.center)
+        self.homography = fla.matmul(
+            self.camera_matrix,
+            np.column_stack([self.rotation[:, 0], self.rotation[:, 1], self.translation]),
         )
         self.homography /= self.homography[2, 2]
-        self._homography_inv = np.linalg.inv(self.homography)
+        self._homography_inv = fla.inv3(self.homography)
         self._background = self._make_background()
 
     # ------------------------------------------------------------------ geometry
@@ -172,9 +180,9 @@ class Camera:
         """
         x, y, th = (float(c) for c in pose)
         eps = 1e-4
-        pix = self.project(np.array([[x, y], [x + eps * np.cos(th), y + eps * np.sin(th)]]))
+        pix = self.project(np.array([[x, y], [x + eps * math.cos(th), y + eps * math.sin(th)]]))
         d = pix[1] - pix[0]
-        return pix[0], d / np.linalg.norm(d)
+        return pix[0], d / math.hypot(float(d[0]), float(d[1]))
 
     # ------------------------------------------------------------------ rendering
     def _make_background(self) -> np.ndarray:
@@ -195,7 +203,7 @@ class Camera:
         self, img: np.ndarray, pose: np.ndarray, boxes: tuple, color: tuple[int, int, int]
     ) -> None:
         x, y, th = (float(c) for c in pose)
-        c, s = np.cos(th), np.sin(th)
+        c, s = math.cos(th), math.sin(th)
         for (a0, a1), (l0, l1) in boxes:
             local = np.array([[a0, l0], [a1, l0], [a1, l1], [a0, l1]])
             world = np.column_stack(
