@@ -109,6 +109,7 @@ class RerunSink:
         self._last_time = np.timedelta64(0, "ns")
         self._closed = False
         self._buf = _empty_buffer()
+        self._frames = codec.FrameSchedule(self.cfg.image_rate_hz)
 
     # ---------------------------------------------------------------------------- Sink protocol
     def open(self, header: RunHeader) -> None:
@@ -202,10 +203,12 @@ class RerunSink:
         t = np.timedelta64(codec.time_ns(r.sim_time), "ns")
         self._last_step, self._last_time = k, t
         lines = codec.step_log_lines(self._prev, r)
-        if r.image is not None or lines:
+        frame = self._frames.take(r)
+        if frame or lines:
             rec.set_time("step", sequence=k)
             rec.set_time("sim_time", duration=t)
-            if r.image is not None:
+            if frame:
+                assert r.image is not None
                 png = codec.PNG_CACHE.encode(r.image, self.cfg.png_compression)
                 rec.log("/camera/image", rr.EncodedImage(contents=png, media_type="image/png"))
             for level, text in lines:
