@@ -23,8 +23,15 @@ Determinism: log times derive from simulated time only, attachment times 0, the 
 string carries no version or time, channels and schemas are registered in a fixed order, and JSON
 is written compactly with fixed key order: the same records give the same bytes.
 
+Speed: camera frames are PNG-encoded on a background thread (`codec.FRAMES`), and a writer
+thread writes each step, compresses and flushes, while the loop computes the next one; `write`
+returns once the step `codec.LAG` steps back is in the file. Both threads release the GIL for
+most of their work (OpenCV, zstd). The order is fixed by step counts, so the bytes do not depend
+on timing.
+
 Crash safety: every `flush_every_steps` steps the open chunk is closed and the file flushed to
-the OS, so a run killed without warning (SIGKILL, power loss) loses at most those steps; the
+the OS, so a run killed without warning (SIGKILL, power loss) loses at most those steps (plus
+the `codec.LAG` steps not yet written); the
 reader detects the missing footer and refuses the file unless asked to recover what is complete.
 """
 
@@ -34,8 +41,11 @@ import json
 import os
 import signal
 import threading
+from collections import deque
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
@@ -265,6 +275,17 @@ def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, A
     return {"deletions": [], "entities": [_entity(t_ns, "gripper", arrows=[arrow])]}
 
 
+@dataclass
+class _Step:
+    """One step's encoded messages, waiting to be written (see `McapSink.write`)."""
+
+    k: int
+    t: int
+    data: list[tuple[str, bytes]]
+    frame: tuple[Future[bytes], bytes] | None  # (PNG future, annotations JSON)
+    lines: list[tuple[str, str]]
+
+
 class McapSink:
     """Writes a run as run.mcap (see the module docstring for the layout).
 
@@ -284,6 +305,8 @@ class McapSink:
         self._steps = 0
         self._last_ns = codec.LOG_EPOCH_NS
         self._frames = codec.FrameSchedule(self.cfg.image_rate_hz)
+        self._queue: deque[Future[None]] = deque()
+        self._worker: ThreadPoolExecutor | None = None
         self._closed = False
 
     # ---------------------------------------------------------------------------- Sink protocol
@@ -346,15 +369,22 @@ class McapSink:
         self._flush()
 
     def write(self, record: StepRecord) -> None:
-        """Append one step: the three contract messages, the scene, the frame, log lines."""
+        """Queue one step: the three contract messages, the scene, the frame, log lines.
+
+        The JSON is encoded here; the writer thread then writes the step (waiting for its PNG
+        from the background encoder), compresses and flushes chunks, in step order, while the
+        loop computes the next step. `write` returns once every step up to `codec.LAG` steps
+        back is in the file: which step lands in which chunk is fixed by step counts alone, so
+        the bytes never depend on timing, and a run killed after `write(k)` keeps what was
+        flushed up to step k - LAG.
+        """
         if self._writer is None or self._header is None:
             raise RuntimeError("McapSink.write called before open (or after close)")
         r = record
         t = codec.log_time_ns(r.sim_time)
         k = int(r.step)
-        self._last_ns = max(self._last_ns, t)
-        # Encode everything first, then hand it to the writer: an exception while encoding
-        # leaves the file untouched.
+        # Encode everything first, then queue it: an exception while encoding leaves the file
+        # (and the queue) untouched.
         msgs = [
             (codec.TOPIC_ROD_STATE, codec.rod_state_message(r)),
             (codec.TOPIC_CAMERA_CENTERLINE, codec.camera_message(r)),
@@ -362,35 +392,52 @@ class McapSink:
             (codec.TOPIC_ROD_SCENE, line_strip_scene(t, "rod", r.centerline, _ROD_RGB, 0.006)),
             (codec.TOPIC_GRIPPER_SCENE, gripper_scene(t, r.gripper, self._header.rod_length)),
         ]
-        if self._frames.take(r):
-            assert r.image is not None
-            png = codec.PNG_CACHE.encode(r.image, self.cfg.png_compression)
-            msgs.append(
-                (
-                    codec.TOPIC_IMAGE,
-                    {
-                        "timestamp": codec.foxglove_time(t),
-                        "frame_id": "camera",
-                        "data": codec.b64(png),
-                        "format": "png",
-                    },
-                )
-            )
-            msgs.append((codec.TOPIC_ANNOTATIONS, image_annotations(t, self._header, r)))
         data = [(topic, _dumps(m)) for topic, m in msgs]
+        frame: tuple[Future[bytes], bytes] | None = None
+        if r.image is not None and self._frames.due(r):
+            future = codec.FRAMES.submit(r.image, self.cfg.png_compression)
+            frame = (future, _dumps(image_annotations(t, self._header, r)))
+            self._frames.take(r)
         lines = codec.step_log_lines(self._prev, r)
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rodctl-mcap")
+        self._queue.append(self._worker.submit(self._commit, _Step(k, t, data, frame, lines)))
+        self._prev = r
+        self._last_ns = max(self._last_ns, t)
+        while len(self._queue) > codec.LAG:
+            self._queue.popleft().result()  # normally long done: it had a loop step's time
+
+    def _commit(self, step: _Step) -> None:
+        """Write one queued step (waiting for its PNG if need be), and flush every N steps.
+
+        Runs on the writer thread, one step at a time in order. Signals are delivered to the
+        main thread only, so an interrupt cannot cut a chunk in half here."""
+        assert self._writer is not None
+        data = step.data
+        if step.frame is not None:
+            future, annotations = step.frame
+            image = {
+                "timestamp": codec.foxglove_time(step.t),
+                "frame_id": "camera",
+                "data": codec.b64(future.result()),
+                "format": "png",
+            }
+            data = [
+                *data,
+                (codec.TOPIC_IMAGE, _dumps(image)),
+                (codec.TOPIC_ANNOTATIONS, annotations),
+            ]
         with signals_deferred():
             for topic, payload in data:
                 self._writer.add_message(
                     channel_id=self._channels[topic],
-                    log_time=t,
-                    publish_time=t,
-                    sequence=k,
+                    log_time=step.t,
+                    publish_time=step.t,
+                    sequence=step.k,
                     data=payload,
                 )
-            for level, text in lines:
-                self._log(t, level, text, sequence=k)
-            self._prev = r
+            for level, text in step.lines:
+                self._log(step.t, level, text, sequence=step.k)
             self._steps += 1
             if self._steps % self.cfg.flush_every_steps == 0:
                 self._flush()
@@ -407,8 +454,15 @@ class McapSink:
         self._closed = True
         errors: list[BaseException] = []
         w, f = self._writer, self._file
-        self._writer = None
         if w is not None:
+            while self._queue:  # the steps the writer thread has not finished
+                try:
+                    self._queue.popleft().result()
+                except Exception as exc:  # noqa: BLE001 - collected, see docstring
+                    errors.append(exc)
+            if self._worker is not None:
+                self._worker.shutdown(wait=True)
+            self._writer = None
             t = self._last_ns
             try:
                 self._add_with(

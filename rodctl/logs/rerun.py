@@ -28,7 +28,9 @@ recording closes by the box around everything the run drew, with a 10 % margin.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +60,8 @@ _AXIS_COLORS = ((220, 50, 47), (38, 139, 210), (133, 153, 0))
 #: Arrow length of the gripper, as a fraction of the rod length.
 _GRIPPER_SIZE = 0.12
 _MARGIN = 0.10
+#: Most tasks (column batches, frames, log lines) waiting for the background thread.
+_MAX_TASKS = 8
 
 
 def flip_y(points: np.ndarray) -> np.ndarray:
@@ -179,6 +183,8 @@ class RerunSink:
         self._closed = False
         self._buf = _empty_buffer()
         self._frames = codec.FrameSchedule(self.cfg.image_rate_hz)
+        self._worker: ThreadPoolExecutor | None = None
+        self._tasks: deque[Future[None]] = deque()
         # Box of everything drawn in the scene so far (stored coordinates), for the final bounds.
         self._lo = np.full(2, np.inf)
         self._hi = np.full(2, -np.inf)
@@ -298,16 +304,12 @@ class RerunSink:
         t = np.timedelta64(codec.time_ns(r.sim_time), "ns")
         self._last_step, self._last_time = k, t
         lines = codec.step_log_lines(self._prev, r)
-        frame = self._frames.take(r)
-        if frame or lines:
-            rec.set_time("step", sequence=k)
-            rec.set_time("sim_time", duration=t)
-            if frame:
-                assert r.image is not None
-                png = codec.PNG_CACHE.encode(r.image, self.cfg.png_compression)
-                rec.log("/camera/image", rr.EncodedImage(contents=png, media_type="image/png"))
-            for level, text in lines:
-                rec.log("/log", rr.TextLog(text, level=level))
+        if r.image is not None and self._frames.due(r):
+            future = codec.FRAMES.submit(r.image, self.cfg.png_compression)
+            self._frames.take(r)
+            self._in_order(self._log_frame, k, t, future)
+        if lines:
+            self._in_order(self._log_lines, k, t, lines)
         g = np.asarray(r.gripper, dtype=np.float64)
         size = _gripper_size(header)
         rod = flip_y(r.centerline)
@@ -330,7 +332,41 @@ class RerunSink:
         self._prev = r
         self._steps += 1
         if len(b["step"]) >= self.cfg.flush_every_steps:
-            self._send()
+            buf, self._buf = self._buf, _empty_buffer()
+            self._in_order(self._send, buf)
+
+    def _in_order(self, fn, *args) -> None:
+        """Run `fn(*args)` on the sink's background thread, after everything handed over before.
+
+        Why: building Rerun's columns, and logging frames (which waits for their PNG), cost the
+        loop ~1 ms a step on its own thread. Every call to the recording after `open` goes
+        through this one FIFO thread, so the file's chunks are cut where `_send` flushes whatever
+        the timing (two runs of one config still compare equal). At most `_MAX_TASKS` tasks
+        wait; beyond that the loop waits for the oldest. A failure surfaces there or at close.
+        """
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rodctl-rerun")
+        while self._tasks and self._tasks[0].done():
+            self._tasks.popleft().result()
+        while len(self._tasks) >= _MAX_TASKS:
+            self._tasks.popleft().result()
+        self._tasks.append(self._worker.submit(fn, *args))
+
+    def _log_frame(self, k: int, t: np.timedelta64, future: Future[bytes]) -> None:
+        rec = self._rec
+        png = future.result()
+        if rec is not None:
+            rec.set_time("step", sequence=k)
+            rec.set_time("sim_time", duration=t)
+            rec.log("/camera/image", rr.EncodedImage(contents=png, media_type="image/png"))
+
+    def _log_lines(self, k: int, t: np.timedelta64, lines: list[tuple[str, str]]) -> None:
+        rec = self._rec
+        if rec is not None:
+            rec.set_time("step", sequence=k)
+            rec.set_time("sim_time", duration=t)
+            for level, text in lines:
+                rec.log("/log", rr.TextLog(text, level=level))
 
     def _extend(self, points: np.ndarray) -> None:
         """Grow the scene box by (M, 2) stored points (non-finite ones ignored)."""
@@ -342,9 +378,11 @@ class RerunSink:
         np.minimum(self._lo, pts.min(axis=0), out=self._lo)
         np.maximum(self._hi, pts.max(axis=0), out=self._hi)
 
-    def _send(self) -> None:
-        """Send the buffered steps as one column batch per entity."""
-        rec, b = self._rec, self._buf
+    def _send(self, b: dict[str, list] | None = None) -> None:
+        """Send buffered steps (`b`, default the current buffer) as one column batch per entity."""
+        rec = self._rec
+        if b is None:
+            b, self._buf = self._buf, _empty_buffer()
         n = len(b["step"])
         if rec is None or n == 0:
             return
@@ -389,7 +427,6 @@ class RerunSink:
                 rec.send_columns(
                     f"/control/probing/{name}", pidx, rr.Scalars.columns(scalars=values)
                 )
-        self._buf = _empty_buffer()
         rec.flush()  # the batched rows become chunks here, and reach the file
 
     def close(self, summary: RunSummary | None, status: str) -> None:
@@ -401,11 +438,17 @@ class RerunSink:
         if self._closed:
             return
         self._closed = True
-        rec, self._rec = self._rec, None
+        rec = self._rec
         if rec is None:
             return
         errors: list[BaseException] = []
-        self._rec = rec  # _send needs it
+        while self._tasks:  # everything handed to the background thread, in order
+            try:
+                self._tasks.popleft().result()
+            except Exception as exc:  # noqa: BLE001 - collected, see docstring
+                errors.append(exc)
+        if self._worker is not None:
+            self._worker.shutdown(wait=True)
         try:
             self._send()
         except Exception as exc:  # noqa: BLE001 - collected, see docstring
