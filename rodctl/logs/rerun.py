@@ -292,8 +292,10 @@ class RerunSink:
         """Buffer one step; every `flush_every_steps` steps the buffer is sent as columns.
 
         Sending columns (one call per entity per batch instead of one per entity per step) cuts
-        the Python-side cost of Rerun logging about fivefold; frames and log lines are rare and
-        are logged at once. What was sent reaches the file within Rerun's batching tick (0.2 s).
+        the Python-side cost of Rerun logging about fivefold. Batches, frames (PNG-encoded by
+        `codec.FRAMES`) and log lines go to the recording through the sink's FIFO thread
+        (`_in_order`); the arrays of a record are kept by reference until then, so a record must
+        not be changed in place after it was written (the loop builds a new one every step).
         """
         rec, header = self._rec, self._header
         if rec is None or header is None:
