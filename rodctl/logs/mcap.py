@@ -24,10 +24,10 @@ string carries no version or time, channels and schemas are registered in a fixe
 is written compactly with fixed key order: the same records give the same bytes.
 
 Speed: camera frames are PNG-encoded on a background thread (`codec.FRAMES`), and a writer
-thread writes each step, compresses and flushes, while the loop computes the next one; `write`
-returns once the step `codec.LAG` steps back is in the file. Both threads release the GIL for
-most of their work (OpenCV, zstd). The order is fixed by step counts, so the bytes do not depend
-on timing.
+thread encodes each step's JSON, writes, compresses and flushes, while the loop computes the
+next one; `write` returns once the step `codec.LAG` steps back is in the file. OpenCV and zstd
+release the GIL, and the JSON is built while the loop is in C (simulator, renderer, torch). The
+order is fixed by step counts, so the bytes do not depend on timing.
 
 Crash safety: every `flush_every_steps` steps the open chunk is closed and the file flushed to
 the OS, so a run killed without warning (SIGKILL, power loss) loses at most those steps (plus
@@ -45,7 +45,6 @@ from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
@@ -275,17 +274,6 @@ def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, A
     return {"deletions": [], "entities": [_entity(t_ns, "gripper", arrows=[arrow])]}
 
 
-@dataclass
-class _Step:
-    """One step's encoded messages, waiting to be written (see `McapSink.write`)."""
-
-    k: int
-    t: int
-    data: list[tuple[str, bytes]]
-    frame: tuple[Future[bytes], bytes] | None  # (PNG future, annotations JSON)
-    lines: list[tuple[str, str]]
-
-
 class McapSink:
     """Writes a run as run.mcap (see the module docstring for the layout).
 
@@ -371,20 +359,43 @@ class McapSink:
     def write(self, record: StepRecord) -> None:
         """Queue one step: the three contract messages, the scene, the frame, log lines.
 
-        The JSON is encoded here; the writer thread then writes the step (waiting for its PNG
-        from the background encoder), compresses and flushes chunks, in step order, while the
-        loop computes the next step. `write` returns once every step up to `codec.LAG` steps
-        back is in the file: which step lands in which chunk is fixed by step counts alone, so
-        the bytes never depend on timing, and a run killed after `write(k)` keeps what was
-        flushed up to step k - LAG.
+        The writer thread encodes the step's JSON, writes it (waiting for its PNG from the
+        background encoder), compresses and flushes chunks, in step order, while the loop
+        computes the next step; the loop's thread only checks the record and picks the frame.
+        `write` returns once every step up to `codec.LAG` steps back is in the file: which step
+        lands in which chunk is fixed by step counts alone, so the bytes never depend on timing,
+        and a run killed after `write(k)` keeps what was flushed up to step k - LAG. A record
+        must not be changed in place after it was written (the loop builds a new one per step).
+        An error while encoding step k is raised by `write(k + LAG)` or `close`, and step k is
+        then not in the file.
         """
         if self._writer is None or self._header is None:
             raise RuntimeError("McapSink.write called before open (or after close)")
         r = record
+        if np.ndim(r.J) != 2:
+            raise ValueError(f"step {r.step}: J must be (p, q), got shape {np.shape(r.J)}")
+        frame: Future[bytes] | None = None
+        if r.image is not None and self._frames.due(r):
+            frame = codec.FRAMES.submit(r.image, self.cfg.png_compression)
+            self._frames.take(r)
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rodctl-mcap")
+        self._queue.append(self._worker.submit(self._commit, r, self._prev, frame))
+        self._prev = r
+        self._last_ns = max(self._last_ns, codec.log_time_ns(r.sim_time))
+        while len(self._queue) > codec.LAG:
+            self._queue.popleft().result()  # normally long done: it had a loop step's time
+
+    def _commit(self, r: StepRecord, prev: StepRecord | None, frame: Future[bytes] | None) -> None:
+        """Encode and write one step (waiting for its PNG if need be); flush every N steps.
+
+        Runs on the writer thread, one step at a time in order. Everything is encoded before
+        the first message is added, so an encoding error leaves the file as it was. Signals are
+        delivered to the main thread only, so an interrupt cannot cut a chunk in half here.
+        """
+        assert self._writer is not None and self._header is not None
         t = codec.log_time_ns(r.sim_time)
         k = int(r.step)
-        # Encode everything first, then queue it: an exception while encoding leaves the file
-        # (and the queue) untouched.
         msgs = [
             (codec.TOPIC_ROD_STATE, codec.rod_state_message(r)),
             (codec.TOPIC_CAMERA_CENTERLINE, codec.camera_message(r)),
@@ -392,52 +403,28 @@ class McapSink:
             (codec.TOPIC_ROD_SCENE, line_strip_scene(t, "rod", r.centerline, _ROD_RGB, 0.006)),
             (codec.TOPIC_GRIPPER_SCENE, gripper_scene(t, r.gripper, self._header.rod_length)),
         ]
-        data = [(topic, _dumps(m)) for topic, m in msgs]
-        frame: tuple[Future[bytes], bytes] | None = None
-        if r.image is not None and self._frames.due(r):
-            future = codec.FRAMES.submit(r.image, self.cfg.png_compression)
-            frame = (future, _dumps(image_annotations(t, self._header, r)))
-            self._frames.take(r)
-        lines = codec.step_log_lines(self._prev, r)
-        if self._worker is None:
-            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rodctl-mcap")
-        self._queue.append(self._worker.submit(self._commit, _Step(k, t, data, frame, lines)))
-        self._prev = r
-        self._last_ns = max(self._last_ns, t)
-        while len(self._queue) > codec.LAG:
-            self._queue.popleft().result()  # normally long done: it had a loop step's time
-
-    def _commit(self, step: _Step) -> None:
-        """Write one queued step (waiting for its PNG if need be), and flush every N steps.
-
-        Runs on the writer thread, one step at a time in order. Signals are delivered to the
-        main thread only, so an interrupt cannot cut a chunk in half here."""
-        assert self._writer is not None
-        data = step.data
-        if step.frame is not None:
-            future, annotations = step.frame
+        if frame is not None:
             image = {
-                "timestamp": codec.foxglove_time(step.t),
+                "timestamp": codec.foxglove_time(t),
                 "frame_id": "camera",
-                "data": codec.b64(future.result()),
+                "data": codec.b64(frame.result()),
                 "format": "png",
             }
-            data = [
-                *data,
-                (codec.TOPIC_IMAGE, _dumps(image)),
-                (codec.TOPIC_ANNOTATIONS, annotations),
-            ]
+            msgs.append((codec.TOPIC_IMAGE, image))
+            msgs.append((codec.TOPIC_ANNOTATIONS, image_annotations(t, self._header, r)))
+        data = [(topic, _dumps(m)) for topic, m in msgs]
+        lines = codec.step_log_lines(prev, r)
         with signals_deferred():
             for topic, payload in data:
                 self._writer.add_message(
                     channel_id=self._channels[topic],
-                    log_time=step.t,
-                    publish_time=step.t,
-                    sequence=step.k,
+                    log_time=t,
+                    publish_time=t,
+                    sequence=k,
                     data=payload,
                 )
-            for level, text in step.lines:
-                self._log(step.t, level, text, sequence=step.k)
+            for level, text in lines:
+                self._log(t, level, text, sequence=k)
             self._steps += 1
             if self._steps % self.cfg.flush_every_steps == 0:
                 self._flush()

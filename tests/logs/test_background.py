@@ -8,6 +8,7 @@ import random
 import subprocess
 import time
 
+import numpy as np
 import pytest
 
 from rodctl.logs import codec
@@ -73,3 +74,19 @@ def test_a_bad_frame_is_refused_when_written_not_later(tmp_path, synthetic):
     sink.write(records[0])  # the sink is still usable: nothing of the bad step was queued
     sink.close(None, "completed")
     assert [r.step for r in read_mcap(tmp_path / "bad.mcap").records] == [0]
+
+
+def test_an_encoding_error_surfaces_one_step_later_and_leaves_the_file_whole(tmp_path):
+    run = SyntheticRun(seed=4, image_every=0)
+    records = run.records(4)
+    records[1].u = np.array(["not", "a", "number"])  # fails in the writer thread
+    sink = McapSink(tmp_path / "e.mcap")
+    sink.open(run.header)
+    sink.write(records[0])
+    sink.write(records[1])  # queued: the loop does not wait for encoding
+    with pytest.raises(ValueError, match="could not convert"):
+        sink.write(records[2])  # the first write after the failed step reports it
+    sink.write(records[3])
+    sink.close(None, "failed")
+    back = read_mcap(tmp_path / "e.mcap")
+    assert [r.step for r in back.records] == [0, 2, 3] and back.status == "failed"
