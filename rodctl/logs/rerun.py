@@ -28,6 +28,7 @@ recording closes by the box around everything the run drew, with a 10 % margin.
 
 from __future__ import annotations
 
+import json
 from collections import deque
 from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -215,6 +216,7 @@ class RerunSink:
                 config_yaml=header.config_yaml,
                 rod_length_m=float(header.rod_length),
                 image_size=np.asarray(header.image_size, dtype=np.int64),
+                numeric_env=json.dumps(codec.sanitize(header.numeric_env), sort_keys=True),
             ),
         )
         target = flip_y(header.target_centerline)
