@@ -45,6 +45,7 @@ from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import IO, Any
 
@@ -274,6 +275,19 @@ def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, A
     return {"deletions": [], "entities": [_entity(t_ns, "gripper", arrows=[arrow])]}
 
 
+#: The array fields of a StepRecord (everything the writer thread reads but the frame).
+_ARRAY_FIELDS = tuple(
+    f.name for f in fields(StepRecord) if f.name != "image" and f.type in ("np.ndarray", np.ndarray)
+)
+
+
+def _snapshot(r: StepRecord) -> StepRecord:
+    """A copy of `r` the loop cannot change any more: its arrays and dict copied (~10 us), the
+    frame left out (it travels as its PNG future). The writer thread reads the copy later."""
+    copies: dict[str, Any] = {name: np.array(getattr(r, name)) for name in _ARRAY_FIELDS}
+    return replace(r, image=None, estimator_info=dict(r.estimator_info), **copies)
+
+
 class McapSink:
     """Writes a run as run.mcap (see the module docstring for the layout).
 
@@ -364,10 +378,9 @@ class McapSink:
         computes the next step; the loop's thread only checks the record and picks the frame.
         `write` returns once every step up to `codec.LAG` steps back is in the file: which step
         lands in which chunk is fixed by step counts alone, so the bytes never depend on timing,
-        and a run killed after `write(k)` keeps what was flushed up to step k - LAG. A record
-        must not be changed in place after it was written (the loop builds a new one per step).
-        An error while encoding step k is raised by `write(k + LAG)` or `close`, and step k is
-        then not in the file.
+        and a run killed after `write(k)` keeps what was flushed up to step k - LAG. The thread
+        works on a copy of the record, so the loop may reuse its arrays. An error while encoding
+        step k is raised by `write(k + LAG)` or `close`, and step k is then not in the file.
         """
         if self._writer is None or self._header is None:
             raise RuntimeError("McapSink.write called before open (or after close)")
@@ -380,6 +393,7 @@ class McapSink:
             self._frames.take(r)
         if self._worker is None:
             self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rodctl-mcap")
+        r = _snapshot(r)
         self._queue.append(self._worker.submit(self._commit, r, self._prev, frame))
         self._prev = r
         self._last_ns = max(self._last_ns, codec.log_time_ns(r.sim_time))

@@ -296,8 +296,8 @@ class RerunSink:
         Sending columns (one call per entity per batch instead of one per entity per step) cuts
         the Python-side cost of Rerun logging about fivefold. Batches, frames (PNG-encoded by
         `codec.FRAMES`) and log lines go to the recording through the sink's FIFO thread
-        (`_in_order`); the arrays of a record are kept by reference until then, so a record must
-        not be changed in place after it was written (the loop builds a new one every step).
+        (`_in_order`); what they need of the record is copied first, so the loop may reuse its
+        arrays.
         """
         rec, header = self._rec, self._header
         if rec is None or header is None:
@@ -328,11 +328,12 @@ class RerunSink:
         b["rod"].append(rod)
         b["origin"].append(origin)
         b["vector"].append(vector)
-        b["centerline"].append(np.asarray(r.extracted, dtype=np.float64))
-        b["projected_truth"].append(np.asarray(r.projected_truth, dtype=np.float64))
+        # Copies: the FIFO thread reads them later, and the loop may reuse its arrays.
+        b["centerline"].append(np.array(r.extracted, dtype=np.float64))
+        b["projected_truth"].append(np.array(r.projected_truth, dtype=np.float64))
         b["T1"].append(float(r.T1))
         b["pixel_error"].append(float(r.pixel_error))
-        b["u"].append(np.asarray(r.u, dtype=np.float64)[:3])
+        b["u"].append(np.array(r.u, dtype=np.float64)[:3])
         self._prev = r
         self._steps += 1
         if len(b["step"]) >= self.cfg.flush_every_steps:

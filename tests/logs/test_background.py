@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from rerun.chunk import RrdReader
 
 from rodctl.logs import codec
 from rodctl.logs.mcap import McapSink, read_mcap
@@ -90,3 +91,33 @@ def test_an_encoding_error_surfaces_one_step_later_and_leaves_the_file_whole(tmp
     sink.close(None, "failed")
     back = read_mcap(tmp_path / "e.mcap")
     assert [r.step for r in back.records] == [0, 2, 3] and back.status == "failed"
+
+
+def test_the_loop_may_reuse_a_record_s_arrays_after_writing_it(tmp_path, helpers):
+    """The sinks' threads read a step after `write` returned: they must work on copies."""
+    run = SyntheticRun(seed=6, image_every=0)
+    records = run.records(12)
+    want = helpers.write_run(McapSink, tmp_path / "want.mcap", run.header, records, None)
+    mcap, rrd = McapSink(tmp_path / "got.mcap"), RerunSink(tmp_path / "got.rrd")
+    for sink in (mcap, rrd):
+        sink.open(run.header)
+    for rec in records:
+        for sink in (mcap, rrd):
+            sink.write(rec)
+        for name in ("centerline", "extracted", "projected_truth", "u", "s", "J"):
+            getattr(rec, name)[...] = -1.0  # the loop scribbles over its buffers
+        rec.estimator_info.clear()
+    for sink in (mcap, rrd):
+        sink.close(None, "completed")
+    assert filecmp.cmp(want, tmp_path / "got.mcap", shallow=False)
+    pristine = SyntheticRun(seed=6, image_every=0).records(12)
+    got = {}
+    for ch in RrdReader(tmp_path / "got.rrd").stream():
+        if ch.entity_path == "/camera/centerline" and not ch.is_static:
+            batch = ch.to_record_batch()
+            steps = batch.column("step").to_pylist()
+            strips = batch.column("LineStrips2D:strips").to_pylist()
+            got.update({k: np.asarray(v[0]) for k, v in zip(steps, strips, strict=True)})
+    assert sorted(got) == list(range(12))
+    for r in pristine:
+        assert np.allclose(got[r.step], r.extracted, atol=1e-4), r.step
