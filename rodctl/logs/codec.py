@@ -40,7 +40,7 @@ from rodctl.records import RunHeader, RunSummary, StepRecord
 #: Version of the message layout below; bumped when a field changes meaning.
 FORMAT_VERSION = "2"
 
-# Contract topics (architecture.md), one message per control step.
+# Contract topics (README, "The MCAP log"), one message per control step.
 TOPIC_ROD_STATE = "/rod/state"
 TOPIC_CAMERA_CENTERLINE = "/camera/centerline"
 TOPIC_CONTROL = "/control"
