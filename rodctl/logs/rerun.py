@@ -164,6 +164,10 @@ def _empty_buffer() -> dict[str, list]:
     }
 
 
+#: Longest wait for Rerun's file writer to take a flush (s); past it the run goes on or closes.
+FLUSH_TIMEOUT_S = 10.0
+
+
 class RerunSink:
     """Writes a run as a Rerun recording (see the module docstring for the entities).
 
@@ -432,7 +436,9 @@ class RerunSink:
                 rec.send_columns(
                     f"/control/probing/{name}", pidx, rr.Scalars.columns(scalars=values)
                 )
-        rec.flush()  # the batched rows become chunks here, and reach the file
+        # The batched rows become chunks here, and reach the file. Bounded: a full disk can make
+        # the file writer stop accepting data, and an unbounded flush then waits for ever.
+        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
     def close(self, summary: RunSummary | None, status: str) -> None:
         """Log the closing line and finish the file (footer). Idempotent.
@@ -487,7 +493,7 @@ class RerunSink:
         except Exception as exc:  # noqa: BLE001 - collected, see docstring
             errors.append(exc)
         try:
-            rec.flush()
+            rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         except Exception as exc:  # noqa: BLE001
             errors.append(exc)
         try:
