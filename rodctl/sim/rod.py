@@ -571,22 +571,25 @@ class RodSim:
         states = old.segment_states()
         grip = old.gripper_pose()
         seg = old.seg_length
-        if held <= old.segments:
+        if held == old.segments:
+            grip_pose = grip  # the same grasp: the gripper keeps its exact pose
+        elif held < old.segments:
+            # The new grasp is joint `held`: its position is where the two segments meet, its
+            # tangent the mean of theirs (the continuum rod's tangent at that point).
+            ends = old.joint_points()
+            angle = 0.5 * (states[held - 1, 2] + states[held, 2])
+            grip_pose = np.array([ends[held, 0], ends[held, 1], angle])
             states = states[:held]
         else:
+            # Segments come back out of the gripper, straight along its tangent.
             extra = held - old.segments
-            ux, uy = math.cos(grip[2]), math.sin(grip[2])
-            i = np.arange(extra)[:, None] + 0.5
+            u = np.array([math.cos(grip[2]), math.sin(grip[2])])
+            i = np.arange(extra) + 0.5
             more = np.column_stack(
-                [
-                    grip[0] + i[:, 0] * seg * ux,
-                    grip[1] + i[:, 0] * seg * uy,
-                    np.full(extra, grip[2]),
-                ]
+                [grip[0] + i * seg * u[0], grip[1] + i * seg * u[1], np.full(extra, grip[2])]
             )
             states = np.vstack([states, more])
-        end_angle = float(states[-1, 2])
-        end = states[-1, :2] + 0.5 * seg * np.array([math.cos(end_angle), math.sin(end_angle)])
+            grip_pose = np.array([*(grip[:2] + extra * seg * u), grip[2]])
         chain = RodChain(
             length=held * seg,
             bending_stiffness=old.bending_stiffness,
@@ -603,7 +606,7 @@ class RodSim:
             movable_clamp=movable_clamp,
             segment_inertia=old.segment_inertia,
         )
-        chain.place(states, (end[0], end[1], end_angle))
+        chain.place(states, grip_pose)
         chain.steps = old.steps  # one clock across rebuilds (sim_time)
         self.chain = chain
         self._held = held
