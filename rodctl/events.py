@@ -146,8 +146,9 @@ class GraspSlip(_Event):
     def apply(self, sim: RodSim, camera: Camera) -> str:
         old = sim.held_length
         result = sim.slip_grasp(self.ds)
+        clip = " (gripper clipped to the reach of the held length)" if result.clipped else ""
         return (
-            f"event grasp_slip: held length {old:.4f} -> {sim.held_length:.4f} m"
+            f"event grasp_slip: held length {old:.4f} -> {sim.held_length:.4f} m{clip}"
             f"{_settle_note(result)}"
         )
 
@@ -303,11 +304,14 @@ def validate_events(events: list[Event], cfg: ExperimentConfig, field: str = "ru
             reach = rod.workspace.max_reach * held * seg
             dist = math.hypot(target[0] - clamp[0], target[1] - clamp[1])
             if dist > reach:
-                what = "pose" if isinstance(event, ClampMove) else "ds"
+                if isinstance(event, ClampMove):
+                    what, why = "pose", "the clamp pose is out of reach"
+                else:
+                    what, why = "ds", "the held rod is too short to reach the target"
                 raise UserError(
                     f"{name}.{what}: after this event the target pose run.target.pose is "
                     f"{dist:.4g} m from the clamp, beyond max_reach * held length = {reach:.4g} m"
-                    " (the clamp pose is out of reach)"
+                    f" ({why})"
                 )
         if isinstance(event, CameraBump):
             pose = event.new_pose(look_at, distance, tilt, azimuth)
