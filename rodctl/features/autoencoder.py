@@ -16,8 +16,9 @@ checkpoint through torch, and the tests check the two agree.
 
 A checkpoint is a plain dict of tensors, numbers and strings written by `torch.save`, loadable with
 `torch.load(..., weights_only=True)`. It carries a *fingerprint* of what the learned feature
-depends on: the rod geometry (length, clamp pose), the camera geometry, N and the architecture,
-but not noise levels, seeds or training settings. Loading it for a config whose fingerprint
+depends on: the rod geometry (length, clamp pose) and, when present, its in-plane gravity load
+or table friction per stiffness, the camera geometry, N and the architecture, but not noise
+levels, seeds or training settings. Loading it for a config whose fingerprint
 differs is a `UserError` naming the file and every differing field.
 """
 
@@ -103,7 +104,7 @@ def encoder_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
     return {
         "points": cfg.camera.points,
         "architecture": architecture_of(cfg.feature, cfg.camera.points),
-        "rod": {"length": cfg.rod.length, "clamp_pose": list(cfg.rod.clamp_pose)},
+        "rod": _rod_fingerprint(cfg),
         "camera": {
             "width": cfg.camera.width,
             "height": cfg.camera.height,
@@ -111,6 +112,30 @@ def encoder_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
             "arc_length": cfg.camera.extract.arc_length,
         },
     }
+
+
+def _rod_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
+    """The rod's part of the fingerprint: geometry, plus the loads that change its shapes.
+
+    A weightless rod's settled shapes depend only on L and the end poses. Gravity in the plane
+    adds the distributed load per stiffness ρA·g/EI (1/m³, the only combination the heavy
+    elastica depends on), and a table with friction adds μ·ρA·g₀/EI (it makes the shapes
+    path-dependent). Both keys are present only when the load is nonzero, so checkpoints of the
+    weightless rod (the packaged one included) keep their fingerprint; an encoder trained
+    without gravity is refused for a heavy rod and vice versa.
+    """
+    from rodctl.config.rod import STANDARD_GRAVITY
+
+    rod = cfg.rod
+    out: dict[str, Any] = {"length": rod.length, "clamp_pose": list(rod.clamp_pose)}
+    if tuple(rod.gravity) != (0.0, 0.0):
+        scale = rod.mass_per_length / rod.bending_stiffness
+        out["gravity_load_per_stiffness"] = [scale * g for g in rod.gravity]
+    if rod.table_friction:
+        out["friction_load_per_stiffness"] = (
+            rod.table_friction * rod.mass_per_length * STANDARD_GRAVITY / rod.bending_stiffness
+        )
+    return out
 
 
 def fingerprint_differences(stored: Any, expected: Any, prefix: str = "") -> list[str]:
