@@ -123,3 +123,26 @@ def test_gravity_zero_is_the_weightless_rod_bit_for_bit() -> None:
         a.apply(np.array(u))
         b.apply(np.array(u))
     np.testing.assert_array_equal(a.centerline(), b.centerline())
+
+
+def test_encoder_fingerprint_refuses_the_weightless_encoder_for_a_heavy_rod() -> None:
+    # The packaged checkpoint was trained without gravity: refused, naming the load. A table
+    # (friction) keeps the weightless family of shapes and is accepted (README, measured).
+    from rodctl.config import load_config
+    from rodctl.features import load_autoencoder
+    from rodctl.features.autoencoder import encoder_fingerprint
+
+    heavy = load_config(None, ["rod.gravity=[0,-9.81]"])
+    with pytest.raises(UserError, match="rod.gravity_load_per_stiffness: absent from the"):
+        load_autoencoder(heavy.feature, points=100, experiment=heavy)
+    table = load_config(None, ["rod.table_friction=0.5"])
+    load_autoencoder(table.feature, points=100, experiment=table)
+    weightless = load_config(None, [])
+    assert "gravity_load_per_stiffness" not in encoder_fingerprint(weightless)["rod"]
+    # Only q/EI matters: twice the weight and twice the stiffness is the same heavy rod.
+    double = load_config(
+        None, ["rod.gravity=[0,-9.81]", "rod.mass_per_length=0.157", "rod.bending_stiffness=0.01"]
+    )
+    a = encoder_fingerprint(heavy)["rod"]["gravity_load_per_stiffness"]
+    b = encoder_fingerprint(double)["rod"]["gravity_load_per_stiffness"]
+    np.testing.assert_allclose(a, b, rtol=1e-12)
