@@ -5,9 +5,10 @@ Owned by `rodctl/sim/`. Defaults describe a 0.5 m elastic rod (EI = 5e-3 N m^2, 
 
 The integrator keys (`dt`, `iterations`, `damping`, `inertia_radius`) are tuned for the quasi-static
 use the experiment makes of the rod: only the settled shape matters, and it does not depend on the
-masses, so the simulator inflates rotary inertia and damps the first bending mode critically to
-settle in few steps (see `rodctl/sim/chain.py`). The settled shape matches the elastica to ~0.02 %
-of L at N = 50 (tests/sim/).
+rotary inertia (nor on the masses, without gravity), so the simulator inflates rotary inertia and
+damps the first bending mode critically to settle in few steps (see `rodctl/sim/chain.py`). The
+settled shape matches the elastica to ~0.02 % of L at N = 50 (tests/sim/), and with `gravity` the
+heavy elastica to ~0.05 % of L up to q L^3/EI = 100.
 """
 
 from __future__ import annotations

@@ -15,7 +15,10 @@ Discretisation (see shared/reference/rod-validation.md and research/simulation.m
   (+3.4 % at N = 50 on the cantilever) instead of second order.
 
 Quasi-static speed-up (legitimate because only the SETTLED shape is used, and the static
-equilibrium of this chain does not depend on masses or inertias when no body force acts):
+equilibrium of this chain does not depend on masses or inertias when no body force acts; with
+gravity it depends on the masses ρA·l, which are the real ones, but never on the rotary inertia;
+with table friction the stopping point of a sliding rod does depend on the dynamics, so there the
+shapes are those of *a* slowly driven frictional rod, see the README):
 
 * every segment gets a fictitious extra rotary inertia m·(g L)^2 (a radius of gyration g·L, like
   a very thick Rayleigh beam). Kinetic energy is then dominated by rotation, which turns the
