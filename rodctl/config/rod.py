@@ -16,7 +16,14 @@ from __future__ import annotations
 import math
 from typing import Any, Literal
 
-from pydantic import Field, NonNegativeFloat, PositiveFloat, model_serializer, model_validator
+from pydantic import (
+    Field,
+    NonNegativeFloat,
+    PositiveFloat,
+    ValidationError,
+    model_serializer,
+    model_validator,
+)
 
 from rodctl.config.base import Point2, Pose, StrictModel
 
@@ -241,7 +248,10 @@ class RodConfig(StrictModel):
             return data
         material = data["material"]
         if not isinstance(material, MaterialConfig):
-            material = MaterialConfig.model_validate(material)
+            try:
+                material = MaterialConfig.model_validate(material)
+            except ValidationError:
+                return data  # the field's own validation reports it, at rod.material.<key>
         ei, rho_a = material.stiffness_and_mass()
         out = dict(data)
         for key, value in (("bending_stiffness", ei), ("mass_per_length", rho_a)):
