@@ -17,6 +17,7 @@ from scipy.optimize import brentq
 
 from rodctl.sim.elastica import (
     _integrate_heavy_cantilever,
+    circular_arc,
     heavy_cantilever,
     heavy_two_pose_equilibrium,
     heavy_two_pose_shooting,
@@ -117,8 +118,7 @@ def test_two_pose_bvp_and_shooting_recover_manufactured_solutions() -> None:
 
 def test_zero_load_reduces_to_the_weightless_solver() -> None:
     end = (0.35, 0.15, 0.9)
-    s = np.linspace(0, 1, 41)
-    guess = np.column_stack([0.35 * s, 0.15 * s])
+    guess = circular_arc(0.5, 0.9 / 0.5, np.linspace(0, 0.5, 41))  # a bent start, same turn
     heavy = heavy_two_pose_equilibrium(0.5, 5e-3, (0, 0, 0), end, guess, (0.0, 0.0))
     light = two_pose_equilibrium(0.5, 5e-3, (0, 0, 0), end, guess)
     assert heavy.success and light.success
