@@ -14,10 +14,14 @@ What the environment must redo itself after an event (this module cannot see its
 
 * `camera_bump` and `clamp_move`: rebuild the centerline extractor (it calibrates the clamp's
   pixel from the camera and the clamp pose: `CenterlineExtractor(cfg.camera, camera,
-  sim.clamp_pose, rod_length=sim.held_length)`), and re-project the target's world centerline
-  through the bumped camera (the target stays the same physical shape).
-* `grasp_slip`: the extractor's `rod_length` becomes `sim.held_length`.
-* `noise`, `occluder`: nothing (the camera reads its render settings every frame).
+  sim.clamp_pose, rod_length=sim.held_length)`); after `camera_bump` also re-project the
+  target's world centerline through the bumped camera (the target stays the same physical
+  shape). After `clamp_move`, render with `sim.clamp_pose`, not `cfg.rod.clamp_pose`.
+* `grasp_slip`: rebuild the extractor too: its `rod_length` becomes `sim.held_length`
+  (`sim.centerline()` is the held part only).
+* `noise`, `occluder`, `stiffness`, `weight`: nothing (the camera reads its render settings every
+  frame). Each model's `refresh` class attribute says this in code: {"extractor"},
+  {"extractor", "target_pixels"} or empty.
 
 `validate_events` checks what can be checked before the run (a slip longer than the rod, a
 clamp pose out of reach of the target, a step past the step limit, removing an occluder that is
@@ -27,7 +31,7 @@ not there) and raises a `UserError` naming the field, e.g. `run.events[2].ds`.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, model_validator
@@ -52,6 +56,11 @@ class _Event(StrictModel):
     at_step: NonNegativeInt = Field(
         description="Control step (probing included) before whose move the event applies."
     )
+
+    #: What the environment must refresh after this event (see the module docstring):
+    #: "extractor" = rebuild the CenterlineExtractor from `camera`, `sim.clamp_pose` and
+    #: `sim.held_length`; "target_pixels" = re-project the target's world centerline.
+    refresh: ClassVar[frozenset[str]] = frozenset()
 
 
 class _FactorOrValue(_Event):
@@ -111,6 +120,7 @@ class ClampMove(_Event):
     """
 
     type: Literal["clamp_move"] = "clamp_move"
+    refresh: ClassVar[frozenset[str]] = frozenset({"extractor"})
     pose: Pose = Field(description="New clamp pose [x, y, theta] (world).")
     max_step: tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = Field(
         None, description="Per-axis limit per control period (m, m, rad); None: rod.max_step."
@@ -135,6 +145,7 @@ class GraspSlip(_Event):
     """
 
     type: Literal["grasp_slip"] = "grasp_slip"
+    refresh: ClassVar[frozenset[str]] = frozenset({"extractor"})
     ds: float = Field(description="Slide of the grasp point along the rod (m), + towards clamp.")
 
     @model_validator(mode="after")
@@ -157,6 +168,7 @@ class CameraBump(_Event):
     """The camera is knocked: its extrinsics change by the given increments (intrinsics stay)."""
 
     type: Literal["camera_bump"] = "camera_bump"
+    refresh: ClassVar[frozenset[str]] = frozenset({"extractor", "target_pixels"})
     shift: Point2 = Field((0.0, 0.0), description="Added to camera.look_at (m).")
     distance: float = Field(0.0, description="Added to camera.distance (m).")
     tilt_deg: float = Field(0.0, description="Added to camera.tilt_deg (degrees).")
@@ -218,7 +230,8 @@ class NoiseChange(_Event):
         return f"event noise: pixel noise sigma {self.noise_std:.3g}{blur}"
 
 
-#: One mid-run event, chosen by `type` (a pydantic discriminated union).
+#: One mid-run event, chosen by `type` (a pydantic discriminated union). Use it in a config as
+#: `events: list[Event] = Field(default_factory=list, description=...)`.
 Event = Annotated[
     StiffnessChange
     | WeightChange

@@ -59,6 +59,16 @@ def test_union_picks_the_model_by_type() -> None:
     kinds = [StiffnessChange, WeightChange, ClampMove, GraspSlip, CameraBump]
     kinds += [OccluderChange, NoiseChange]
     assert [type(e) for e in evs] == kinds
+    # What the environment must refresh after each (module docstring).
+    assert [sorted(e.refresh) for e in evs] == [
+        [],
+        [],
+        ["extractor"],
+        ["extractor"],
+        ["extractor", "target_pixels"],
+        [],
+        [],
+    ]
 
 
 @pytest.mark.parametrize(
