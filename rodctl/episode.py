@@ -345,6 +345,7 @@ class _Loop:
             extraction_ok=self.env.frame.ok,
             extraction_note=info["extraction_note"],
             estimator_info=m.estimator_info(),
+            events=list(info.get("events", [])) if moved else [],
         )
 
     def emit(self, rec: StepRecord) -> None:

@@ -80,6 +80,7 @@ class StepRecord:
         extraction_ok: False when the extractor reported a problem (occlusion, lost rod).
         extraction_note: the extractor's message when `extraction_ok` is False, else "".
         estimator_info: scalar diagnostics of the estimator (e.g. AKF alpha, innovation).
+        events: one line per mid-run event applied before this step's move (`run.events`).
         image: (H, W, 3) uint8 RGB camera frame, or None. The sinks choose which frames to log
             by `sim_time` (`rodctl.logs.codec.FrameSchedule`), so the loop may attach one to
             every record; records read back from a log carry one only where it was logged.
@@ -108,6 +109,7 @@ class StepRecord:
     extraction_ok: bool = True
     extraction_note: str = ""
     estimator_info: dict[str, float] = field(default_factory=dict)
+    events: list[str] = field(default_factory=list)
     image: np.ndarray | None = None
 
 

@@ -138,7 +138,7 @@ def load_autoencoder(cfg: AutoencoderFeatureConfig, *, points: int, experiment=N
 
         path = auto_checkpoint(experiment)
     else:
-        path = Path(cfg.checkpoint) if cfg.checkpoint is not None else DEFAULT_CHECKPOINT
+        path = _resolve(cfg.checkpoint) if cfg.checkpoint is not None else DEFAULT_CHECKPOINT
     ckpt = EncoderCheckpoint.load(path)
     if experiment is not None:
         expected = encoder_fingerprint(experiment)
@@ -150,6 +150,16 @@ def load_autoencoder(cfg: AutoencoderFeatureConfig, *, points: int, experiment=N
         }
     ckpt.check_compatible(expected, str(path), experiment)
     return ckpt.feature_map(source=str(path))
+
+
+def _resolve(checkpoint: str) -> Path:
+    """A relative path is looked up from the working folder, then from the folder that holds
+    the rodctl package (so `rodctl/assets/...` in a shipped config works from anywhere)."""
+    path = Path(checkpoint)
+    if path.is_absolute() or path.exists():
+        return path
+    packaged = Path(__file__).resolve().parents[2] / path
+    return packaged if packaged.exists() else path
 
 
 @FEATURES.register(AutoencoderFeatureConfig)

@@ -483,6 +483,7 @@ def rod_state_message(r: StepRecord) -> dict[str, Any]:
         "clipped": bool(r.clipped),
         "max_joint_gap": e.real("max_joint_gap", r.max_joint_gap),
         "kinetic_energy": e.real("kinetic_energy", r.kinetic_energy),
+        "events": [str(line) for line in r.events],
         "nonfinite": e.nonfinite,
     }
 
@@ -560,6 +561,7 @@ def record_from_messages(
         extraction_ok=bool(cam["extraction_ok"]),
         extraction_note=str(cam["extraction_note"]),
         estimator_info={str(kv["name"]): decode_real(kv["value"]) for kv in ctl["estimator_info"]},
+        events=[str(line) for line in rod.get("events", [])],
         image=image,
     )
 
@@ -574,7 +576,7 @@ def step_log_lines(prev: StepRecord | None, r: StepRecord) -> list[tuple[str, st
 
     Both sinks log exactly these lines (foxglove.Log on /log, Rerun TextLog at /log).
     """
-    lines: list[tuple[str, str]] = []
+    lines: list[tuple[str, str]] = [("WARN", f"step {r.step}: {line}") for line in r.events]
     if prev is None or prev.phase != r.phase:
         lines.append(("INFO", f"step {r.step}: phase {r.phase}"))
     if not r.extraction_ok:

@@ -124,6 +124,11 @@ ROD_STATE: dict[str, Any] = {
         "clipped": {"type": "boolean"},
         "max_joint_gap": _num("Largest pivot-joint separation (m)."),
         "kinetic_energy": _num("Rod kinetic energy at step end (J)."),
+        "events": {
+            "type": "array",
+            "items": {"type": "string"},
+            "description": "Mid-run events applied before this step's move (run.events).",
+        },
         "nonfinite": _NONFINITE,
     },
     "required": ["step", "sim_time", "gripper", "centerline", "nonfinite"],

@@ -76,7 +76,10 @@ class Camera:
         cx = (self.width - 1) / 2.0 if cfg.cx is None else float(cfg.cx)
         cy = (self.height - 1) / 2.0 if cfg.cy is None else float(cfg.cy)
         self.camera_matrix = np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
+        self._set_extrinsics(cfg)
 
+    def _set_extrinsics(self, cfg: CameraConfig) -> None:
+        """Pose, homography and background from `cfg.look_at/distance/tilt_deg/azimuth_deg`."""
         # Camera pose: centre at `distance` from `look_at`, tilted towards world -y by tilt_deg,
         # the whole rig turned by azimuth_deg about world z. Rows of R are the camera axes
         # expressed in the world frame; at tilt 0: x_c = +x, y_c = -y, z_c = -z (det R = +1).
@@ -101,6 +104,68 @@ class Camera:
         self.homography /= self.homography[2, 2]
         self._homography_inv = fla.inv3(self.homography)
         self._background = self._make_background()
+
+    # ------------------------------------------------------------------ mid-run changes
+    def _with(self, **changes: object) -> CameraConfig:
+        """A validated copy of the camera config with `changes` (the caller's config object is
+        left alone: it may be shared with the experiment's config)."""
+        data = self.cfg.model_dump()
+        render = changes.pop("render", None)
+        data.update(changes)
+        if render is not None:
+            data["render"] = {**data["render"], **render}  # type: ignore[dict-item]
+        return type(self.cfg).model_validate(data)
+
+    def set_pose(
+        self,
+        look_at: tuple[float, float] | None = None,
+        distance: float | None = None,
+        tilt_deg: float | None = None,
+        azimuth_deg: float | None = None,
+    ) -> None:
+        """Move the camera (a bump): new extrinsics, same intrinsics. None keeps a value.
+
+        Everything derived from the pose (rotation, translation, homography, a checkerboard
+        background) is recomputed. A `CenterlineExtractor` built on this camera calibrated its
+        clamp pixel from the old pose: rebuild it.
+        """
+        changes = {
+            k: v
+            for k, v in (
+                ("look_at", look_at),
+                ("distance", distance),
+                ("tilt_deg", tilt_deg),
+                ("azimuth_deg", azimuth_deg),
+            )
+            if v is not None
+        }
+        self.cfg = self._with(**changes)
+        self._set_extrinsics(self.cfg)
+
+    def set_noise(self, noise_std: float, blur_sigma: float | None = None) -> None:
+        """New pixel noise σ (and blur σ unless None) for the following frames."""
+        render: dict[str, float] = {"noise_std": float(noise_std)}
+        if blur_sigma is not None:
+            render["blur_sigma"] = float(blur_sigma)
+        self.cfg = self._with(render=render)
+
+    def add_occlusion(self, box: tuple[float, float, float, float]) -> None:
+        """An occluder [u0, v0, u1, v1] (px) appears in the following frames."""
+        boxes = [tuple(b) for b in self.cfg.render.occlusions]
+        self.cfg = self._with(render={"occlusions": [*boxes, tuple(float(v) for v in box)]})
+
+    def remove_occlusion(self, box: tuple[float, float, float, float]) -> None:
+        """Remove the occluder [u0, v0, u1, v1] (px).
+
+        Raises:
+            ValueError: no such occluder.
+        """
+        boxes = [tuple(float(v) for v in b) for b in self.cfg.render.occlusions]
+        key = tuple(float(v) for v in box)
+        if key not in boxes:
+            raise ValueError(f"no occluder {list(key)} to remove (present: {boxes})")
+        boxes.remove(key)
+        self.cfg = self._with(render={"occlusions": boxes})
 
     # ------------------------------------------------------------------ geometry
     @property
