@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import json
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
@@ -166,6 +166,32 @@ def _empty_buffer() -> dict[str, list]:
 
 #: Longest wait for Rerun's file writer to take a flush (s); past it the run goes on or closes.
 FLUSH_TIMEOUT_S = 10.0
+
+
+def _bounded(call: Callable[[], object], timeout: float) -> BaseException | None:
+    """Run `call()` on a helper thread for at most `timeout` seconds; its error, or a
+    TimeoutError when it did not return (Rerun's file writer waits for ever on a full disk).
+
+    A call that does not return is abandoned (a daemon thread), and Rerun's own exit handler,
+    which would wait for the same writer, is unregistered so that the process can still end.
+    """
+    import threading
+
+    box: list[BaseException | None] = [None]
+
+    def run() -> None:
+        try:
+            call()
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            box[0] = exc
+
+    worker = threading.Thread(target=run, name="rodctl-rerun-close", daemon=True)
+    worker.start()
+    worker.join(timeout)
+    if worker.is_alive():
+        rr.unregister_shutdown()
+        return TimeoutError(f"Rerun's file writer did not finish within {timeout:g} s")
+    return box[0]
 
 
 class RerunSink:
@@ -496,8 +522,7 @@ class RerunSink:
             rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         except Exception as exc:  # noqa: BLE001
             errors.append(exc)
-        try:
-            rec.disconnect()
-        except Exception as exc:  # noqa: BLE001
-            errors.append(exc)
+        error = _bounded(rec.disconnect, FLUSH_TIMEOUT_S)
+        if error is not None:
+            errors.append(error)
         raise_or_warn(errors, status, f"{self.path}: closing the Rerun recording failed")
