@@ -36,12 +36,13 @@ def cache_dir() -> Path:
 def cache_path(cfg: ExperimentConfig) -> Path:
     """The cache file of the quick encoder for `cfg`'s rod, camera, N and architecture."""
     from rodctl.features.autoencoder import VERSION, encoder_fingerprint
-    from rodctl.features.training import QUICK_EPOCHS, QUICK_SAMPLES
+    from rodctl.features.training import QUICK_BATCH, QUICK_EPOCHS, QUICK_SAMPLES
 
     key = {
         "fingerprint": encoder_fingerprint(cfg),
         "samples": QUICK_SAMPLES,
         "epochs": QUICK_EPOCHS,
+        "batch": min(cfg.feature.training.batch_size, QUICK_BATCH),  # type: ignore[union-attr]
         "seed": QUICK_SEED,
         "format": VERSION,
     }
