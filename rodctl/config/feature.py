@@ -77,7 +77,7 @@ class AutoencoderFeatureConfig(StrictModel):
         None,
         description="Trained encoder (encoder.npz, or encoder.pt which needs torch to load). "
         "None: the default packaged in rodctl/assets/ (the default rod and camera only). "
-        "'auto': a quick encoder for this rod and camera (3,000 samples, 300 epochs, about 20 s), "
+        "'auto': a quick encoder for this rod and camera (3,000 samples, 300 epochs, about 30 s), "
         "trained on first use and cached in $XDG_CACHE_HOME/rodctl/encoders.",
     )
     data: EncoderDataConfig = EncoderDataConfig()

@@ -248,7 +248,7 @@ def train_encoder(
 
 
 #: `rodctl train-encoder --quick` and `feature.checkpoint: auto` (issue #15): a working encoder
-#: for a new rod or camera in about 20 s on 2 cores instead of the paper's 100,000-sample run.
+#: for a new rod or camera in about 30 s on 2 cores instead of the paper's 100,000-sample run.
 #: Batches of 500 (6 Adam steps an epoch): on the same 3,000 shapes (camera tilted 35 degrees)
 #: 1.89 px validation error against 4.73 px with one full batch an epoch, for 1.3x the time.
 QUICK_SAMPLES = 3_000
