@@ -356,8 +356,8 @@ def train_encoder(
         bool,
         typer.Option(
             "--quick",
-            help="A quick encoder: 3,000 samples and 300 epochs (about 20 s on 2 cores), "
-            "enough for a new rod or camera.",
+            help="A quick encoder: 3,000 samples, 300 epochs, batches of 500 (about 30 s on "
+            "2 cores), enough for a new rod or camera.",
         ),
     ] = False,
     quiet: QuietOpt = False,

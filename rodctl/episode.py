@@ -29,12 +29,14 @@ from typing import Any
 
 import numpy as np
 
+from rodctl import fixedla as fla
 from rodctl import metrics
 from rodctl.config import ExperimentConfig, dump_config
 from rodctl.env import Q, ShapeServoEnv, StageTimes
 from rodctl.errors import UserError
 from rodctl.logs.base import Sink
 from rodctl.method import CONTROL, INITIAL, Method
+from rodctl.numenv import numeric_environment
 from rodctl.records import RunHeader, RunSummary, StepRecord
 
 
@@ -146,9 +148,10 @@ class StopRule:
         With p = 6 > q = 3 any law descending ||e||^2 along J can rest where J^T e = 0 but
         e != 0 (docs/method.md): that is a stall, not a slow convergence.
         """
+        # Fixed-order arithmetic (rodctl.fixedla): the same bits on every BLAS kernel.
         e = rec.s_target - rec.s
-        denom = np.linalg.norm(rec.J) * np.linalg.norm(e)
-        grad = np.linalg.norm(rec.J.T @ e) / denom if denom > 0 else 0.0
+        denom = fla.norm(rec.J) * fla.norm(e)
+        grad = fla.norm(fla.matvec(np.ascontiguousarray(rec.J.T), e)) / denom if denom > 0 else 0.0
         return bool(grad < self.cfg.stall_gradient)
 
 
@@ -296,6 +299,7 @@ class _Loop:
             target_feature=method.s_target,
             target_pose=target.pose,
             rod_length=cfg.rod.length,
+            numeric_env=numeric_environment(),
         )
         self.setup_time = time.perf_counter() - self.wall0
         opened: list[Sink] = []
@@ -335,7 +339,7 @@ class _Loop:
             s_target=m.s_target,
             T1=m.T1,
             J=J,
-            J_singular_values=np.linalg.svd(J, compute_uv=False),
+            J_singular_values=fla.singular_values(J),
             pixel_error=info["pixel_error"],
             settled=info["settled"] if moved else True,
             saturated=info["saturated"] if moved else np.zeros(Q, dtype=bool),

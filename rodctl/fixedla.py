@@ -197,33 +197,73 @@ def eigh_small(
     return w[order], (np.array(V)[:, order] if vectors else None)
 
 
-def singular_values(j: np.ndarray) -> np.ndarray:
-    """Singular values (largest first) of a (p, q) matrix with small q, kernel-independent.
+def _svd_columns(j: np.ndarray) -> tuple[list[float], list[list[float]], list[list[float]]]:
+    """One-sided Jacobi SVD (Hestenes) of a (p, q) matrix with p >= q, in Python floats.
 
-    The square roots of the eigenvalues of J^T J (`eigh_small`): accurate to about
-    eps * sigma_max^2 / sigma, ample for the diagnostics and stall tests they feed.
+    Rotates pairs of columns until all are orthogonal: then the column norms are the singular
+    values (each to a few ulps of itself, unlike the eigenvalues of J^T J), the normalised
+    columns are U and the accumulated rotations V. Returns (sigma, U columns, V columns).
+    """
+    cols = np.asarray(j, dtype=np.float64).T.tolist()
+    q = len(cols)
+    V = [[1.0 if i == k else 0.0 for i in range(q)] for k in range(q)]
+    for _ in range(60):
+        rotated = False
+        for a in range(q - 1):
+            for b in range(a + 1, q):
+                ca, cb = cols[a], cols[b]
+                alpha = sum(x * x for x in ca)
+                beta = sum(y * y for y in cb)
+                gamma = sum(x * y for x, y in zip(ca, cb, strict=True))
+                if gamma == 0.0 or abs(gamma) <= 1e-15 * math.sqrt(alpha * beta):
+                    continue
+                rotated = True
+                zeta = (beta - alpha) / (2.0 * gamma)
+                t = (1.0 if zeta >= 0.0 else -1.0) / (abs(zeta) + math.sqrt(1.0 + zeta * zeta))
+                c = 1.0 / math.sqrt(1.0 + t * t)
+                s = c * t
+                cols[a] = [c * x - s * y for x, y in zip(ca, cb, strict=True)]
+                cols[b] = [s * x + c * y for x, y in zip(ca, cb, strict=True)]
+                va, vb = V[a], V[b]
+                V[a] = [c * x - s * y for x, y in zip(va, vb, strict=True)]
+                V[b] = [s * x + c * y for x, y in zip(va, vb, strict=True)]
+        if not rotated:
+            break
+    sigma = [math.sqrt(sum(x * x for x in col)) for col in cols]
+    U = [
+        [x / sg for x in col] if sg > 0.0 else [0.0] * len(col)
+        for col, sg in zip(cols, sigma, strict=True)
+    ]
+    return sigma, U, V
+
+
+def singular_values(j: np.ndarray) -> np.ndarray:
+    """Singular values (largest first) of a small (p, q) matrix, kernel-independent.
+
+    One-sided Jacobi in a fixed order (`_svd_columns`); replaces LAPACK's SVD in the loop.
     """
     j = np.asarray(j, dtype=np.float64)
     if j.size == 0:
         return np.zeros(0)
-    k = min(j.shape)
-    gram = matmul(j.T, j) if j.shape[1] <= j.shape[0] else matmul(j, j.T)
-    w, _ = eigh_small(gram, vectors=False)
-    return np.sqrt(np.maximum(w[::-1][:k], 0.0))
+    sigma, _, _ = _svd_columns(j if j.shape[0] >= j.shape[1] else j.T)
+    return np.array(sorted(sigma, reverse=True))
 
 
 def pinv(j: np.ndarray, rcond: float = 1e-15) -> np.ndarray:
-    """Pseudo-inverse of a (p, q) matrix with q small (q <= 6), kernel-independent.
+    """Pseudo-inverse of a small (p, q) matrix, kernel-independent.
 
-    J^+ = V diag(1/lambda) V^T J^T over the eigenpairs (lambda, V) of J^T J whose singular value
-    sqrt(lambda) is above rcond * sigma_max (the others are dropped, as `numpy.linalg.pinv` does).
+    J^+ = V diag(1/sigma) U^T over the singular triplets (one-sided Jacobi) whose sigma is above
+    rcond * sigma_max; the others are dropped, as `numpy.linalg.pinv` does.
     """
     j = np.asarray(j, dtype=np.float64)
-    w, v = eigh_small(matmul(j.T, j))
-    top = float(np.sqrt(max(float(w[-1]), 0.0))) if w.size else 0.0
-    keep = np.sqrt(np.maximum(w, 0.0)) > rcond * top
-    inv_w = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
-    return matmul(v * inv_w, matmul(v.T, j.T))
+    wide = j.shape[0] < j.shape[1]
+    sigma, U, V = _svd_columns(j.T if wide else j)
+    top = max(sigma) if sigma else 0.0
+    out = np.zeros((j.shape[1], j.shape[0]) if not wide else (j.shape[0], j.shape[1]))
+    for sg, u, v in zip(sigma, U, V, strict=True):
+        if sg > rcond * top and sg > 0.0:
+            out += np.multiply.outer(np.array(v), np.array(u)) / sg
+    return out.T if wide else out
 
 
 def pinv_tall(a: np.ndarray) -> np.ndarray:

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from rodctl import fixedla as fla
 from rodctl.env import Q, StageTimes, Task
 from rodctl.errors import UserError
 from rodctl.estimation.probing import fit_jacobian, probe_moves
@@ -118,7 +119,7 @@ class Method:
     @property
     def T1(self) -> float:
         """||s* - s||, the paper's deformation metric (feature units)."""
-        return float(np.linalg.norm(self.s_target - self.s))
+        return fla.norm(self.s_target - self.s)
 
     def estimator_info(self) -> dict[str, float]:
         """The estimator's scalar diagnostics for the log."""

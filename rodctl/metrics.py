@@ -43,7 +43,9 @@ def smoothness(records: Sequence[StepRecord], max_step: np.ndarray) -> tuple[flo
     if len(us) == 0:
         return 0.0, 0.0
     du = np.diff(np.vstack([np.zeros(3), us]), axis=0)
-    return float(np.sum(np.linalg.norm(du[:, :2], axis=1))), float(np.sum(np.abs(du[:, 2])))
+    # Row norms by elementwise arithmetic (no BLAS: the same bits on every machine).
+    trans = np.sqrt(du[:, 0] ** 2 + du[:, 1] ** 2)
+    return float(np.sum(trans)), float(np.sum(np.abs(du[:, 2])))
 
 
 def near_origin_steps(records: Sequence[StepRecord], tolerance: float) -> int | None:

@@ -15,6 +15,7 @@ describe it; its build is read only when torch is already loaded, otherwise only
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import sys
@@ -165,6 +166,7 @@ def _version(dist: str) -> str | None:
         return None
 
 
+@functools.cache
 def numeric_environment() -> dict[str, Any]:
     """Describe the numeric environment of this process (JSON-serialisable, stable key order).
 

@@ -409,11 +409,11 @@ class VerifyResult:
             else:
                 lines.append("numeric environments: identical (the difference is not theirs)")
         if self.verdict == "mismatch" and self.numbers_only:
-            worst = max(d.max_abs for d in self.deviations)
+            need = max(d.max_scaled for d in self.deviations)
             lines.append(
                 "only numbers differ (steps, flags and texts agree): if the rerun ran on another "
-                "machine or BLAS kernel and the deviations above are acceptable, rerun with "
-                f"--tolerance (the largest deviation here is {worst:.3g})"
+                "machine or BLAS kernel and the deviations above are acceptable, "
+                f"--tolerance {need:.2g} accepts them"
             )
         return lines
 

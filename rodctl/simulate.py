@@ -140,6 +140,8 @@ def simulate(
             error = "; ".join(filter(None, [error, *lost]))
             status = "failed" if status == "completed" else status
         extra = {"error": error} if error else {}
+        if result.header is not None:
+            extra["numeric_env"] = result.header.numeric_env
         meta_error = run.finish(status, outcome=summary.outcome, **extra)
         if meta_error:
             error = "; ".join(filter(None, [error, f"meta.json not updated: {meta_error}"]))

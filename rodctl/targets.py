@@ -12,6 +12,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from rodctl import fixedla as fla
 from rodctl.errors import UserError
 
 #: One normalised unit of target offset per axis, as a fraction of the rod length for x and y
@@ -28,7 +29,7 @@ def target_scale(rod_length: float) -> np.ndarray:
 
 def difficulty(pose: np.ndarray, home: np.ndarray, rod_length: float) -> float:
     """Normalised distance of a target gripper pose from the home pose."""
-    return float(np.linalg.norm((np.asarray(pose) - np.asarray(home)) / target_scale(rod_length)))
+    return fla.norm((np.asarray(pose) - np.asarray(home)) / target_scale(rod_length))
 
 
 def sample_target_pose(
@@ -51,7 +52,7 @@ def sample_target_pose(
     scale = target_scale(rod_length)
     for _ in range(max_tries):
         direction = rng.normal(size=3)
-        direction /= np.linalg.norm(direction)
+        direction /= fla.norm(direction)
         radius = rng.uniform(min_offset, max_offset)
         pose = np.asarray(home, dtype=float) + radius * direction * scale
         if allowed(pose):

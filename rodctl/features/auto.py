@@ -2,7 +2,7 @@
 
 Why: the packaged encoder fits only the default rod and camera, and the paper's full training run
 takes about 15 minutes on 2 cores. A quick encoder (`rodctl.features.training.QUICK_SAMPLES`
-shapes, `QUICK_EPOCHS` epochs: about 20 s) is enough to servo a new setup. With `auto` the first
+shapes, `QUICK_EPOCHS` epochs: about 30 s) is enough to servo a new setup. With `auto` the first
 run for a setup trains one and stores it in the user's cache folder under the setup's
 fingerprint (rod, camera, N, architecture: `encoder_fingerprint`); every later run with the same
 fingerprint reuses it. Each step is said on stderr.
@@ -36,12 +36,13 @@ def cache_dir() -> Path:
 def cache_path(cfg: ExperimentConfig) -> Path:
     """The cache file of the quick encoder for `cfg`'s rod, camera, N and architecture."""
     from rodctl.features.autoencoder import VERSION, encoder_fingerprint
-    from rodctl.features.training import QUICK_EPOCHS, QUICK_SAMPLES
+    from rodctl.features.training import QUICK_BATCH, QUICK_EPOCHS, QUICK_SAMPLES
 
     key = {
         "fingerprint": encoder_fingerprint(cfg),
         "samples": QUICK_SAMPLES,
         "epochs": QUICK_EPOCHS,
+        "batch": min(cfg.feature.training.batch_size, QUICK_BATCH),  # type: ignore[union-attr]
         "seed": QUICK_SEED,
         "format": VERSION,
     }
@@ -75,7 +76,7 @@ def auto_checkpoint(cfg: ExperimentConfig) -> Path:
         return path
     _say(
         f"no encoder cached for this rod and camera yet; training a quick one once "
-        f"({QUICK_SAMPLES:,} samples, {QUICK_EPOCHS} epochs: about 20 s on 2 cores)"
+        f"({QUICK_SAMPLES:,} samples, {QUICK_EPOCHS} epochs: about 30 s on 2 cores)"
     )
     data = quick_config(cfg).model_dump(mode="json")
     data["seed"] = QUICK_SEED

@@ -480,7 +480,7 @@ class EncoderCheckpoint:
         raise UserError(
             f"{source}: this encoder was trained for another rod or camera:\n  "
             + "\n  ".join(lines)
-            + "\nTrain a quick encoder for this config (3,000 samples, 300 epochs: about 20 s "
+            + "\nTrain a quick encoder for this config (3,000 samples, 300 epochs: about 30 s "
             "on 2 cores) with `rodctl train-encoder CONFIG --quick` (same --set options) and "
             "set feature.checkpoint to its encoder.npz, or set feature.checkpoint=auto to "
             "train one once and reuse it. `rodctl train-encoder CONFIG` trains the paper's "

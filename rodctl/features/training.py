@@ -248,14 +248,17 @@ def train_encoder(
 
 
 #: `rodctl train-encoder --quick` and `feature.checkpoint: auto` (issue #15): a working encoder
-#: for a new rod or camera in about 20 s on 2 cores instead of the paper's 100,000-sample run
-#: (measured: 3,000 samples and 300 epochs give 2.2 px and a default run that converges).
+#: for a new rod or camera in about 30 s on 2 cores instead of the paper's 100,000-sample run.
+#: Batches of 500 (6 Adam steps an epoch): on the same 3,000 shapes (camera tilted 35 degrees)
+#: 1.89 px validation error against 4.73 px with one full batch an epoch, for 1.3x the time.
 QUICK_SAMPLES = 3_000
 QUICK_EPOCHS = 300
+QUICK_BATCH = 500
 
 
 def quick_config(cfg: ExperimentConfig) -> ExperimentConfig:
-    """`cfg` with the quick encoder's data and training sizes (QUICK_SAMPLES, QUICK_EPOCHS)."""
+    """`cfg` with the quick encoder's data and training sizes (QUICK_SAMPLES, QUICK_EPOCHS,
+    batches of at most QUICK_BATCH)."""
     if not isinstance(cfg.feature, AutoencoderFeatureConfig):
         return cfg  # nothing to shrink; train_encoder says what is wrong
     data = cfg.model_dump(mode="json")
@@ -263,6 +266,7 @@ def quick_config(cfg: ExperimentConfig) -> ExperimentConfig:
     feature["data"]["samples"] = QUICK_SAMPLES
     feature["data"]["chunk"] = min(int(feature["data"]["chunk"]), QUICK_SAMPLES // 6)
     feature["training"]["epochs"] = QUICK_EPOCHS
+    feature["training"]["batch_size"] = min(int(feature["training"]["batch_size"]), QUICK_BATCH)
     return ExperimentConfig.model_validate(data)
 
 

@@ -60,6 +60,7 @@ def test_auto_trains_once_caches_by_fingerprint_and_says_so(tiny_quick, tmp_path
     assert cache_dir() == path.parent
     assert len(tiny_quick) == 1 and tiny_quick[0].seed == 0  # seed fixed, not the run's 4
     assert tiny_quick[0].feature.data.samples == 24 and tiny_quick[0].feature.training.epochs == 3
+    assert tiny_quick[0].feature.training.batch_size == 8  # already below QUICK_BATCH
 
     # a second run with the same rod and camera (another seed, noise) reuses the file
     again = _cfg(render={"noise_std": 2.0}).model_copy(update={"seed": 9})
