@@ -347,8 +347,7 @@ def compare(
         typer.Option(
             "--workers",
             min=1,
-            help="Worker processes, or CPUs of a Ray started for the run (default: the "
-            "config's).",
+            help="Worker processes, or CPUs of a Ray started for the run (default: the config's).",
         ),
     ] = None,
     executor: ExecutorOpt = "local",
@@ -390,8 +389,7 @@ def sweep(
         typer.Option(
             "--workers",
             min=1,
-            help="Worker processes, or CPUs of a Ray started for the run (default: the "
-            "config's).",
+            help="Worker processes, or CPUs of a Ray started for the run (default: the config's).",
         ),
     ] = None,
     executor: ExecutorOpt = "local",

@@ -434,7 +434,10 @@ def open_resumed_run(folder: str | Path, command: str, hashed: dict[str, Any]) -
     if old is None:
         raise UserError(f"--resume {path}: meta.json has no config hash to check against")
     if config_hash(old) != config_hash(hashed):
-        changed = _dotted_diff(jsonable(old), jsonable(hashed))
+        changed = [
+            c.removeprefix("config.") if c != "targets" else "the targets file's poses"
+            for c in _dotted_diff(jsonable(old), jsonable(hashed))
+        ]
         raise UserError(
             f"--resume {path}: the config changed since that run (resume needs the same "
             f"config; workers and executor may differ): {', '.join(changed[:10])}"
@@ -442,6 +445,7 @@ def open_resumed_run(folder: str | Path, command: str, hashed: dict[str, Any]) -
         )
     run = RunDir(path=path, meta=meta)
     run.meta.update(status="running", ended_at=None)
+    run.meta.pop("error", None)
     run.meta.setdefault("resumed", []).append({"argv": list(sys.argv)})
     run.write_meta()
     return run
@@ -773,8 +777,11 @@ def run_compare(
 
 
 def _row_key(item: dict[str, Any]) -> tuple:
-    """What identifies an episode across runs: method, target and (in a sweep) its point."""
-    return (item["method"], item["target"], item.get("tags", {}).get("point", item.get("point")))
+    """What identifies an episode (a task or its row) across runs: method, target and, in a
+    sweep, its point and seed (a task carries them in `tags`, a row as columns)."""
+    tags = item.get("tags", item)
+    sweep = (tags["point"], tags["seed"]) if "point" in tags else (None, None)
+    return (item["method"], item["target"], *sweep)
 
 
 def finished_rows(
