@@ -10,12 +10,13 @@ import functools
 import json
 import sys
 from collections.abc import Callable
+from contextlib import contextmanager
 from typing import Annotated, Any, TypeVar
 
 import typer
 
 from rodctl.config import ExperimentConfig, dump_config, load_config
-from rodctl.errors import UserError
+from rodctl.errors import RunFailed, UserError, describe_os_error
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -43,7 +44,9 @@ SetOpt = Annotated[
 
 
 def user_errors(fn: F) -> F:
-    """Print a `UserError` as one message on stderr and exit 2 instead of a traceback."""
+    """Turn the two kinds of expected failure into one line on stderr, never a traceback:
+    bad input (`UserError`) exits 2; a run that could not go on (`RunFailed`, or an `OSError`
+    such as a full disk or a read-only folder) exits 1."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -52,6 +55,12 @@ def user_errors(fn: F) -> F:
         except UserError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=2) from None
+        except RunFailed as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(code=1) from None
+        except OSError as exc:
+            typer.echo(f"error: {describe_os_error(exc)}", err=True)
+            raise typer.Exit(code=1) from None
 
     return wrapper  # type: ignore[return-value]
 
@@ -120,11 +129,52 @@ def config_show(config: ConfigArg, set_: SetOpt = None) -> None:
     model = _config_model(config)
     if model is ExperimentConfig:
         cfg = load_config(config, set_ or [])
+        derived = _derived_values(cfg)
     else:
         from rodctl.compare import load_compare_config
 
         cfg = load_compare_config(config, set_ or [])
-    typer.echo(dump_config(cfg), nl=False)
+        derived = {}
+    typer.echo(dump_config(cfg, clean=True), nl=False)
+    if derived:
+        typer.echo("# derived from the keys above where they are null (set them to override):")
+        for key, value in derived.items():
+            typer.echo(f"#   {key}: {value}")
+
+
+def _derived_values(cfg: ExperimentConfig) -> dict[str, Any]:
+    """What the null keys resolve to when the run starts (shown by `config show`)."""
+    import math
+
+    from rodctl.sim.chain import stable_dt_limit
+    from rodctl.sim.rod import DEFAULT_HOME_IN_CLAMP_FRAME, DT_SAFETY
+
+    def clean(v: float) -> float:
+        return float(f"{v:.6g}")
+
+    rod, cam = cfg.rod, cfg.camera
+    out: dict[str, Any] = {}
+    if rod.home_pose is None:
+        cx, cy, cth = rod.clamp_pose
+        hx, hy, hth = DEFAULT_HOME_IN_CLAMP_FRAME
+        c, s = math.cos(cth), math.sin(cth)
+        x, y = hx * rod.length, hy * rod.length
+        out["rod.home_pose"] = [
+            clean(cx + c * x - s * y),
+            clean(cy + s * x + c * y),
+            clean(cth + hth),
+        ]
+    if rod.dt is None:
+        args = (rod.length, rod.bending_stiffness, rod.mass_per_length, rod.segments)
+        out["rod.dt"] = clean(DT_SAFETY * stable_dt_limit(*args, rod.inertia_radius))
+    if cam.cx is None:
+        out["camera.cx"] = clean((cam.width - 1) / 2.0)
+    if cam.cy is None:
+        out["camera.cy"] = clean((cam.height - 1) / 2.0)
+    checkpoint = getattr(cfg.feature, "checkpoint", "")
+    if checkpoint is None:
+        out["feature.checkpoint"] = "the packaged rodctl/assets/encoder.pt"
+    return out
 
 
 @config_app.command("schema")
@@ -225,6 +275,11 @@ def replay(
         typer.echo(f"note: {note}", err=True)
     code = 0
     if verify:
+        from rodctl.replay import config_file_differences
+
+        for diff in config_file_differences(result.run):
+            typer.echo(f"verify: config.yaml differs from the log: {diff}", err=True)
+            code = 1
         diffs = verify_run(result.run)
         if diffs:
             typer.echo(
@@ -256,6 +311,30 @@ def _open_rerun(rrd) -> None:
     subprocess.Popen([exe, str(rrd)], start_new_session=True)
 
 
+@contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM ends a long command like Ctrl-C does (KeyboardInterrupt), so it is caught and
+    recorded as `interrupted` instead of killing the process with meta.json left `running`."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous is not signal.SIG_IGN:
+        signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        if previous is not signal.SIG_IGN:
+            signal.signal(signal.SIGTERM, previous)
+
+
 @app.command("train-encoder")
 @user_errors
 def train_encoder(
@@ -284,10 +363,17 @@ def train_encoder(
         raise UserError(f"--dataset {dataset}: no such file")
     run = RunDir.create(out, cfg, command="train-encoder", argv=sys.argv)
     try:
-        metrics = train(cfg, run, dataset=Path(dataset) if dataset else None, progress=not quiet)
+        with _sigterm_as_interrupt():
+            metrics = train(
+                cfg, run, dataset=Path(dataset) if dataset else None, progress=not quiet
+            )
+    except KeyboardInterrupt:
+        run.finish("interrupted", error="interrupted by a signal (SIGINT or SIGTERM)")
+        typer.echo(f"error: interrupted; what was written is in {run.path}", err=True)
+        typer.echo(str(run.path))
+        raise typer.Exit(code=1) from None
     except BaseException as exc:
-        status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
-        run.finish(status, error=f"{type(exc).__name__}: {exc}")
+        run.finish("failed", error=f"{type(exc).__name__}: {exc}")
         raise
     run.finish("completed")
     if not quiet:

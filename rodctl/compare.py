@@ -60,7 +60,7 @@ from rodctl.executors.local import CANCELLED
 from rodctl.runs import RunDir, jsonable, seed_sequence, write_json_atomic
 
 #: Episode outcomes, in the order the summary lists them ("error": the episode raised).
-OUTCOMES = ("converged", "stalled", "step_limit", "diverged", "lost_tracking", "error")
+OUTCOMES = ("converged", "stalled", "pinned", "step_limit", "diverged", "lost_tracking", "error")
 
 #: Columns of results.csv, in order.
 CSV_COLUMNS = (
@@ -877,7 +877,7 @@ def _report(
         _write_figures(folder / "figures", records, rows, list(cfg.methods))
     if progress:
         title = f"{cfg.name}: {len(targets)} targets, {wall:.0f} s"
-        _print_table(header, lines, title + (" (PARTIAL)" if partial else ""))
+        _print_table(summary, title + (" (PARTIAL)" if partial else ""))
 
 
 def _band_names(cfg: CompareConfig) -> list[str]:
@@ -1000,14 +1000,44 @@ def _write_figures(folder: Path, records: dict, rows: Sequence[dict], methods: l
     success_figure(rows, methods, folder / "success_vs_difficulty.png")
 
 
-def _print_table(header: Sequence[str], lines: Sequence[Sequence[str]], title: str) -> None:
+def terminal_table(summary: dict, title: str) -> Any:
+    """The summary as a rich table that fits 80 columns (the full table is in summary.md).
+
+    Columns: success rate; median [IQR] steps to converge; paired median (targets every
+    method converged on); median smoothness; median final pixel error; stalled / step-limit /
+    failed episodes.
+    """
+    from rich import box
     from rich.table import Table
 
+    table = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
+    for name, justify in (
+        ("method", "left"),
+        ("success", "right"),
+        ("steps [IQR]", "right"),
+        ("paired", "right"),
+        ("smooth", "right"),
+        ("px", "right"),
+        ("st/lim/fail", "right"),
+    ):
+        table.add_column(name, justify=justify, no_wrap=True, min_width=len(name))
+    for m, st in summary["methods"].items():
+        rate = st["success_rate"]
+        o = st["outcomes"]
+        fails = o["diverged"] + o["lost_tracking"] + o["error"]
+        table.add_row(
+            m,
+            f"{_fmt(None if rate is None else 100 * rate)}%",
+            f"{_fmt(st['steps_median'])} [{_fmt(st['steps_q25'])}-{_fmt(st['steps_q75'])}]",
+            _fmt(st["paired_steps_median"]),
+            _fmt(st["smoothness_median"], ".3f"),
+            _fmt(st["final_pixel_error_median"], ".2f"),
+            f"{o['stalled']}/{o['step_limit']}/{fails}",
+        )
+    return table
+
+
+def _print_table(summary: dict, title: str) -> None:
     from rodctl.display import stderr
 
-    table = Table(title=title)
-    for h in header:
-        table.add_column(h)
-    for line in lines:
-        table.add_row(*line)
-    stderr.print(table)
+    stderr.print(terminal_table(summary, title))

@@ -209,7 +209,8 @@ class ShapeServoEnv(gym.Env):
             seed: the episode seed. None: the config's `seed` on the first reset, then a seed
                 drawn from the environment's own generator (Gymnasium's convention).
             options: optional `config` (replaces the config: `ExperimentConfig`, mapping or
-                path), `target_pose` ([x, y, theta], else `run.target` decides) and
+                path), `target_pose` ([x, y, theta], else `run.target` decides), `target` (a
+                `Target` from `make_target`, reused without driving the rod there again) and
                 `start_pose` (the gripper pose the episode starts from, else the home pose).
 
         Raises:
@@ -229,12 +230,17 @@ class ShapeServoEnv(gym.Env):
         else:
             rod = cfg.rod
         self._rod_cfg = rod
-        unknown = set(options) - {"target_pose", "start_pose"}
+        unknown = set(options) - {"target_pose", "start_pose", "target"}
         if unknown:
             raise ValueError(f"reset: unknown options {sorted(unknown)}")
         self.times = StageTimes()
         self._new_camera(seed)
-        self.target = self._make_target(options.get("target_pose"), seed)
+        given = options.get("target")
+        if given is not None and not isinstance(given, Target):
+            raise ValueError("reset: options['target'] must be a Target (from make_target)")
+        # A target made earlier (`make_target`) is reused as is: the clean camera that sees it
+        # has no noise stream, so it is the same target this episode would make.
+        self.target = given or self._make_target(options.get("target_pose"), seed)
         self.sim = RodSim(rod)
         self.home_pose = self.sim.home_pose
         self.steps = 0
@@ -303,22 +309,37 @@ class ShapeServoEnv(gym.Env):
     # --- internals -----------------------------------------------------------------------------
 
     def _new_camera(self, seed: int) -> None:
-        """A camera with a fresh noise stream for episode `seed`, and its extractor."""
+        """A camera with a fresh noise stream for episode `seed`, and its extractor; and the
+        clean camera the target is seen with."""
         cfg = self.cfg
         self.camera = Camera(cfg.camera, rng(seed, "camera"))
         self.extractor = CenterlineExtractor(
             cfg.camera, self.camera, self.clamp_pose, rod_length=cfg.rod.length
         )
+        # The target is what the rod looks like in the target pose, not one noisy frame of it:
+        # with the camera's nuisances on, one noise artefact in the target frame would bias
+        # every method's goal (or make the target unusable). Same camera pose and scene, no
+        # pixel noise, blur or occluders.
+        render = cfg.camera.render.model_copy(
+            update={"noise_std": 0.0, "blur_sigma": 0.0, "occlusions": [], "random_occlusions": 0}
+        )
+        clean = cfg.camera.model_copy(update={"render": render})
+        self._target_camera = Camera(clean)
+        self._target_extractor = CenterlineExtractor(
+            clean, self._target_camera, self.clamp_pose, rod_length=cfg.rod.length
+        )
 
-    def _look(self, sim: RodSim | None = None) -> Frame:
-        """Render the rod as the camera sees it and extract its centerline."""
+    def _look(self, sim: RodSim | None = None, *, clean: bool = False) -> Frame:
+        """Render the rod as the camera sees it (`clean`: without nuisances) and extract it."""
         sim = sim or self.sim
+        camera = self._target_camera if clean else self.camera
+        extractor = self._target_extractor if clean else self.extractor
         t = time.perf_counter()
         truth = sim.centerline()
         gripper = sim.gripper_pose
-        image = self.camera.render(truth, gripper, self.clamp_pose)
-        ext = self.extractor.extract(image, gripper)
-        projected = self.camera.project(resample_polyline(truth, self.cfg.camera.points))
+        image = camera.render(truth, gripper, self.clamp_pose)
+        ext = extractor.extract(image, gripper)
+        projected = camera.project(resample_polyline(truth, self.cfg.camera.points))
         self.times.vision += time.perf_counter() - t
         return Frame(truth, projected, image, ext.points, ext.ok, ext.note)
 
@@ -382,7 +403,7 @@ class ShapeServoEnv(gym.Env):
             )
         for pose in candidates:
             res = sim.move_to(pose)
-            frame = self._look(sim)
+            frame = self._look(sim, clean=True)
             if res.diverged or not res.settled or not frame.ok:
                 why = frame.note or ("diverged" if res.diverged else "did not settle")
                 if given is not None:

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from rodctl import metrics
 from rodctl.config import ExperimentConfig, dump_config
 from rodctl.env import Q, ShapeServoEnv, StageTimes
 from rodctl.errors import UserError
@@ -42,6 +43,7 @@ class Outcome(enum.StrEnum):
 
     CONVERGED = "converged"  # pixel error (and T1 if asked) below tolerance
     STALLED = "stalled"  # no progress while the descent direction J^T e has vanished
+    PINNED = "pinned"  # no progress while every command is clipped by the workspace
     STEP_LIMIT = "step_limit"  # run.max_steps reached
     DIVERGED = "diverged"  # NaN, a joint gap, or a non-finite command
     LOST_TRACKING = "lost_tracking"  # the camera lost the rod for too many frames
@@ -82,6 +84,7 @@ class StopRule:
     cfg: Any
     _lost: int = 0
     _window: deque = field(default_factory=deque)
+    _clipped: deque = field(default_factory=deque)
 
     @classmethod
     def from_config(cls, cfg: ExperimentConfig) -> StopRule:
@@ -91,6 +94,7 @@ class StopRule:
         self._lost = 0
         # Pixel errors of the last stall_window + 1 good frames: progress over stall_window steps.
         self._window = deque(maxlen=self.cfg.stall_window + 1)
+        self._clipped = deque(maxlen=self.cfg.stall_window)
 
     def converged(self, rec: StepRecord) -> bool:
         """Pixel error below `pixel_tolerance` (and T1 below `t1_tolerance` when set)."""
@@ -122,23 +126,30 @@ class StopRule:
         if self.converged(rec):
             return Outcome.CONVERGED
         self._window.append(rec.pixel_error)
-        if len(self._window) == self._window.maxlen and self._stalled(rec):
-            return Outcome.STALLED
+        self._clipped.append(rec.clipped)
+        if len(self._window) == self._window.maxlen and self._no_progress():
+            if all(self._clipped):
+                return Outcome.PINNED  # the law pushes against the workspace; J is not at fault
+            if self._descent_vanished(rec):
+                return Outcome.STALLED
         return None
 
-    def _stalled(self, rec: StepRecord) -> bool:
-        """No progress over the window while the descent direction J^T e has vanished.
+    def _no_progress(self) -> bool:
+        """The pixel error has not improved by `stall_improvement` over the window."""
+        window = list(self._window)
+        start, best = window[0], min(window[1:])
+        return best > start * (1.0 - self.cfg.stall_improvement)
+
+    def _descent_vanished(self, rec: StepRecord) -> bool:
+        """The descent direction J^T e has vanished while e has not.
 
         With p = 6 > q = 3 any law descending ||e||^2 along J can rest where J^T e = 0 but
         e != 0 (docs/method.md): that is a stall, not a slow convergence.
         """
-        window = list(self._window)
-        start, best = window[0], min(window[1:])
-        no_progress = best > start * (1.0 - self.cfg.stall_improvement)
         e = rec.s_target - rec.s
         denom = np.linalg.norm(rec.J) * np.linalg.norm(e)
         grad = np.linalg.norm(rec.J.T @ e) / denom if denom > 0 else 0.0
-        return bool(no_progress and grad < self.cfg.stall_gradient)
+        return bool(grad < self.cfg.stall_gradient)
 
 
 @dataclass
@@ -241,7 +252,10 @@ def run_episode(
             raise
         result = loop.finish(Outcome.ERROR, error=exc)
         raise EpisodeFailed(result) from exc
-    return loop.finish(outcome)
+    result = loop.finish(outcome)
+    if result.error is not None:  # the logs could not be finalised
+        raise EpisodeFailed(result)
+    return result
 
 
 class _Loop:
@@ -372,6 +386,22 @@ class _Loop:
             self.close(summary, outcome.status)
         return EpisodeResult(outcome, summary, self.header, self.records, message, tb)
 
+    def _benchmark_metrics(self, outcome: Outcome) -> dict[str, Any]:
+        """The comparison metrics of `rodctl.metrics` for this episode."""
+        env, recs = self.env, self.records
+        bound = metrics.step_bound(env.home_pose, env.target.pose, env.max_step)
+        trans, rot = metrics.smoothness(recs, env.max_step)
+        converged = outcome is Outcome.CONVERGED
+        return {
+            "step_bound": bound,
+            "excess_steps": recs[-1].step - bound if converged else None,
+            "smoothness_translation": trans,
+            "smoothness_rotation": rot,
+            "near_origin_steps": (
+                metrics.near_origin_steps(recs, env.cfg.run.pixel_tolerance) if converged else None
+            ),
+        }
+
     def summary(self, outcome: Outcome) -> RunSummary:
         env, method, recs = self.env, self.method, self.records
         wall = time.perf_counter() - self.wall0
@@ -398,6 +428,7 @@ class _Loop:
                 path_length=float(np.sum(np.linalg.norm(us[:, :2], axis=1))),
                 rotation_length=float(np.sum(np.abs(us[:, 2]))),
                 smoothness=float(np.sum(np.linalg.norm(np.diff(us, axis=0), axis=1))),
+                **self._benchmark_metrics(outcome),
                 saturated_steps=int(sum(bool(np.any(r.saturated)) for r in recs)),
                 clipped_steps=int(sum(r.clipped for r in recs)),
                 unsettled_steps=int(sum(not r.settled for r in recs)),

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from rodctl.config.loading import safe_load
 from rodctl.config.logging import LoggingConfig
 from rodctl.errors import UserError
 from rodctl.logs.codec import ReadRun
@@ -242,6 +243,44 @@ def compare_records(
             if not same:
                 out.append(f"step {a.step}: {f.name} differs")
     return out
+
+
+def config_file_differences(run: ReadRun) -> list[str]:
+    """How the run directory's config.yaml differs from the config embedded in the log.
+
+    The log is the source of truth; a config.yaml that was edited, replaced or deleted beside it
+    no longer describes the run, and `--verify` says so (empty list: they agree, or the log was
+    given as a bare MCAP file with no run directory around it).
+    """
+    folder = Path(run.path).parent
+    path = folder / "config.yaml"
+    if Path(run.path).name != "run.mcap" or not (folder / "meta.json").exists():
+        return []
+    if not path.is_file():
+        return [f"{path}: missing (the log's embedded config is the run's)"]
+    try:
+        on_disk = safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        return [f"{path}: unreadable ({str(exc).splitlines()[0]})"]
+    logged = yaml.safe_load(run.header.config_yaml)
+    if not isinstance(on_disk, dict):
+        return [f"{path}: not a config mapping"]
+    return [f"{path}: {d}" for d in _dict_differences(logged, on_disk)]
+
+
+def _dict_differences(a: Any, b: Any, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for key in sorted(set(a) | set(b), key=str):
+            where = f"{prefix}.{key}" if prefix else str(key)
+            if key not in b:
+                out.append(f"{where} missing (logged {a[key]!r})")
+            elif key not in a:
+                out.append(f"{where} not in the logged config ({b[key]!r})")
+            else:
+                out += _dict_differences(a[key], b[key], where)
+        return out
+    return [] if a == b else [f"{prefix}: logged {a!r}, config.yaml {b!r}"]
 
 
 def verify(run: ReadRun, *, progress: bool = False) -> list[str]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -23,7 +24,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from rodctl.config import dump_config
-from rodctl.errors import UserError
+from rodctl.errors import RunFailed, UserError, describe_os_error
 
 #: Every consumer of randomness, in a fixed order. Each gets its own independent stream derived
 #: from the config's one seed; append new names at the end so existing streams stay unchanged.
@@ -128,8 +129,34 @@ def write_json_atomic(path: Path, data: Any) -> None:
     half a file and every JSON parser reads it (no NaN)."""
     tmp = path.with_name(path.name + ".tmp")
     text = json.dumps(jsonable(data), indent=2, allow_nan=False)
-    tmp.write_text(text + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(text + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_json_best_effort(path: Path, data: Any) -> str | None:
+    """Write JSON even on a full disk if at all possible; the error message if not.
+
+    First atomically (`write_json_atomic`). If that fails and the file exists, it is rewritten
+    in place: truncating it frees its blocks, and the new text is about as long, so a status
+    update usually fits where a second file would not.
+    """
+    try:
+        write_json_atomic(path, data)
+        return None
+    except OSError as exc:
+        first = describe_os_error(exc)
+    if not path.exists():
+        return first
+    try:
+        with path.open("w", encoding="utf-8") as fh:
+            fh.write(json.dumps(jsonable(data), separators=(",", ":"), allow_nan=False))
+        return None
+    except OSError:
+        return first
 
 
 @dataclass
@@ -170,7 +197,6 @@ class RunDir:
                 raise UserError(f"--out {parent}: cannot create a run directory: {exc}") from None
         else:  # pragma: no cover - 10k runs in one second
             raise UserError(f"{parent}: too many runs named {base!r}")
-        (path / "config.yaml").write_text(dump_config(cfg), encoding="utf-8")
         run = cls(path=path)
         run.meta = {
             "run_id": path.name,
@@ -183,16 +209,26 @@ class RunDir:
             "started_at": _now(),
             "ended_at": None,
         }
-        run.write_meta()
+        try:
+            run.write_meta()
+            (path / "config.yaml").write_text(dump_config(cfg), encoding="utf-8")
+        except OSError as exc:
+            # Nothing has run yet: leave no half-written run directory behind.
+            shutil.rmtree(path, ignore_errors=True)
+            raise RunFailed(f"cannot start the run in {parent}: {describe_os_error(exc)}") from None
         return run
 
     def write_meta(self) -> None:
         """Rewrite meta.json from `self.meta`."""
         write_json_atomic(self.path / "meta.json", self.meta)
 
-    def finish(self, status: str, **extra: Any) -> None:
-        """Record the terminal status (completed, failed or interrupted) and the end time."""
+    def finish(self, status: str, **extra: Any) -> str | None:
+        """Record the terminal status (completed, failed or interrupted) and the end time.
+
+        Never raises for a full disk: returns the error message when meta.json could not be
+        written at all (the caller says so), else None.
+        """
         if status not in STATUSES[1:]:
             raise ValueError(f"terminal status must be one of {STATUSES[1:]}, got {status!r}")
         self.meta.update(status=status, ended_at=_now(), **extra)
-        self.write_meta()
+        return write_json_best_effort(self.path / "meta.json", self.meta)

@@ -14,15 +14,16 @@ from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from rodctl.config import ExperimentConfig
 from rodctl.env import ShapeServoEnv
 from rodctl.episode import EpisodeFailed, Outcome, run_episode
-from rodctl.errors import UserError
+from rodctl.errors import UserError, describe_os_error
 from rodctl.logs.base import Sink
 from rodctl.method import Method
 from rodctl.records import RunSummary, StepRecord
-from rodctl.runs import RunDir, write_json_atomic
+from rodctl.runs import RunDir, write_json_best_effort
 
 #: Exit codes of `rodctl simulate` (architecture.md, CLI contract).
 EXIT_OK, EXIT_RUN_FAILED = 0, 1
@@ -118,22 +119,45 @@ def simulate(
             )
         except EpisodeFailed as exc:
             result = exc.result
-            (run.path / "error.txt").write_text(result.traceback or "", encoding="utf-8")
+            _best_effort(lambda: (run.path / "error.txt").write_text(result.traceback or ""))
         except UserError as exc:
             # Bad input found before the first step: nothing to keep but the config.
             run.finish("failed", error=str(exc))
             raise
-        summary = result.summary
-        write_json_atomic(run.path / "summary.json", summary.to_json())
-        if cfg.logging.figures and result.records:
-            from rodctl.plots import write_figures
-
-            write_figures(result.header, result.records, run.path / "figures")
         error = result.error or (
             f"interrupted by {stops.reason() or 'SIGINT'}"
             if result.outcome is Outcome.INTERRUPTED
             else None
         )
-        run.finish(result.status, outcome=summary.outcome, **({"error": error} if error else {}))
-    code = EXIT_OK if result.status == "completed" else EXIT_RUN_FAILED
+        summary = result.summary
+        problems = [write_json_best_effort(run.path / "summary.json", summary.to_json())]
+        if cfg.logging.figures and result.records and result.error is None:
+            problems.append(_best_effort(lambda: _figures(result, run.path / "figures")))
+        lost = [p for p in problems if p]
+        status = result.status
+        if lost:
+            # The run itself may have been fine; what it could not write makes it a failure.
+            error = "; ".join(filter(None, [error, *lost]))
+            status = "failed" if status == "completed" else status
+        extra = {"error": error} if error else {}
+        meta_error = run.finish(status, outcome=summary.outcome, **extra)
+        if meta_error:
+            error = "; ".join(filter(None, [error, f"meta.json not updated: {meta_error}"]))
+            status = "failed" if status == "completed" else status
+    code = EXIT_OK if status == "completed" else EXIT_RUN_FAILED
     return SimulateResult(run=run, summary=summary, exit_code=code, error=error)
+
+
+def _figures(result: Any, folder: Path) -> None:
+    from rodctl.plots import write_figures
+
+    write_figures(result.header, result.records, folder)
+
+
+def _best_effort(write: Callable[[], object]) -> str | None:
+    """Run a write that may meet a full disk; its error message instead of an exception."""
+    try:
+        write()
+        return None
+    except OSError as exc:
+        return describe_os_error(exc)

@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import pytest
+from paths import REPO
 from typer.testing import CliRunner
 
 from rodctl.cli import app
@@ -64,3 +65,29 @@ def test_config_show_prints_resolved_yaml(repo):
     result = runner.invoke(app, ["config", "show", str(repo / "configs/default.yaml")])
     assert result.exit_code == 0
     assert "rod:" in result.stdout and "bending_stiffness" in result.stdout
+
+
+def test_version_and_config_show_derived_values():
+    from rodctl import __version__
+
+    res = CliRunner().invoke(app, ["--version"])
+    assert res.exit_code == 0 and res.output.strip() == f"rodctl {__version__}"
+    res = CliRunner().invoke(app, ["config", "show", str(REPO / "configs/default.yaml")])
+    assert res.exit_code == 0
+    assert "#   rod.home_pose: [0.4, 0.1, 0.5]" in res.output
+    assert "#   camera.cx: 319.5" in res.output and "rod.dt:" in res.output
+    assert "0000000" not in res.output  # floats print cleanly
+
+
+def test_simulate_json_prints_one_parseable_object(tmp_path):
+    res = CliRunner().invoke(
+        app,
+        ["simulate", str(REPO / "configs/default.yaml"), "--json", "-o", str(tmp_path),
+         "--set", "run.max_steps=3", "--set", "logging.rerun=false",
+         "--set", "logging.figures=false"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    import json
+
+    data = json.loads(res.stdout)
+    assert data["steps"] == 3 and data["run_dir"].startswith(str(tmp_path))

@@ -217,3 +217,28 @@ def test_unreachable_target_pose_is_a_user_error(tmp_path):
             progress=False,
             workers=1,
         )
+
+
+def test_terminal_table_fits_80_columns_without_truncating_a_cell():
+    from rich.console import Console
+
+    from rodctl.compare import terminal_table
+
+    st = {
+        "success_rate": 0.77,
+        "outcomes": {"stalled": 20, "step_limit": 3, "diverged": 1, "lost_tracking": 0, "error": 0},
+        "steps_median": 17.0,
+        "steps_q25": 9.0,
+        "steps_q75": 25.0,
+        "paired_steps_median": 17.0,
+        "smoothness_median": 0.057,
+        "final_pixel_error_median": 0.97,
+    }
+    names = ["paper", "ma2022-wls", "aghajanzadeh2022", "broyden-mfac"]
+    console = Console(width=80, record=True)
+    console.print(terminal_table({"methods": {n: st for n in names}}, "compare: 100 targets"))
+    text = console.export_text()
+    assert "…" not in text
+    assert all(len(line) <= 80 for line in text.splitlines())
+    for cell in ("aghajanzadeh2022", "77%", "17 [9-25]", "0.057", "0.97", "20/3/1"):
+        assert cell in text

@@ -97,3 +97,15 @@ def test_random_rollout_until_truncated():
         steps += 1
     assert steps <= 4
     env.close()
+
+
+def test_a_target_made_once_is_the_target_every_episode_would_make():
+    cfg = _config("camera.render.noise_std=3")
+    env = ShapeServoEnv(cfg)
+    target = env.make_target([0.38, 0.05, 0.6], seed=9)
+    env.reset(seed=4, options={"target_pose": [0.38, 0.05, 0.6]})
+    np.testing.assert_array_equal(env.target.pixels, target.pixels)  # a clean camera: no noise
+    obs_a, _ = env.reset(seed=4, options={"target": target})
+    assert env.target is target
+    obs_b, _ = env.reset(seed=4, options={"target_pose": [0.38, 0.05, 0.6]})
+    np.testing.assert_array_equal(obs_a["centerline"], obs_b["centerline"])

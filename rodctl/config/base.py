@@ -6,27 +6,73 @@ validates on assignment, so a config mutated after loading cannot drift out of r
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Union
+import math
+from typing import Annotated, Any, Union, get_args
 
-from pydantic import BaseModel, ConfigDict, Field, GetCoreSchemaHandler
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    GetCoreSchemaHandler,
+    model_validator,
+)
 
 
 class StrictModel(BaseModel):
-    """Base for all config models: unknown keys, NaN and infinity are errors; defaults validated."""
+    """Base for all config models: unknown keys, NaN and infinity are errors; defaults validated;
+    a YAML boolean is not a number (`max_steps: true` would otherwise be 1)."""
 
     model_config = ConfigDict(
         extra="forbid", validate_default=True, validate_assignment=True, allow_inf_nan=False
     )
 
+    @model_validator(mode="before")
+    @classmethod
+    def _no_booleans_for_numbers(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            for name, value in data.items():
+                field = cls.model_fields.get(name) if isinstance(name, str) else None
+                if field is not None and _holds_bool(value) and not _accepts_bool(field.annotation):
+                    raise ValueError(f"{name}: expected a number, not the boolean {value!r}")
+        return data
+
+
+def _holds_bool(value: Any) -> bool:
+    if isinstance(value, bool):
+        return True
+    return isinstance(value, list | tuple) and any(_holds_bool(v) for v in value)
+
+
+def _accepts_bool(annotation: Any) -> bool:
+    """Whether `bool` appears anywhere in a type annotation."""
+    if annotation is bool:
+        return True
+    return any(_accepts_bool(a) for a in get_args(annotation))
+
+
+#: Physically sensible limits every config value is held to (validated up front, in the schema):
+#: a world coordinate within 100 m of the origin, an angle within 10 turns.
+MAX_COORDINATE_M = 100.0
+MAX_ANGLE_RAD = 20 * math.pi
+
+#: A world coordinate (m).
+Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE_M, le=MAX_COORDINATE_M)]
+#: An angle (rad).
+Angle = Annotated[float, Field(ge=-MAX_ANGLE_RAD, le=MAX_ANGLE_RAD)]
 
 #: A planar pose ``[x, y, theta]`` in the world frame (metres, radians, y up).
 Pose = Annotated[
-    tuple[float, float, float],
+    tuple[Coordinate, Coordinate, Angle],
     Field(description="Planar pose [x, y, theta]: metres, metres, radians; world frame, y up."),
 ]
 
-#: A 2-D point ``[x, y]``.
-Point2 = tuple[float, float]
+#: A 2-D point ``[x, y]`` (m).
+Point2 = tuple[Coordinate, Coordinate]
+
+
+def bounded(lo: float, hi: float, *, strict_lo: bool = False) -> Any:
+    """A float type in [lo, hi] ((lo, hi] with `strict_lo`), for tuple items."""
+    return Annotated[float, Field(gt=lo, le=hi) if strict_lo else Field(ge=lo, le=hi)]
 
 
 class StageSlot:

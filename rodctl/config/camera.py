@@ -13,14 +13,19 @@ the per-pixel rod coverage an exact linear function of the colour (rodctl/vision
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, PositiveFloat, model_validator
 
 from rodctl.config.base import Point2, StrictModel
 
+#: One colour channel, 0-255.
+Channel = Annotated[int, Field(ge=0, le=255)]
+#: A pixel coordinate, generously outside any image.
+Pixel = Annotated[float, Field(ge=-1e5, le=1e5)]
+
 #: An RGB colour, each channel 0-255.
-Rgb = tuple[int, int, int]
+Rgb = tuple[Channel, Channel, Channel]
 
 
 class RenderConfig(StrictModel):
@@ -41,7 +46,7 @@ class RenderConfig(StrictModel):
     )
     background_color: Rgb = Field((235, 235, 235), description="Background colour (RGB).")
     checker_color: Rgb = Field((200, 200, 200), description="Second checkerboard colour (RGB).")
-    checker_size: PositiveFloat = Field(0.05, description="Checkerboard square size (m).")
+    checker_size: PositiveFloat = Field(0.05, le=100.0, description="Checkerboard square size (m).")
     draw_gripper: bool = Field(True, description="Draw the gripper (palm and two fingers).")
     draw_clamp: bool = Field(True, description="Draw the clamp block.")
     fixture_color: Rgb = Field((80, 80, 80), description="Colour of gripper and clamp (RGB).")
@@ -54,7 +59,7 @@ class RenderConfig(StrictModel):
         le=10.0,
         description="Gaussian blur sigma (px), applied before the noise; 0 = off.",
     )
-    occlusions: list[tuple[float, float, float, float]] = Field(
+    occlusions: list[tuple[Pixel, Pixel, Pixel, Pixel]] = Field(
         default_factory=list,
         description="Fixed occluding rectangles [u0, v0, u1, v1] in pixels, drawn over the rod.",
     )
@@ -62,7 +67,7 @@ class RenderConfig(StrictModel):
         0, ge=0, le=20, description="Number of square occluders placed at random each frame."
     )
     occlusion_size_px: float = Field(
-        30.0, gt=0.0, description="Side (px) of each random occluding square."
+        30.0, le=1e4, gt=0.0, description="Side (px) of each random occluding square."
     )
     occluder_color: Rgb = Field((150, 150, 150), description="Colour of occluders (RGB).")
 
@@ -87,7 +92,10 @@ class ExtractConfig(StrictModel):
     """How the centerline is traced in the image (see `rodctl/vision/centerline.py`)."""
 
     step_px: float | None = Field(
-        None, gt=0.5, description="Tracking step along the rod (px); None = the rod width."
+        None,
+        le=1000.0,
+        gt=0.5,
+        description="Tracking step along the rod (px); None = the rod width.",
     )
     arc_length: Literal["plane", "image"] = Field(
         "plane",
@@ -98,7 +106,7 @@ class ExtractConfig(StrictModel):
         ),
     )
     max_gap_px: float = Field(
-        80.0, ge=0.0, description="Longest occluded stretch (px) that may be bridged."
+        80.0, le=1e4, ge=0.0, description="Longest occluded stretch (px) that may be bridged."
     )
     on_gap: Literal["bridge", "fail"] = Field(
         "bridge",
@@ -121,22 +129,33 @@ class CameraConfig(StrictModel):
     with world -y, so the image is not mirrored.
     """
 
-    width: int = Field(640, ge=16, description="Image width (px).")
-    height: int = Field(480, ge=16, description="Image height (px).")
-    points: int = Field(100, ge=2, description="Centerline points N extracted per image.")
-    fx: PositiveFloat = Field(560.0, description="Focal length along u (px).")
-    fy: PositiveFloat = Field(560.0, description="Focal length along v (px).")
-    cx: float | None = Field(None, description="Principal point u (px); None = (width - 1) / 2.")
-    cy: float | None = Field(None, description="Principal point v (px); None = (height - 1) / 2.")
+    width: int = Field(640, le=8192, ge=16, description="Image width (px).")
+    height: int = Field(480, le=8192, ge=16, description="Image height (px).")
+    points: int = Field(
+        100, le=10_000, ge=2, description="Centerline points N extracted per image."
+    )
+    fx: PositiveFloat = Field(560.0, le=1e6, description="Focal length along u (px).")
+    fy: PositiveFloat = Field(560.0, le=1e6, description="Focal length along v (px).")
+    cx: float | None = Field(
+        None, ge=-1e5, le=1e5, description="Principal point u (px); None = (width - 1) / 2."
+    )
+    cy: float | None = Field(
+        None, ge=-1e5, le=1e5, description="Principal point v (px); None = (height - 1) / 2."
+    )
     look_at: Point2 = Field(
         (0.25, -0.03), description="World point (m) on the plane the optical axis passes through."
     )
-    distance: PositiveFloat = Field(1.2, description="Camera centre to `look_at` distance (m).")
+    distance: PositiveFloat = Field(
+        1.2, le=100.0, description="Camera centre to `look_at` distance (m)."
+    )
     tilt_deg: float = Field(
         25.0, ge=0.0, lt=80.0, description="Angle between optical axis and plane normal (deg)."
     )
     azimuth_deg: float = Field(
-        0.0, description="Rotation of the whole camera about the world z axis (deg)."
+        0.0,
+        ge=-360.0,
+        le=360.0,
+        description="Rotation of the whole camera about the world z axis (deg).",
     )
     render: RenderConfig = RenderConfig()
     extract: ExtractConfig = ExtractConfig()

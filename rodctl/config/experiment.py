@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -36,7 +37,9 @@ class ExperimentConfig(StrictModel):
         max_length=64,
         description="Run name, used in the run directory name (letters, digits, . _ -).",
     )
-    seed: int = Field(0, ge=0, description="The one seed every random consumer derives from.")
+    seed: int = Field(
+        0, ge=0, le=2**63 - 1, description="The one seed every random consumer derives from."
+    )
     rod: RodConfig = RodConfig()
     camera: CameraConfig = CameraConfig()
     feature: FeatureConfig = stage_field("feature", "The shape feature s = f_s(c), by `type`.")
@@ -52,6 +55,20 @@ class ExperimentConfig(StrictModel):
         return default_stage_types(data, STAGE_SECTIONS)
 
     @model_validator(mode="after")
+    def _fits_in_memory(self) -> ExperimentConfig:
+        """Refuse up front a run whose frames cannot fit in memory, instead of failing late."""
+        need = estimated_memory(self)
+        have = physical_memory()
+        if have and need > 0.5 * have:
+            raise ValueError(
+                f"this run would hold about {need / 2**30:.1f} GiB of camera frames "
+                f"(camera.width x camera.height x 3 bytes, x logging.flush_every_steps frames "
+                f"buffered by the logs, twice) but the machine has {have / 2**30:.1f} GiB; make "
+                "the image smaller or flush the logs more often"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _stages_fit_together(self) -> ExperimentConfig:
         """A stage config may check the rest of the experiment (`check_experiment(cfg)`), e.g.
         the offline model's servoed nodes must be the feature's."""
@@ -60,3 +77,19 @@ class ExperimentConfig(StrictModel):
             if check is not None:
                 check(self)
         return self
+
+
+def estimated_memory(cfg: ExperimentConfig) -> int:
+    """Bytes a run holds at its peak, roughly: the camera frames (the image, its noise and blur
+    copies, and the frames the MCAP and Rerun writers buffer between flushes), plus the rod."""
+    frame = cfg.camera.width * cfg.camera.height * 3
+    buffered = cfg.logging.flush_every_steps if cfg.logging.image_rate_hz > 0 else 0
+    return 4 * frame + 2 * frame * buffered + 4096 * cfg.rod.segments
+
+
+def physical_memory() -> int:
+    """Bytes of physical memory (0 when the platform does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 0

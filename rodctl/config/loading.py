@@ -22,6 +22,46 @@ class ConfigError(UserError):
     """A config that cannot be used. `str(err)` is the user-facing message."""
 
 
+#: Deepest nesting a config may have (the real ones have 4): a guard against hostile files.
+MAX_DEPTH = 32
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """`yaml.SafeLoader` that refuses duplicate keys (silently, the last would win) and
+    nesting deeper than `MAX_DEPTH` (the parser would otherwise recurse until it crashes)."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        self._depth = getattr(self, "_depth", 0) + 1
+        try:
+            if self._depth > MAX_DEPTH:
+                mark = self.peek_event().start_mark
+                raise yaml.YAMLError(
+                    f"nesting deeper than {MAX_DEPTH} levels (line {mark.line + 1}, column "
+                    f"{mark.column + 1})"
+                )
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        seen: dict[Any, Any] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                mark = key_node.start_mark
+                raise yaml.YAMLError(
+                    f"duplicate key {key!r} (line {mark.line + 1}, column {mark.column + 1}; "
+                    f"first at line {seen[key].line + 1})"
+                )
+            seen[key] = key_node.start_mark
+        return super().construct_mapping(node, deep=deep)
+
+
+def safe_load(text: str) -> Any:
+    """`yaml.safe_load` with duplicate keys and excessive nesting refused (`yaml.YAMLError`)."""
+    return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+
+
 def read_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping from `path` with `yaml.safe_load`.
 
@@ -38,7 +78,9 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read: {exc}") from None
     try:
-        data = yaml.safe_load(text)
+        data = safe_load(text)
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply to be a config") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
@@ -69,9 +111,12 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if any(not p.strip() for p in parts):
         raise ConfigError(f"--set {text!r}: empty segment in the dotted key {key!r}")
     try:
-        value = yaml.safe_load(raw) if raw.strip() else None
-    except yaml.YAMLError:
-        raise ConfigError(f"--set {text!r}: the value {raw!r} is not valid YAML") from None
+        value = safe_load(raw) if raw.strip() else None
+    except (yaml.YAMLError, RecursionError) as exc:
+        why = "" if isinstance(exc, RecursionError) else f": {str(exc).splitlines()[0]}"
+        raise ConfigError(
+            f"--set {text!r}: the value {raw[:40]!r} is not valid YAML{why}"
+        ) from None
     return [p.strip() for p in parts], value
 
 
@@ -209,6 +254,24 @@ def load_config(
     return validate_config(data, config_source(path, overrides), model)
 
 
-def dump_config(cfg: BaseModel) -> str:
-    """The resolved config as YAML, every default filled in; loads back to an equal config."""
-    return yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False, default_flow_style=None)
+def dump_config(cfg: BaseModel, *, clean: bool = False) -> str:
+    """The resolved config as YAML, every default filled in; loads back to an equal config.
+
+    Args:
+        clean: for display, print floats with 12 significant digits (-0.02, not
+            -0.020000000000000004). Run directories and logs keep the exact values.
+    """
+    data = cfg.model_dump(mode="json")
+    if clean:
+        data = _clean_floats(data)
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+
+
+def _clean_floats(value: Any) -> Any:
+    if isinstance(value, float):
+        return float(f"{value:.12g}")
+    if isinstance(value, dict):
+        return {k: _clean_floats(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_clean_floats(v) for v in value]
+    return value

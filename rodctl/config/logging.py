@@ -22,6 +22,7 @@ class LoggingConfig(StrictModel):
     figures: bool = Field(True, description="Write the paper's figures as PNG under figures/.")
     image_rate_hz: float = Field(
         5.0,
+        le=1000.0,
         ge=0.0,
         description="Camera frames logged per second of simulated time (0 = none). The loop "
         "picks the steps; a frame is logged at most once per control step.",
@@ -34,11 +35,13 @@ class LoggingConfig(StrictModel):
     )
     mcap_chunk_size: int = Field(
         1 << 20,
+        le=1 << 30,
         ge=1024,
         description="Uncompressed bytes after which an MCAP chunk is closed and written.",
     )
     flush_every_steps: int = Field(
         10,
+        le=100_000,
         ge=1,
         description="Every this many steps, close the MCAP chunk and flush it to the OS, and send "
         "the buffered Rerun rows; a run killed without warning loses at most these steps.",

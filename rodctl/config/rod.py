@@ -16,15 +16,17 @@ from typing import Literal
 
 from pydantic import Field, NonNegativeFloat, PositiveFloat, model_validator
 
-from rodctl.config.base import Pose, StrictModel
+from rodctl.config.base import Angle, Coordinate, Pose, StrictModel, bounded
 
 
 class WorkspaceConfig(StrictModel):
     """Where the gripper may go. A pose outside is clipped or refused (see `on_violation`)."""
 
-    x_limits: tuple[float, float] = Field((0.05, 0.6), description="Gripper x range (m).")
-    y_limits: tuple[float, float] = Field((-0.35, 0.35), description="Gripper y range (m).")
-    theta_limits: tuple[float, float] = Field(
+    x_limits: tuple[Coordinate, Coordinate] = Field((0.05, 0.6), description="Gripper x range (m).")
+    y_limits: tuple[Coordinate, Coordinate] = Field(
+        (-0.35, 0.35), description="Gripper y range (m)."
+    )
+    theta_limits: tuple[Angle, Angle] = Field(
         (-2.0, 2.0), description="Gripper angle range (rad), world frame."
     )
     max_reach: float = Field(
@@ -49,10 +51,14 @@ class WorkspaceConfig(StrictModel):
 class RodConfig(StrictModel):
     """A planar elastic rod: one end clamped, the other held by a gripper moving in (x, y, θ)."""
 
-    length: PositiveFloat = Field(0.5, description="Rod length L (m).")
-    bending_stiffness: PositiveFloat = Field(5e-3, description="Bending stiffness EI (N m^2).")
-    mass_per_length: PositiveFloat = Field(0.0785, description="Mass per unit length rho*A (kg/m).")
-    segments: int = Field(50, ge=2, description="Number of rigid segments in the chain.")
+    length: PositiveFloat = Field(0.5, le=100.0, description="Rod length L (m).")
+    bending_stiffness: PositiveFloat = Field(
+        5e-3, le=1e6, description="Bending stiffness EI (N m^2)."
+    )
+    mass_per_length: PositiveFloat = Field(
+        0.0785, le=1e4, description="Mass per unit length rho*A (kg/m)."
+    )
+    segments: int = Field(50, le=1000, ge=2, description="Number of rigid segments in the chain.")
     clamp_pose: Pose = Field((0.0, 0.0, 0.0), description="Pose of the clamped end (world).")
     home_pose: Pose | None = Field(
         None,
@@ -64,14 +70,18 @@ class RodConfig(StrictModel):
     workspace: WorkspaceConfig = WorkspaceConfig()
     dt: PositiveFloat | None = Field(
         None,
+        le=0.1,
         description=(
             "Simulation time step (s). None: half the explicit-spring stability limit "
             "2/omega_max of the zig-zag mode, which depends on L, EI, rho*A, N, inertia_radius."
         ),
     )
-    iterations: int = Field(20, ge=1, description="Constraint solver iterations per time step.")
+    iterations: int = Field(
+        20, le=1000, ge=1, description="Constraint solver iterations per time step."
+    )
     damping: NonNegativeFloat = Field(
         1.0,
+        le=100.0,
         description=(
             "Global velocity damping as a fraction of critical damping of the first bending "
             "mode (1 = critical: fastest settling; 0 = undamped)."
@@ -88,14 +98,21 @@ class RodConfig(StrictModel):
         ),
     )
     control_period: PositiveFloat = Field(
-        0.1, description="Simulated time (s) over which one control step moves the gripper."
+        0.1,
+        le=10.0,
+        description="Simulated time (s) over which one control step moves the gripper.",
     )
-    max_step: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+    max_step: tuple[
+        bounded(0, 1.0, strict_lo=True),
+        bounded(0, 1.0, strict_lo=True),
+        bounded(0, 3.2, strict_lo=True),
+    ] = Field(  # noqa: E501
         (0.01, 0.01, 0.05),
         description="Per-axis limit [dx, dy, dtheta] (m, m, rad) on one control step's move.",
     )
     settle_speed_tol: PositiveFloat = Field(
         2e-4,
+        le=1e3,
         description=(
             "The rod counts as settled when no segment end moves faster than this (m/s) at two "
             "checks in a row. The residual shape error is about this speed / omega_1 (~10 um "
@@ -103,10 +120,11 @@ class RodConfig(StrictModel):
         ),
     )
     max_settle_time: PositiveFloat = Field(
-        5.0, description="Simulated time (s) allowed for settling after a move."
+        5.0, le=1000.0, description="Simulated time (s) allowed for settling after a move."
     )
     gap_limit: PositiveFloat = Field(
         1e-3,
+        le=1.0,
         description=(
             "A pivot joint opening wider than this (m), or any NaN, marks the simulation as "
             "diverged."

@@ -9,9 +9,11 @@ from typing import Literal
 
 from pydantic import Field, PositiveFloat, PositiveInt, model_validator
 
-from rodctl.config.base import Pose, StrictModel
+from rodctl.config.base import Pose, StrictModel, bounded
 
-Outcome = Literal["converged", "stalled", "step_limit", "diverged", "lost_tracking", "completed"]
+Outcome = Literal[
+    "converged", "stalled", "pinned", "step_limit", "diverged", "lost_tracking", "completed"
+]
 
 
 class TargetConfig(StrictModel):
@@ -24,11 +26,12 @@ class TargetConfig(StrictModel):
     )
     min_offset: float = Field(
         0.3,
+        le=100.0,
         ge=0.0,
         description="Sampled targets: least normalised distance from home (see README).",
     )
     max_offset: float = Field(
-        1.0, gt=0.0, description="Sampled targets: largest normalised distance from home."
+        1.0, le=100.0, gt=0.0, description="Sampled targets: largest normalised distance from home."
     )
 
     @model_validator(mode="after")
@@ -43,23 +46,33 @@ class TargetConfig(StrictModel):
 class RunConfig(StrictModel):
     """How long a run lasts and when it stops."""
 
-    max_steps: PositiveInt = Field(200, description="Step limit, probing steps included.")
+    max_steps: PositiveInt = Field(
+        200, le=1_000_000, description="Step limit, probing steps included."
+    )
     target: TargetConfig = TargetConfig()
-    probe_size: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+    probe_size: tuple[
+        bounded(0, 0.1, strict_lo=True),
+        bounded(0, 0.1, strict_lo=True),
+        bounded(0, 1.0, strict_lo=True),
+    ] = Field(  # noqa: E501
         (0.005, 0.005, 0.03),
         description="Size of the q + 1 probing moves that initialise J: [dx m, dy m, dtheta rad].",
     )
     pixel_tolerance: PositiveFloat = Field(
         1.0,
+        le=1e4,
         description="Converged when the mean distance (px) to the target centerline is below this…",
     )
     t1_tolerance: PositiveFloat | None = Field(
         None,
+        le=1e9,
         description="…and T1 = ||s* - s|| is below this (feature units; None: pixel error only, "
         "the common criterion when features of different methods are compared).",
     )
     stall_window: PositiveInt = Field(
-        15, description="Stalled when the pixel error has not improved for this many steps…"
+        15,
+        le=100_000,
+        description="Stalled when the pixel error has not improved for this many steps…",
     )
     stall_improvement: float = Field(
         0.02,
@@ -69,10 +82,11 @@ class RunConfig(StrictModel):
     )
     stall_gradient: PositiveFloat = Field(
         0.05,
+        le=1.0,
         description="…while ||J^T e|| / (||J|| ||e||) is below this (no descent direction left).",
     )
     max_lost_frames: PositiveInt = Field(
-        3, description="Consecutive failed centerline extractions that end the run."
+        3, le=100_000, description="Consecutive failed centerline extractions that end the run."
     )
     expect: Outcome | None = Field(
         None,

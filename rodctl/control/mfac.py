@@ -16,7 +16,7 @@ terms concern the increment the gripper really made (method-notes: u_k = Delta r
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -161,6 +161,10 @@ class MfacController:
 DEFAULT_MFAC_WEIGHTS = (0.55, 1e-4, 0.2, 0.05, 1e-4, 0.0998, 0.1)
 
 
+#: One MFAC weight: they are positive and sum to 1.
+Omega = Annotated[float, Field(le=1.0)]
+
+
 class MfacControllerConfig(StrictModel):
     """MFAC velocity law with seven performance weights (paper eq. 24, method-notes section 2).
 
@@ -178,7 +182,7 @@ class MfacControllerConfig(StrictModel):
     """
 
     type: Literal["mfac"] = "mfac"
-    weights: tuple[float, float, float, float, float, float, float] = Field(
+    weights: tuple[Omega, Omega, Omega, Omega, Omega, Omega, Omega] = Field(
         DEFAULT_MFAC_WEIGHTS,
         description="omega_1..omega_7 of eq. 24: error, feature amplitude, feature rate, feature "
         "acceleration, distance from home, speed, acceleration. Positive, summing to 1.",

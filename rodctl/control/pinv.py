@@ -56,7 +56,9 @@ class PinvControllerConfig(StrictModel):
         0.5, gt=0.0, le=1.0, description="lambda: the fraction of the linearised error removed."
     )
     error_limit: PositiveFloat = Field(
-        0.5, description="sat(): each feature error component is clipped to +-this (feature units)."
+        0.5,
+        le=1e6,
+        description="sat(): each feature error component is clipped to +-this (feature units).",
     )
     rcond: float = Field(
         1e-4,

@@ -19,10 +19,10 @@ tolerance to tune, at most 27 solves of at most 3 x 3.
 from __future__ import annotations
 
 import itertools
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field, PositiveFloat
+from pydantic import Field
 
 from rodctl.config.base import StrictModel
 from rodctl.registry import CONTROLLERS, BuildContext
@@ -114,6 +114,10 @@ class QpController:
 # --- config and registration ------------------------------------------------------------
 
 
+#: A diagonal entry of R (feature^2 per command^2).
+Weight = Annotated[float, Field(gt=0.0, le=1e12)]
+
+
 class QpControllerConfig(StrictModel):
     """min 1/2 ||J u - lambda e||^2 + 1/2 u^T R u s.t. |u_i| <= max_step_i (our re-implementation).
 
@@ -128,7 +132,7 @@ class QpControllerConfig(StrictModel):
     gain: float = Field(
         0.3, gt=0.0, le=1.0, description="lambda: the fraction of the error one step aims at."
     )
-    r_weights: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+    r_weights: tuple[Weight, Weight, Weight] = Field(
         (1.0, 1.0, 1.0), description="Diagonal of R: penalty on [dx, dy, dtheta] (feature^2/u^2)."
     )
 

@@ -6,10 +6,10 @@ validation against ground truth), through the same loop as the servo laws.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field, PositiveFloat
+from pydantic import Field
 
 from rodctl.config.base import Pose, StrictModel
 from rodctl.registry import CONTROLLERS, BuildContext
@@ -81,6 +81,10 @@ class ScriptedController:
 # --- config and registration ------------------------------------------------------------
 
 
+#: A per-axis tolerance [m or rad].
+Tol = Annotated[float, Field(gt=0.0, le=10.0)]
+
+
 class ScriptedControllerConfig(StrictModel):
     """Drive the gripper through absolute world poses, ignoring the feature and J.
 
@@ -95,7 +99,7 @@ class ScriptedControllerConfig(StrictModel):
         min_length=1,
         description="Absolute gripper poses [[x, y, theta], ...] (world frame, m, rad), in order.",
     )
-    tolerance: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+    tolerance: tuple[Tol, Tol, Tol] = Field(
         (1e-4, 1e-4, 1e-3),
         description="A waypoint is reached when every axis is within this [m, m, rad].",
     )

@@ -271,14 +271,26 @@ class AkfEstimatorConfig(StrictModel):
     """
 
     type: Literal["akf"] = "akf"
-    p0: PositiveFloat = Field(10.0, description="Initial state covariance P_0 = p0 I (J units^2).")
-    q0: PositiveFloat = Field(1e-2, description="Initial process noise Q_0 = q0 I (J units^2).")
-    r0: PositiveFloat = Field(1e-4, description="Initial measurement noise R_0 = r0 I (feature^2).")
+    p0: PositiveFloat = Field(
+        10.0, le=1e12, description="Initial state covariance P_0 = p0 I (J units^2)."
+    )
+    q0: PositiveFloat = Field(
+        1e-2, le=1e12, description="Initial process noise Q_0 = q0 I (J units^2)."
+    )
+    r0: PositiveFloat = Field(
+        1e-4, le=1e12, description="Initial measurement noise R_0 = r0 I (feature^2)."
+    )
     c0: float = Field(
-        1.5, gt=0.0, description="IGG-III threshold c0 (eq. 29): alpha = 1 while |d_eps| <= c0."
+        1.5,
+        le=100.0,
+        gt=0.0,
+        description="IGG-III threshold c0 (eq. 29): alpha = 1 while |d_eps| <= c0.",
     )
     c1: float = Field(
-        6.0, gt=0.0, description="IGG-III threshold c1 (eq. 29): alpha reaches 0 at |d_eps| = c1."
+        6.0,
+        le=100.0,
+        gt=0.0,
+        description="IGG-III threshold c1 (eq. 29): alpha reaches 0 at |d_eps| = c1.",
     )
     alpha_floor: float = Field(
         1e-3,
@@ -300,12 +312,12 @@ class AkfEstimatorConfig(StrictModel):
         "eq32: subtracts C P C^T too (unbiased, may lose definiteness; then clipped).",
     )
     q_min: PositiveFloat = Field(
-        1e-8, description="Eigenvalue floor applied to Q after each update (keeps it PSD)."
+        1e-8, le=1e6, description="Eigenvalue floor applied to Q after each update (keeps it PSD)."
     )
     r_min: PositiveFloat = Field(
-        1e-8, description="Eigenvalue floor applied to R after each update (keeps it PD)."
+        1e-8, le=1e6, description="Eigenvalue floor applied to R after each update (keeps it PD)."
     )
-    dead_zone: float = Field(1e-4, ge=0.0, description=DEAD_ZONE_DOC)
+    dead_zone: float = Field(1e-4, le=1.0, ge=0.0, description=DEAD_ZONE_DOC)
 
     @model_validator(mode="after")
     def _thresholds_ordered(self) -> AkfEstimatorConfig:

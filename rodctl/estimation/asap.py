@@ -291,7 +291,7 @@ class OfflineEstimatorConfig(StrictModel):
 
     type: Literal["offline"] = "offline"
     nodes: int = Field(
-        40, ge=6, description="Nodes the rest shape is resampled to for the ASAP model."
+        40, le=10_000, ge=6, description="Nodes the rest shape is resampled to for the ASAP model."
     )
     servoed: list[Annotated[float, Field(gt=0.0, lt=1.0)]] = Field(
         [0.25, 0.5, 0.75],

@@ -87,7 +87,7 @@ class BroydenEstimatorConfig(StrictModel):
         le=1.0,
         description="Step size gamma in (0, 1]; 1 makes each update satisfy the secant exactly.",
     )
-    dead_zone: float = Field(1e-4, ge=0.0, description=DEAD_ZONE_DOC)
+    dead_zone: float = Field(1e-4, le=1.0, ge=0.0, description=DEAD_ZONE_DOC)
 
 
 @ESTIMATORS.register(BroydenEstimatorConfig)

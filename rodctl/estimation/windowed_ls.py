@@ -94,14 +94,17 @@ class WindowedLsEstimatorConfig(StrictModel):
     """
 
     type: Literal["windowed_ls"] = "windowed_ls"
-    window: int = Field(10, ge=1, description="Number of most recent informative pairs fitted.")
+    window: int = Field(
+        10, le=10_000, ge=1, description="Number of most recent informative pairs fitted."
+    )
     ridge: float = Field(
         1e-6,
+        le=1e6,
         ge=0.0,
         description="Weight mu of mu ||J - J_prev||^2 in the fit (m^2): a pseudo-move of "
         "sqrt(mu) per axis that keeps the fit defined when the window's moves are collinear.",
     )
-    dead_zone: float = Field(1e-4, ge=0.0, description=DEAD_ZONE_DOC)
+    dead_zone: float = Field(1e-4, le=1.0, ge=0.0, description=DEAD_ZONE_DOC)
 
 
 @ESTIMATORS.register(WindowedLsEstimatorConfig)

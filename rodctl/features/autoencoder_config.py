@@ -10,7 +10,7 @@ camera, and how the network is trained. Those settings never change what a train
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
 
@@ -30,14 +30,15 @@ class EncoderDataConfig(StrictModel):
     """
 
     samples: int = Field(
-        100_000, ge=2, description="Centerlines to collect (the paper used 100,000)."
+        100_000, le=10_000_000, ge=2, description="Centerlines to collect (the paper used 100,000)."
     )
     chunk: int = Field(
         500,
+        le=1_000_000,
         ge=1,
         description="Samples per independently seeded walk; also the train/validation split unit.",
     )
-    workers: int = Field(2, ge=1, description="Collection processes (1 = in-process).")
+    workers: int = Field(2, le=256, ge=1, description="Collection processes (1 = in-process).")
 
 
 class EncoderTrainingConfig(StrictModel):
@@ -45,15 +46,21 @@ class EncoderTrainingConfig(StrictModel):
 
     epochs: int = Field(
         800,
+        le=1_000_000,
         ge=1,
         description="Passes over the training set. The paper gives none; on 100k collected "
         "shapes 300 epochs (2,700 Adam steps at batch 10,000) left 1.05 px, 800 reach 0.62 px "
         "in 226 s on 2 cores.",
     )
-    batch_size: int = Field(10_000, ge=1, description="Mini-batch size (the paper: 10,000).")
-    lr: float = Field(1e-3, gt=0.0, description="Initial Adam learning rate (the paper: 1e-3).")
+    batch_size: int = Field(
+        10_000, le=10_000_000, ge=1, description="Mini-batch size (the paper: 10,000)."
+    )
+    lr: float = Field(
+        1e-3, le=10.0, gt=0.0, description="Initial Adam learning rate (the paper: 1e-3)."
+    )
     lr_final: float = Field(
         1e-5,
+        le=10.0,
         ge=0.0,
         description="Learning rate reached at the last epoch by cosine decay (ours; paper silent).",
     )
@@ -63,15 +70,15 @@ class EncoderTrainingConfig(StrictModel):
         lt=1.0,
         description="Share of the collected walks held out for validation.",
     )
-    threads: int = Field(2, ge=1, description="torch intra-op threads while training.")
+    threads: int = Field(2, le=256, ge=1, description="torch intra-op threads while training.")
 
 
 class AutoencoderFeatureConfig(StrictModel):
     """The paper's feature (section VI-A): an autoencoder latent of the N-point centerline."""
 
     type: Literal["autoencoder"] = "autoencoder"
-    latent_dim: int = Field(6, ge=1, description="Latent dimension p.")
-    hidden: list[int] = Field(
+    latent_dim: int = Field(6, le=1024, ge=1, description="Latent dimension p.")
+    hidden: list[Annotated[int, Field(le=65_536)]] = Field(
         [128, 64],
         min_length=1,
         description="Encoder hidden layer widths (ReLU); the decoder mirrors them.",

@@ -9,7 +9,7 @@ rod points whatever N the extractor uses. Interior points barely see the gripper
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -67,7 +67,7 @@ class NodesFeatureConfig(StrictModel):
     """Pixel positions of a few centerline points (the Aghajanzadeh et al. baseline)."""
 
     type: Literal["nodes"] = "nodes"
-    positions: list[float] = Field(
+    positions: list[Annotated[float, Field(le=1.0)]] = Field(
         [1 / 3, 2 / 3, 1.0],
         min_length=1,
         description="Servoed points as normalised arc length in (0, 1] from the clamp.",

@@ -145,8 +145,10 @@ class NavarroRlsConfig(StrictModel):
     forgetting: float = Field(
         0.9, gt=0.0, le=1.0, description="lam: weight of a pair one step older (~1/(1-lam) pairs)."
     )
-    p0: float = Field(1e4, gt=0.0, description="Initial covariance of J's rows (1/m^2).")
-    dead_zone: float = Field(1e-4, ge=0.0, description="Moves shorter than this are skipped.")
+    p0: float = Field(1e4, gt=0.0, le=1e12, description="Initial covariance of J's rows (1/m^2).")
+    dead_zone: float = Field(
+        1e-4, ge=0.0, le=1.0, description="Moves shorter than this are skipped."
+    )
 
 
 @ESTIMATORS.register(NavarroRlsConfig)
@@ -182,9 +184,11 @@ class NavarroDlsConfig(StrictModel):
 
     type: Literal["navarro_dls"] = "navarro_dls"
     gain: float = Field(0.6, gt=0.0, le=1.0, description="Fraction of the error one step removes.")
-    damping: float = Field(1.0, ge=0.0, description="mu in (J^T J + mu I) (px^2 per unit^2).")
+    damping: float = Field(
+        1.0, ge=0.0, le=1e6, description="mu in (J^T J + mu I) (px^2 per unit^2)."
+    )
     error_limit: float = Field(
-        20.0, gt=0.0, description="Each feature error clipped to +-this (px)."
+        20.0, gt=0.0, le=1e6, description="Each feature error clipped to +-this (px)."
     )
 
 

@@ -1,0 +1,56 @@
+"""Per-episode metrics that make methods comparable: a bound, excess over it, smoothness per axis.
+
+Why these and not raw step counts: under a common speed limit every working method is slowed by
+the same bound, so "converges fastest" is only meaningful as steps *above* what the speed limit
+allows (`excess_steps`). Smoothness is counted over the control law's moves only, from rest:
+probing moves are the same for every probing method and say nothing about its law, and a method
+without probing must not be credited for not probing. Each axis is divided by its speed limit so
+that metres and radians add up in one unit ("speed limits").
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from rodctl.records import StepRecord
+
+
+def step_bound(home: np.ndarray, target: np.ndarray, max_step: np.ndarray) -> int:
+    """Fewest steps that can carry the gripper from `home` to `target` under the per-axis speed
+    limit: max_i ceil(|target_i - home_i| / max_step_i). Any method needs at least this many
+    moves to reach the target pose (a method may stop earlier only if a nearby pose already
+    meets the pixel tolerance, so `excess_steps` can be slightly negative)."""
+    ratio = np.abs(np.asarray(target, float) - np.asarray(home, float)) / np.asarray(max_step)
+    return int(math.ceil(float(np.max(ratio)) - 1e-9))
+
+
+def control_moves(records: Sequence[StepRecord]) -> np.ndarray:
+    """(K, 3) the moves the control law made (probing and the initial record left out)."""
+    us = [r.u for r in records if r.phase == "control"]
+    return np.array(us, dtype=float).reshape(-1, 3)
+
+
+def smoothness(records: Sequence[StepRecord], max_step: np.ndarray) -> tuple[float, float]:
+    """(translation, rotation): summed change of the law's moves, from rest, per speed limit.
+
+    translation = sum_k ||(Δu_x / m_x, Δu_y / m_y)||, rotation = sum_k |Δu_θ| / m_θ, with
+    Δu_k = u_k - u_{k-1} over the control moves and u_0 = 0 (the gripper starts at rest).
+    """
+    us = control_moves(records) / np.asarray(max_step, dtype=float)
+    if len(us) == 0:
+        return 0.0, 0.0
+    du = np.diff(np.vstack([np.zeros(3), us]), axis=0)
+    return float(np.sum(np.linalg.norm(du[:, :2], axis=1))), float(np.sum(np.abs(du[:, 2])))
+
+
+def near_origin_steps(records: Sequence[StepRecord], tolerance: float) -> int | None:
+    """Steps from the first control step with pixel error below 2 x tolerance to the last step
+    (the convergence step), or None when it never got there. The paper's "fastest near the
+    origin" claim is about this final approach."""
+    for r in records:
+        if r.phase == "control" and r.extraction_ok and r.pixel_error < 2.0 * tolerance:
+            return int(records[-1].step - r.step)
+    return None

@@ -1,0 +1,118 @@
+"""Signals at several points of the long commands: the run stops at a step boundary, its files
+are finalised, meta.json says `interrupted`, the exit code is 1, and the log replays."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from paths import REPO
+
+SCRIPTED = str(REPO / "configs/scripted.yaml")
+
+
+def _start(args: list[str]) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "rodctl", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+
+
+def _wait_for(predicate, timeout: float) -> None:
+    t0 = time.monotonic()
+    while not predicate():
+        if time.monotonic() - t0 > timeout:
+            raise TimeoutError("condition not reached")
+        time.sleep(0.05)
+
+
+def _run_dir(out: Path) -> Path:
+    _wait_for(lambda: out.exists() and any(out.iterdir()), 60)
+    return next(out.iterdir())
+
+
+def _meta(run_dir: Path) -> dict:
+    return json.loads((run_dir / "meta.json").read_text())
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.parametrize("after_bytes", [1, 40_000])
+def test_simulate_stops_cleanly_on_a_signal(tmp_path, sig, after_bytes):
+    proc = _start(["simulate", SCRIPTED, "-q", "-o", str(tmp_path), "--set", "logging.rerun=false"])
+    run_dir = _run_dir(tmp_path)
+    mcap = run_dir / "run.mcap"
+    _wait_for(lambda: mcap.exists() and mcap.stat().st_size >= after_bytes, 60)
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 1, err
+    assert "Traceback" not in err
+    meta = _meta(run_dir)
+    assert meta["status"] == "interrupted" and sig.name in meta["error"]
+    res = subprocess.run(
+        [sys.executable, "-m", "rodctl", "replay", str(run_dir), "--verify", "--no-figures"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == 0, res.stderr
+    assert "verify: OK" in res.stderr
+
+
+def test_sigkill_then_replay_recover_reads_the_whole_steps(tmp_path):
+    proc = _start(["simulate", SCRIPTED, "-q", "-o", str(tmp_path), "--set", "logging.rerun=false",
+                   "--set", "logging.flush_every_steps=2"])  # fmt: skip
+    run_dir = _run_dir(tmp_path)
+    mcap = run_dir / "run.mcap"
+    _wait_for(lambda: mcap.exists() and mcap.stat().st_size > 60_000, 60)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.communicate(timeout=30)
+    assert _meta(run_dir)["status"] == "running"  # nothing could record the kill
+    plain = subprocess.run(
+        [sys.executable, "-m", "rodctl", "replay", str(run_dir), "--no-figures"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert plain.returncode == 2 and "--recover" in plain.stderr
+    res = subprocess.run(
+        [sys.executable, "-m", "rodctl", "replay", str(run_dir), "--recover", "--no-figures"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == 0, res.stderr
+    assert "recovered" in res.stderr
+
+
+def test_train_encoder_records_sigterm_as_interrupted(tmp_path):
+    proc = _start(
+        ["train-encoder", str(REPO / "configs/default.yaml"), "-q", "-o", str(tmp_path),
+         "--set", "feature.data.samples=400", "--set", "feature.data.chunk=100",
+         "--set", "feature.data.workers=2", "--set", "feature.training.epochs=100000",
+         "--set", "feature.training.batch_size=100"]
+    )  # fmt: skip
+    run_dir = _run_dir(tmp_path)
+    time.sleep(3.0)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1, err
+    assert "Traceback" not in err
+    meta = _meta(run_dir)
+    assert meta["status"] == "interrupted"
+
+    # No worker process of the command is left behind (the multiprocessing resource tracker
+    # notices its parent is gone within a moment).
+    def gone() -> bool:
+        left = subprocess.run(["pgrep", "-s", str(proc.pid)], capture_output=True, text=True)
+        return left.stdout.strip() == ""
+
+    _wait_for(gone, 10)
