@@ -449,9 +449,13 @@ def compare(
     within seconds, keeping every finished episode (exit 1).
     """
     from rodctl.compare import run_compare
+    from rodctl.config import read_yaml
+    from rodctl.suite import run_suite
 
+    # A config with `scenarios` is a benchmark suite: every scenario is a compare of its own.
+    runner = run_suite if "scenarios" in read_yaml(config) else run_compare
     _finish_batch(
-        lambda: run_compare(
+        lambda: runner(
             config,
             set_ or [],
             out,

@@ -64,6 +64,7 @@ OUTCOMES = ("converged", "stalled", "pinned", "step_limit", "diverged", "lost_tr
 
 #: Columns of results.csv, in order.
 CSV_COLUMNS = (
+    "scenario",
     "method",
     "target",
     "band",
@@ -83,8 +84,22 @@ CSV_COLUMNS = (
     "saturated_steps",
     "clipped_steps",
     "probe_steps",
+    "step_bound",
+    "excess_steps",
+    "smoothness_translation",
+    "smoothness_rotation",
+    "near_origin_steps",
     "wall_time_s",
     "error",
+)
+
+#: The per-episode comparison metrics of `rodctl.metrics`, copied from the summary into a row.
+METRIC_COLUMNS = (
+    "step_bound",
+    "excess_steps",
+    "smoothness_translation",
+    "smoothness_rotation",
+    "near_origin_steps",
 )
 
 #: Candidate poses tried per sampled target before giving up (a candidate can fail to settle).
@@ -344,6 +359,7 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
             saturated_steps=extra.get("saturated_steps"),
             clipped_steps=extra.get("clipped_steps"),
             probe_steps=extra.get("probe_steps"),
+            **{k: extra.get(k) for k in METRIC_COLUMNS},
             wall_time_s=summary.wall_time_s,
             error=f"interrupted by {stop_reason() or 'SIGINT'}"
             if summary.outcome == Outcome.INTERRUPTED
@@ -848,6 +864,7 @@ def _report(
     for r in rows:
         t = by_index[r["target"]]
         r.update(
+            scenario=cfg.scenario,
             band=t.band(cfg.targets.bands),
             difficulty=round(t.difficulty, 6),
             target_x=float(t.pose[0]),
