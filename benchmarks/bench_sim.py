@@ -2,6 +2,9 @@
 
 Prints figures; asserts nothing (speed goals are checked by reading these numbers, not by timed
 tests). Goals from issue #3: >= 10x real time at N = 50, one control step (move + settle) <= 10 ms.
+Issue #12: with gravity (a heavy rod in a vertical plane) and with table friction, steps/s and
+one control step's wall time within 1.5x of the weightless rod at N = 25, 50, 100 (the "x"
+columns: weightless / this for steps/s, this / weightless for the control step).
 
     .venv/bin/python benchmarks/bench_sim.py                 # N = 25, 50, 100
     .venv/bin/python benchmarks/bench_sim.py --segments 50 --commands 100
@@ -104,32 +107,51 @@ def main() -> None:
     args = parser.parse_args()
 
     print(
-        f"{'N':>4} {'iter':>4} {'dt ms':>6} {'steps/s':>8} {'RTF raw':>8} {'read us':>7} "
-        f"{'build s':>7} | {'ctrl ms':>7} {'p90 ms':>7} {'steps':>6} {'settle s':>8} "
-        f"{'RTF loop':>8} {'settled':>7} | {'cantilever err %':>16}"
+        f"{'N':>4} {'physics':>9} {'iter':>4} {'dt ms':>6} {'steps/s':>8} {'x':>5} "
+        f"{'RTF raw':>8} {'read us':>7} {'build s':>7} | {'ctrl ms':>7} {'x':>5} {'p90 ms':>7} "
+        f"{'steps':>6} {'settle s':>8} {'RTF loop':>8} {'settled':>7} | {'cantilever err %':>16}"
     )
     for n in args.segments:
-        t0 = time.perf_counter()
-        sim = RodSim(RodConfig(segments=n))
-        build = time.perf_counter() - t0
-        per_step = bench_steps(sim, args.steps, args.repeats)
-        read = bench_readout(sim)
-        ctrl = bench_control_steps(sim, args.commands)
-        err = cantilever_error(n)
-        print(
-            f"{n:>4} {sim.cfg.iterations:>4} {1e3 * sim.dt:>6.2f} {1 / per_step:>8.0f} "
-            f"{sim.dt / per_step:>8.0f} {1e6 * read:>7.1f} {build:>7.2f} | "
-            f"{ctrl['median_ms']:>7.1f} {ctrl['p90_ms']:>7.1f} {ctrl['mean_steps']:>6.0f} "
-            f"{ctrl['settle_s']:>8.2f} {ctrl['rtf']:>8.0f} {ctrl['settled']:>7.0%} | "
-            f"{err:>+16.4f}"
-        )
+        base: dict[str, float] = {}
+        for physics, extra in PHYSICS.items():
+            t0 = time.perf_counter()
+            sim = RodSim(RodConfig(segments=n, **extra))
+            build = time.perf_counter() - t0
+            per_step = bench_steps(sim, args.steps, args.repeats)
+            read = bench_readout(sim)
+            ctrl = bench_control_steps(sim, args.commands)
+            if not base:
+                base = {"per_step": per_step, "ctrl": ctrl["median_ms"]}
+                err = f"{cantilever_error(n):>+16.4f}"
+            else:
+                err = f"{'':>16}"
+            print(
+                f"{n:>4} {physics:>9} {sim.cfg.iterations:>4} {1e3 * sim.dt:>6.2f} "
+                f"{1 / per_step:>8.0f} {per_step / base['per_step']:>5.2f} "
+                f"{sim.dt / per_step:>8.0f} {1e6 * read:>7.1f} {build:>7.2f} | "
+                f"{ctrl['median_ms']:>7.1f} {ctrl['median_ms'] / base['ctrl']:>5.2f} "
+                f"{ctrl['p90_ms']:>7.1f} {ctrl['mean_steps']:>6.0f} "
+                f"{ctrl['settle_s']:>8.2f} {ctrl['rtf']:>8.0f} {ctrl['settled']:>7.0%} | {err}"
+            )
     print(
         "steps/s: physics steps per wall second (gripper still); RTF raw = steps/s * dt; "
         "ctrl ms: wall time of one apply() = move over control_period + settle (median, p90); "
         "steps: physics steps per apply; settle s: simulated settle time; RTF loop: simulated "
         "/ wall time over the control steps. Rotary inertia is inflated (rod.inertia_radius), "
-        "so simulated time is a quasi-static clock, not the physical rod's."
+        "so simulated time is a quasi-static clock, not the physical rod's. "
+        "x: cost relative to the weightless rod at the same N (goal <= 1.5). "
+        "gravity: the default rod in a vertical plane, g = 9.81 (q L^3/EI = 19); heavy: "
+        "q L^3/EI = 100; table: lying on a table, mu = 0.5."
     )
+
+
+#: The physics compared, as RodConfig overrides; the first is the reference.
+PHYSICS: dict[str, dict] = {
+    "weightless": {},
+    "gravity": {"gravity": (0.0, -9.81)},
+    "heavy": {"gravity": (0.0, -9.81), "mass_per_length": 100 * 5e-3 / (9.81 * 0.5**3)},
+    "table": {"table_friction": 0.5},
+}
 
 
 if __name__ == "__main__":

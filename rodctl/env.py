@@ -19,12 +19,15 @@ Observation (a `Dict` space):
     applied: (3,) float64 the pose increment the robot really made in the last step (after its
         per-axis speed limit and the workspace), zeros after `reset`.
     extraction_ok: 1 when the whole rod was seen and traced, else 0.
+    target: (N, 2) float64 the target centerline in pixels (it moves only when the camera is
+        bumped by a mid-run event: the same physical shape seen from the new pose).
 
 Reward: minus the pixel error, the mean distance in pixels between the extracted centerline and
 the target's (a failed frame costs the image diagonal). `terminated` on convergence (pixel error
 below `run.pixel_tolerance`) or divergence, `truncated` at `run.max_steps`. `info` carries what a
 real robot would not see: ground truth, projected truth, the settle result, the rod's health.
-`render()` (render_mode "rgb_array") returns the camera frame.
+`render()` (render_mode "rgb_array") returns the camera frame. Mid-run events (`run.events`)
+are applied before the move of their step; `info["events"]` has their log lines.
 
 The episode is a pure function of (config, seed): `reset(seed)` rebuilds the rod, the camera
 and its noise stream, and the target, from named seed streams (`rodctl.runs.rng`).
@@ -194,6 +197,9 @@ class ShapeServoEnv(gym.Env):
                 "gripper": spaces.Box(lo, hi, dtype=np.float64),
                 "applied": spaces.Box(-self.max_step, self.max_step, dtype=np.float64),
                 "extraction_ok": spaces.Discrete(2),
+                "target": spaces.Box(
+                    np.tile(-size, (n, 1)), np.tile(2 * size, (n, 1)), dtype=np.float64
+                ),
             }
         )
         self._lost_frame_cost = big
@@ -270,12 +276,14 @@ class ShapeServoEnv(gym.Env):
         """
         if self.sim is None:
             raise RuntimeError("call reset() before step()")
+        events = self._apply_events(self.steps + 1)
         t = time.perf_counter()
         res = self.sim.apply(np.asarray(action, dtype=float))
         self.times.sim += time.perf_counter() - t
         self.steps += 1
         self.frame = self._look()
         info = self._info(res)
+        info["events"] = events
         self._last_info = info
         err = info["pixel_error"]
         reward = -err if np.isfinite(err) else -self._lost_frame_cost
@@ -316,28 +324,65 @@ class ShapeServoEnv(gym.Env):
         self.extractor = CenterlineExtractor(
             cfg.camera, self.camera, self.clamp_pose, rod_length=cfg.rod.length
         )
-        # The target is what the rod looks like in the target pose, not one noisy frame of it:
-        # with the camera's nuisances on, one noise artefact in the target frame would bias
-        # every method's goal (or make the target unusable). Same camera pose and scene, no
-        # pixel noise, blur or occluders.
-        render = cfg.camera.render.model_copy(
+        self._clean_camera(cfg.camera)
+
+    def _clean_camera(self, camera_cfg: Any) -> None:
+        """The camera the target is seen with: the target is what the rod looks like in the
+        target pose, not one noisy frame of it (one noise artefact in the target frame would
+        bias every method's goal, or make the target unusable). Same camera pose and scene, no
+        pixel noise, blur or occluders."""
+        render = camera_cfg.render.model_copy(
             update={"noise_std": 0.0, "blur_sigma": 0.0, "occlusions": [], "random_occlusions": 0}
         )
-        clean = cfg.camera.model_copy(update={"render": render})
+        clean = camera_cfg.model_copy(update={"render": render})
         self._target_camera = Camera(clean)
         self._target_extractor = CenterlineExtractor(
-            clean, self._target_camera, self.clamp_pose, rod_length=cfg.rod.length
+            clean, self._target_camera, self.clamp_pose, rod_length=self.cfg.rod.length
         )
+
+    def _apply_events(self, step: int) -> list[str]:
+        """Apply the mid-run events due before step `step`'s move; one log line each.
+
+        What an event changes that the environment derives (rodctl/events.py): the extractor
+        calibrates the clamp pixel and the rod length, so it is rebuilt after a clamp move, a
+        grasp slip or a camera bump; after a bump the target — the same physical shape — is
+        seen again through the moved camera, so its pixels change (the observation's `target`).
+        """
+        from rodctl.events import due
+
+        lines = []
+        for event in due(list(self.cfg.run.events), step):
+            lines.append(event.apply(self.sim, self.camera))
+            if "extractor" in event.refresh:
+                self.extractor = CenterlineExtractor(
+                    self.camera.cfg,
+                    self.camera,
+                    self.sim.clamp_pose,
+                    rod_length=self.sim.held_length,
+                )
+            if "target_pixels" in event.refresh:
+                self._clean_camera(self.camera.cfg)
+                t = self.target
+                frame = self._see(t.centerline, t.pose, self.clamp_pose, clean=True)
+                if frame.ok:
+                    self.target = Target(t.pose, t.centerline, frame.extracted, t.difficulty)
+                else:
+                    lines.append(f"the target cannot be seen by the moved camera ({frame.note})")
+        return lines
 
     def _look(self, sim: RodSim | None = None, *, clean: bool = False) -> Frame:
         """Render the rod as the camera sees it (`clean`: without nuisances) and extract it."""
         sim = sim or self.sim
+        return self._see(sim.centerline(), sim.gripper_pose, sim.clamp_pose, clean=clean)
+
+    def _see(
+        self, truth: np.ndarray, gripper: np.ndarray, clamp: np.ndarray, *, clean: bool
+    ) -> Frame:
+        """Render a rod centerline with the gripper and clamp, and extract it."""
         camera = self._target_camera if clean else self.camera
         extractor = self._target_extractor if clean else self.extractor
         t = time.perf_counter()
-        truth = sim.centerline()
-        gripper = sim.gripper_pose
-        image = camera.render(truth, gripper, self.clamp_pose)
+        image = camera.render(truth, gripper, clamp)
         ext = extractor.extract(image, gripper)
         projected = camera.project(resample_polyline(truth, self.cfg.camera.points))
         self.times.vision += time.perf_counter() - t
@@ -351,6 +396,7 @@ class ShapeServoEnv(gym.Env):
             "gripper": np.asarray(self.sim.gripper_pose, dtype=np.float64),
             "applied": np.array(applied, dtype=np.float64),
             "extraction_ok": int(f.ok),
+            "target": np.array(self.target.pixels, dtype=np.float64),
         }
 
     def _info(self, res: Any) -> dict[str, Any]:

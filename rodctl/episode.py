@@ -275,8 +275,6 @@ class _Loop:
         self.header: RunHeader | None = None
         self.logging = 0.0
         self.note: str | None = None
-        cfg = env.cfg
-        self.image_every = _image_every(cfg.logging.image_rate_hz, cfg.rod.control_period)
         self.setup_time = 0.0
 
     @property
@@ -347,11 +345,13 @@ class _Loop:
             extraction_ok=self.env.frame.ok,
             extraction_note=info["extraction_note"],
             estimator_info=m.estimator_info(),
+            events=list(info.get("events", [])) if moved else [],
         )
 
     def emit(self, rec: StepRecord) -> None:
-        if self.image_every and rec.step % self.image_every == 0:
-            rec.image = self.env.frame.image
+        # Every record carries its frame; the sinks pick frames by simulated time
+        # (logging.image_rate_hz), so the rate holds in the log's own clock.
+        rec.image = self.env.frame.image
         t = time.perf_counter()
         for sink in self.sinks:
             sink.write(rec)
@@ -449,10 +449,3 @@ class _Loop:
             steps_per_s=round(steps / run_time, 3) if run_time > 0 else 0.0,
             extra=extra,
         )
-
-
-def _image_every(rate_hz: float, control_period: float) -> int:
-    """Log a camera frame every this many steps (0: never) for a rate in simulated time."""
-    if rate_hz <= 0:
-        return 0
-    return max(1, round(1.0 / (rate_hz * control_period)))

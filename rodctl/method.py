@@ -83,7 +83,8 @@ class Method:
         """Begin an episode: fresh estimator and controller, target feature, probing plan."""
         self.task = task
         self.times = StageTimes()
-        self.s_target = self._encode(task.target_pixels)
+        self._target_pixels = np.array(task.target_pixels, dtype=float)
+        self.s_target = self._encode(self._target_pixels)
         self.p = int(self.s_target.shape[0])
         ctx = BuildContext(
             points=self.points,
@@ -132,6 +133,11 @@ class Method:
             observation: the environment's observation (`ShapeServoEnv`): `centerline`,
                 `extraction_ok`, `gripper` and `applied` (the move really made last step).
         """
+        target = observation.get("target")
+        if target is not None and not np.array_equal(target, self._target_pixels):
+            # The target's pixels move only when the camera was bumped: the goal, re-encoded.
+            self._target_pixels = np.array(target, dtype=float)
+            self.s_target = self._encode(self._target_pixels)
         if self.s is None:
             self._first(observation)
         else:

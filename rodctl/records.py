@@ -33,6 +33,9 @@ class RunHeader:
         target_feature: (p,) s*, the feature of `target_pixels`.
         target_pose: (3,) gripper pose that produced the target, world frame.
         rod_length: rod length L (m).
+        numeric_env: the numeric environment the run computed in (CPU model, BLAS vendor,
+            numpy/OpenCV builds, ...), JSON-able values; logged in /run/header and read back
+            as is, so a `replay --verify` mismatch can be traced to a different machine.
     """
 
     run_id: str
@@ -46,6 +49,7 @@ class RunHeader:
     target_feature: np.ndarray
     target_pose: np.ndarray
     rod_length: float
+    numeric_env: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -76,7 +80,10 @@ class StepRecord:
         extraction_ok: False when the extractor reported a problem (occlusion, lost rod).
         extraction_note: the extractor's message when `extraction_ok` is False, else "".
         estimator_info: scalar diagnostics of the estimator (e.g. AKF alpha, innovation).
-        image: (H, W, 3) uint8 RGB camera frame, present only on frames chosen for logging.
+        events: one line per mid-run event applied before this step's move (`run.events`).
+        image: (H, W, 3) uint8 RGB camera frame, or None. The sinks choose which frames to log
+            by `sim_time` (`rodctl.logs.codec.FrameSchedule`), so the loop may attach one to
+            every record; records read back from a log carry one only where it was logged.
     """
 
     step: int
@@ -102,12 +109,13 @@ class StepRecord:
     extraction_ok: bool = True
     extraction_note: str = ""
     estimator_info: dict[str, float] = field(default_factory=dict)
+    events: list[str] = field(default_factory=list)
     image: np.ndarray | None = None
 
 
 @dataclass
 class RunSummary:
-    """The run's outcome; written as summary.json (contract in shared/design/architecture.md).
+    """The run's outcome; written as summary.json (keys in README, "Outputs").
 
     `outcome` is one of "converged", "stalled", "step_limit", "diverged", "interrupted", "failed".
     """

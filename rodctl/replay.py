@@ -3,8 +3,13 @@
 Why: the MCAP is the run's source of truth. `rodctl replay RUN_DIR|FILE.mcap` must work with no
 simulator, no model and no config file at hand: it reads the step records back exactly
 (`rodctl.logs.codec`), rewrites run.rrd and the figures from them, and prints the summary.
-`replay --verify` re-runs the simulation and compares each fresh record with the logged one using
-`compare_records` (bit for bit: float64 values and dtypes equal, NaN equal to NaN).
+`replay --verify` re-runs the simulation and compares each fresh record with the logged one
+(`compare_runs`): bit for bit first (float64 values equal, NaN equal to NaN), then, for what is
+not bit-identical, within `--tolerance`. The verdict is one of three (`VerifyResult`):
+bit-identical; identical within the tolerance (the largest deviation of each field reported in
+the field's units, beside the two numeric environments where they differ: a rerun on another
+CPU or BLAS kernel may change the last bits, see `rodctl.numenv`); or a real mismatch (the first
+step and field that differ beyond the tolerance, or a step count, flag or text that differs).
 """
 
 from __future__ import annotations
@@ -13,7 +18,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import yaml
@@ -27,7 +32,9 @@ from rodctl.records import RunSummary, StepRecord
 __all__ = [
     "ReadRun",
     "Rebuilt",
+    "VerifyResult",
     "compare_records",
+    "compare_runs",
     "mcap_path",
     "read_run",
     "rebuild",
@@ -283,12 +290,280 @@ def _dict_differences(a: Any, b: Any, prefix: str = "") -> list[str]:
     return [] if a == b else [f"{prefix}: logged {a!r}, config.yaml {b!r}"]
 
 
-def verify(run: ReadRun, *, progress: bool = False) -> list[str]:
-    """Re-run the simulation from the log's embedded config; every difference from the log.
+#: Units of the StepRecord fields in verify reports (the MCAP channels' `unit.*` metadata, short).
+FIELD_UNITS = {
+    "sim_time": "s",
+    "gripper": "m, m, rad",
+    "centerline": "m",
+    "extracted": "px",
+    "projected_truth": "px",
+    "u": "m, m, rad",
+    "u_raw": "m, m, rad",
+    "s": "feature units",
+    "s_target": "feature units",
+    "T1": "feature units",
+    "J": "feature units per (m, m, rad)",
+    "J_singular_values": "feature units per (m, m, rad)",
+    "pixel_error": "px",
+    "max_joint_gap": "m",
+    "kinetic_energy": "J",
+    "estimator_info": "estimator units",
+    "image": "8-bit levels",
+}
+
+
+@dataclass
+class Deviation:
+    """The largest difference of one field between the log and the rerun.
+
+    Attributes:
+        field: the StepRecord field (estimator_info entries as `estimator_info.alpha`).
+        unit: the field's unit.
+        max_abs: largest |logged - fresh| over every value of every step, in `unit`.
+        step: the step where it occurred.
+        within: whether every value of the field agreed within the tolerance.
+        max_scaled: largest |logged - fresh| / max(1, |logged|): the smallest tolerance that
+            accepts this field.
+    """
+
+    field: str
+    unit: str
+    max_abs: float
+    step: int
+    within: bool
+    max_scaled: float = 0.0
+
+
+@dataclass
+class VerifyResult:
+    """What `replay --verify` found; `verdict` is one of three.
+
+    Attributes:
+        verdict: "identical" (every compared value bit for bit), "within_tolerance" (some values
+            differ, all by at most the tolerance) or "mismatch".
+        steps: steps compared (the shorter of the two runs).
+        tolerance: the agreement rule: |logged - fresh| <= tolerance * max(1, |logged|), i.e.
+            absolute for values up to 1 in magnitude and relative above.
+        differences: every (step, field) that is not bit-identical, as "step k: FIELD differs".
+        deviations: the fields that are not bit-identical, largest deviation first per field.
+        mismatch: the first real mismatch as "step k: FIELD differs (...)", None if there is none.
+        logged_env: the numeric environment recorded with the log (None in older logs).
+        fresh_env: the numeric environment of the rerun.
+        numbers_only: True when everything but numeric values agrees exactly (step count,
+            flags, phases, texts, shapes).
+    """
+
+    verdict: Literal["identical", "within_tolerance", "mismatch"]
+    steps: int
+    tolerance: float
+    differences: list[str] = field(default_factory=list)
+    deviations: list[Deviation] = field(default_factory=list)
+    mismatch: str | None = None
+    logged_env: dict[str, Any] | None = None
+    fresh_env: dict[str, Any] | None = None
+    numbers_only: bool = True
+
+    @property
+    def exit_code(self) -> int:
+        """0 when identical or within the tolerance, 1 on a real mismatch."""
+        return 1 if self.verdict == "mismatch" else 0
+
+    def environment_rows(self) -> list[tuple[str, Any, Any]]:
+        """(key, logged, rerun) where the two numeric environments differ."""
+        from rodctl.numenv import environment_differences
+
+        if self.logged_env is None and self.fresh_env is None:
+            return []
+        return environment_differences(self.logged_env, self.fresh_env)
+
+    def report(self) -> list[str]:
+        """The verdict as lines of text: first line the verdict, then the details."""
+        if self.verdict == "identical":
+            return [f"verify: OK, {self.steps} steps identical"]
+        lines: list[str] = []
+        if self.verdict == "mismatch":
+            lines.append(
+                f"verify: FAILED, first mismatch: {self.mismatch} "
+                f"({len(self.differences)} differences in all)"
+            )
+        else:
+            lines.append(
+                f"verify: OK within tolerance {self.tolerance:g}: {self.steps} steps, "
+                f"{len(self.differences)} (step, field) pairs not bit-identical"
+            )
+        if self.deviations:
+            lines.append("largest deviation per field (logged vs rerun):")
+            for d in self.deviations:
+                mark = "" if d.within else "  > tolerance"
+                lines.append(f"  {d.field:<26} {d.max_abs:.3g} {d.unit} (step {d.step}){mark}")
+        if self.logged_env is None:
+            lines.append("numeric environment of the log: not recorded (older log)")
+            if self.fresh_env:
+                lines.append(f"numeric environment of the rerun: {_env_summary(self.fresh_env)}")
+        else:
+            env = self.environment_rows()
+            if env:
+                width = max(len(k) for k, _, _ in env)
+                lines.append("numeric environments differ (logged | rerun):")
+                lines += [f"  {k.ljust(width)}  {a!s} | {b!s}" for k, a, b in env]
+            else:
+                lines.append("numeric environments: identical (the difference is not theirs)")
+        if self.verdict == "mismatch" and self.numbers_only:
+            worst = max(d.max_abs for d in self.deviations)
+            lines.append(
+                "only numbers differ (steps, flags and texts agree): if the rerun ran on another "
+                "machine or BLAS kernel and the deviations above are acceptable, rerun with "
+                f"--tolerance (the largest deviation here is {worst:.3g})"
+            )
+        return lines
+
+
+def _env_summary(env: dict[str, Any]) -> str:
+    """One line: CPU model, numpy version and SIMD, BLAS kernels and threads."""
+    cpu = env.get("cpu", {})
+    npy = env.get("numpy", {})
+    blas = ", ".join(
+        f"{b.get('internal_api')} {b.get('architecture')} x{b.get('num_threads')}"
+        for b in env.get("blas", [])
+        if b.get("user_api") == "blas"
+    )
+    simd = "+".join(npy.get("simd_dispatched", []) or npy.get("simd_baseline", []))
+    return f"{cpu.get('model', '?')}; numpy {npy.get('version', '?')} ({simd}); BLAS {blas or '?'}"
+
+
+def _deviation(a: Any, b: Any) -> tuple[float, float] | None:
+    """(largest |a - b|, largest |a - b| / max(1, |a|)) of two numeric values or arrays;
+    None when they are not comparable numbers (another shape, a flag, a text, NaN vs a number).
+
+    Booleans count as non-numeric: a flipped flag is a real mismatch at any tolerance.
+    """
+    if isinstance(a, bool | np.bool_ | str) or isinstance(b, bool | np.bool_ | str):
+        return None
+    try:
+        x = np.asarray(a)
+        y = np.asarray(b)
+    except Exception:  # noqa: BLE001 - anything that is not array-like is not numeric
+        return None
+    if x.shape != y.shape or x.dtype.kind not in "fiu" or y.dtype.kind not in "fiu":
+        return None
+    x = x.astype(np.float64)
+    y = y.astype(np.float64)
+    if x.size == 0:
+        return 0.0, 0.0
+    nan_x, nan_y = np.isnan(x), np.isnan(y)
+    if np.any(nan_x != nan_y):
+        return None
+    keep = ~nan_x & ~(np.isinf(x) & (x == y))
+    if np.any(np.isinf(x[keep]) | np.isinf(y[keep])):
+        return None
+    diff = np.abs(x[keep] - y[keep])
+    if diff.size == 0:
+        return 0.0, 0.0
+    scaled = diff / np.maximum(1.0, np.abs(x[keep]))
+    return float(diff.max()), float(scaled.max())
+
+
+def compare_runs(
+    logged: Sequence[StepRecord],
+    fresh: Sequence[StepRecord],
+    *,
+    tolerance: float = 0.0,
+    logged_env: dict[str, Any] | None = None,
+    fresh_env: dict[str, Any] | None = None,
+    images: bool = False,
+) -> VerifyResult:
+    """Compare a logged run with its rerun and give the three-way verdict (`VerifyResult`).
+
+    Bit for bit first (`compare_records`); a value that is not bit-identical is then accepted
+    when |logged - fresh| <= tolerance * max(1, |logged|). Step counts, flags (settled,
+    saturated, clipped, extraction_ok), the phase and texts must agree exactly at any tolerance:
+    a rerun that decides differently is a different run.
+
+    Args:
+        logged: the records read from the log.
+        fresh: the records of the rerun.
+        tolerance: >= 0; 0 accepts only bit-identical values.
+        logged_env: the numeric environment recorded with the log, if any.
+        fresh_env: the numeric environment of the rerun.
+        images: compare camera frames too (when both records carry one).
+    """
+    if not tolerance >= 0.0:
+        raise ValueError(f"tolerance must be >= 0, got {tolerance}")
+    units = FIELD_UNITS
+    differences = compare_records(logged, fresh, images=images)
+    worst: dict[str, Deviation] = {}
+    mismatch: str | None = None
+    numbers_only = len(logged) == len(fresh)
+    if not numbers_only:
+        mismatch = f"step count differs: logged {len(logged)}, rerun {len(fresh)}"
+    for a, b in zip(logged, fresh, strict=False):
+        for f in fields(StepRecord):
+            if f.name == "image" and not (images and a.image is not None and b.image is not None):
+                continue
+            x, y = getattr(a, f.name), getattr(b, f.name)
+            if isinstance(x, dict) and isinstance(y, dict) and x.keys() == y.keys():
+                pairs = [(f"{f.name}.{k}", x[k], y[k]) for k in x]
+            else:
+                pairs = [(f.name, x, y)]
+            for name, xv, yv in pairs:
+                if _same(xv, yv):
+                    continue
+                unit = units.get(name.split(".")[0], "")
+                dev = _deviation(xv, yv)
+                if dev is None:
+                    numbers_only = False
+                    if mismatch is None:
+                        mismatch = f"step {a.step}: {name} differs"
+                    continue
+                absdev, scaled = dev
+                within = scaled <= tolerance
+                prev = worst.get(name)
+                if prev is None or absdev > prev.max_abs:
+                    worst[name] = Deviation(
+                        name,
+                        unit,
+                        absdev,
+                        a.step,
+                        within and (prev is None or prev.within),
+                        max(scaled, prev.max_scaled if prev else 0.0),
+                    )
+                else:
+                    prev.within = prev.within and within
+                    prev.max_scaled = max(prev.max_scaled, scaled)
+                if not within and mismatch is None:
+                    by = f"{absdev:.3g} {unit}".strip()
+                    mismatch = f"step {a.step}: {name} differs (by {by})"
+    if mismatch is not None:
+        verdict: Literal["identical", "within_tolerance", "mismatch"] = "mismatch"
+    elif differences:
+        verdict = "within_tolerance"
+    else:
+        verdict = "identical"
+    return VerifyResult(
+        verdict=verdict,
+        steps=min(len(logged), len(fresh)),
+        tolerance=float(tolerance),
+        differences=differences,
+        deviations=sorted(worst.values(), key=lambda d: d.field),
+        mismatch=mismatch,
+        logged_env=logged_env,
+        fresh_env=fresh_env,
+        numbers_only=numbers_only,
+    )
+
+
+def verify(run: ReadRun, *, tolerance: float = 0.0, progress: bool = False) -> VerifyResult:
+    """Re-run the simulation from the log's embedded config and compare it with the log.
 
     The run is deterministic (one seed, rebuilt simulator, no wall clock in any record), so a
-    rerun with the same code must reproduce every logged step bit for bit. An empty list means
-    it did. The embedded config must still validate with this version of rodctl.
+    rerun with the same code in the same numeric environment reproduces every logged step bit
+    for bit; elsewhere the per-step path is kernel-independent where that was cheap (README,
+    "Reproducibility") and `tolerance` accepts what remains. The embedded config must still
+    validate with this version of rodctl.
+
+    Returns:
+        The three-way verdict (`compare_runs`), with the log's and the rerun's numeric
+        environments.
     """
     from rodctl.config import validate_config
 
@@ -301,7 +576,15 @@ def verify(run: ReadRun, *, progress: bool = False) -> list[str]:
     cfg = validate_config(data, f"{run.path} (embedded config.yaml)")
     records = rerun_records(cfg, run.header.run_id)
     fresh = records if ended else records[: len(logged)]
-    return compare_records(logged, fresh)
+    from rodctl.numenv import numeric_environment
+
+    return compare_runs(
+        logged,
+        fresh,
+        tolerance=tolerance,
+        logged_env=getattr(run.header, "numeric_env", None),
+        fresh_env=numeric_environment(),
+    )
 
 
 def rerun_records(cfg: Any, run_id: str) -> list[StepRecord]:

@@ -66,7 +66,7 @@ def test_options_give_a_target_and_a_start_pose():
     env.reset(seed=0, options={"start_pose": [0.40, 0.0, 0.3]})
     np.testing.assert_allclose(env.home_pose, [0.40, 0.0, 0.3], atol=1e-6)
     with pytest.raises(ValueError, match="unknown options"):
-        env.reset(options={"target": [0, 0, 0]})
+        env.reset(options={"goal": [0, 0, 0]})
 
 
 @pytest.mark.parametrize("mode", ["sync", "async"])

@@ -69,6 +69,20 @@ class ExperimentConfig(StrictModel):
         return self
 
     @model_validator(mode="after")
+    def _events_can_apply(self) -> ExperimentConfig:
+        """Events that cannot apply (a slip longer than the rod, a clamp out of reach) are
+        refused before the run, naming the field (`rodctl.events.validate_events`)."""
+        if self.run.events:
+            from rodctl.errors import UserError
+            from rodctl.events import validate_events
+
+            try:
+                validate_events(list(self.run.events), self)
+            except UserError as exc:
+                raise ValueError(str(exc)) from None
+        return self
+
+    @model_validator(mode="after")
     def _stages_fit_together(self) -> ExperimentConfig:
         """A stage config may check the rest of the experiment (`check_experiment(cfg)`), e.g.
         the offline model's servoed nodes must be the feature's."""

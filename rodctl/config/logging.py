@@ -24,8 +24,9 @@ class LoggingConfig(StrictModel):
         5.0,
         le=1000.0,
         ge=0.0,
-        description="Camera frames logged per second of simulated time (0 = none). The loop "
-        "picks the steps; a frame is logged at most once per control step.",
+        description="Camera frames logged per second of simulated time, which is the logs' "
+        "time (0 = none). The sinks pick the frames by simulated time; at most one per control "
+        "step.",
     )
     png_compression: int = Field(
         1, ge=0, le=9, description="PNG (zlib) level of logged camera frames: 0 fast … 9 small."

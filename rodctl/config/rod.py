@@ -5,18 +5,102 @@ Owned by `rodctl/sim/`. Defaults describe a 0.5 m elastic rod (EI = 5e-3 N m^2, 
 
 The integrator keys (`dt`, `iterations`, `damping`, `inertia_radius`) are tuned for the quasi-static
 use the experiment makes of the rod: only the settled shape matters, and it does not depend on the
-masses, so the simulator inflates rotary inertia and damps the first bending mode critically to
-settle in few steps (see `rodctl/sim/chain.py`). The settled shape matches the elastica to ~0.02 %
-of L at N = 50 (tests/sim/).
+rotary inertia (nor on the masses, without gravity), so the simulator inflates rotary inertia and
+damps the first bending mode critically to settle in few steps (see `rodctl/sim/chain.py`). The
+settled shape matches the elastica to ~0.02 % of L at N = 50 (tests/sim/), and with `gravity` the
+heavy elastica to ~0.05 % of L up to q L^3/EI = 100.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+import math
+from typing import Any, Literal
 
-from pydantic import Field, NonNegativeFloat, PositiveFloat, model_validator
+from pydantic import (
+    Field,
+    NonNegativeFloat,
+    PositiveFloat,
+    ValidationError,
+    model_serializer,
+    model_validator,
+)
 
-from rodctl.config.base import Angle, Coordinate, Pose, StrictModel, bounded
+from rodctl.config.base import Angle, Coordinate, Point2, Pose, StrictModel, bounded
+
+#: Standard gravity (m/s²): the weight pressing a rod on the table (`table_friction`).
+STANDARD_GRAVITY = 9.80665
+
+#: Material presets: outer diameter (m), wall thickness (m, None = solid), Young's modulus (Pa),
+#: density (kg/m³). Sources and ranges are in the README ("Materials"); the power cable is an
+#: effective (composite) modulus chosen so that it is the default rod.
+MATERIALS: dict[str, dict[str, float | None]] = {
+    "spring_steel_wire": {"diameter": 1.0e-3, "wall": None, "modulus": 200e9, "density": 7850.0},
+    "nitinol_wire": {"diameter": 1.0e-3, "wall": None, "modulus": 75e9, "density": 6450.0},
+    "pvc_tube": {"diameter": 8.0e-3, "wall": 1.5e-3, "modulus": 20e6, "density": 1250.0},
+    "silicone_tube": {"diameter": 8.0e-3, "wall": 1.5e-3, "modulus": 3e6, "density": 1150.0},
+    "rubber_cord": {"diameter": 6.0e-3, "wall": None, "modulus": 2e6, "density": 950.0},
+    "power_cable": {"diameter": 10.0e-3, "wall": None, "modulus": 10.19e6, "density": 1000.0},
+}
+
+
+class MaterialConfig(StrictModel):
+    """A round rod or tube of one material: EI and ρA follow from its section.
+
+    `name` picks a preset whose diameter, wall, modulus and density are the defaults; any of
+    them may be given to override the preset (e.g. a thicker PVC tube). `name: custom` needs all
+    of diameter, modulus and density.
+    """
+
+    name: Literal[
+        "spring_steel_wire",
+        "nitinol_wire",
+        "pvc_tube",
+        "silicone_tube",
+        "rubber_cord",
+        "power_cable",
+        "custom",
+    ] = Field(description="A preset (see the README's materials table) or 'custom'.")
+    diameter: PositiveFloat | None = Field(None, le=1.0, description="Outer diameter (m).")
+    wall: PositiveFloat | None = Field(
+        None,
+        le=0.5,
+        description="Tube wall thickness (m); None: the preset's (solid for a wire/cord).",
+    )
+    modulus: PositiveFloat | None = Field(None, le=1e13, description="Young's modulus E (Pa).")
+    density: PositiveFloat | None = Field(None, le=1e5, description="Density (kg/m³).")
+
+    @model_validator(mode="after")
+    def _complete(self) -> MaterialConfig:
+        self.section()  # raises a ValueError naming what is missing or inconsistent
+        return self
+
+    def section(self) -> tuple[float, float | None, float, float]:
+        """(diameter, wall or None, modulus, density) resolved against the preset, checked."""
+        preset = MATERIALS.get(self.name, {})
+        vals: dict[str, Any] = {}
+        for key in ("diameter", "wall", "modulus", "density"):
+            own = getattr(self, key)
+            vals[key] = own if own is not None else preset.get(key)
+        for key in ("diameter", "modulus", "density"):
+            if vals[key] is None:
+                raise ValueError(f"material '{self.name}' needs {key}")
+        d, wall = float(vals["diameter"]), vals["wall"]
+        if wall is not None and not 2 * wall < d:
+            raise ValueError(f"wall {wall} m must be less than half the diameter {d} m")
+        return (
+            d,
+            (None if wall is None else float(wall)),
+            float(vals["modulus"]),
+            float(vals["density"]),
+        )
+
+    def stiffness_and_mass(self) -> tuple[float, float]:
+        """(EI in N m², ρA in kg/m) of the round section: I = π(d⁴ − dᵢ⁴)/64, A = π(d² − dᵢ²)/4."""
+        d, wall, modulus, density = self.section()
+        inner = 0.0 if wall is None else d - 2.0 * wall
+        second_moment = math.pi * (d**4 - inner**4) / 64.0
+        area = math.pi * (d**2 - inner**2) / 4.0
+        return modulus * second_moment, density * area
 
 
 class WorkspaceConfig(StrictModel):
@@ -53,10 +137,36 @@ class RodConfig(StrictModel):
 
     length: PositiveFloat = Field(0.5, le=100.0, description="Rod length L (m).")
     bending_stiffness: PositiveFloat = Field(
-        5e-3, le=1e6, description="Bending stiffness EI (N m^2)."
+        5e-3,
+        le=1e6,
+        description="Bending stiffness EI (N m^2). Computed from `material` if that is set.",
     )
     mass_per_length: PositiveFloat = Field(
-        0.0785, le=1e4, description="Mass per unit length rho*A (kg/m)."
+        0.0785,
+        le=1e4,
+        description="Mass per unit length rho*A (kg/m). Computed from `material` if that is set.",
+    )
+    material: MaterialConfig | None = Field(
+        None,
+        description=(
+            "A real rod's material and section (a preset name, fields override it); sets EI and "
+            "rho*A. Giving EI or rho*A as well is allowed only if they agree with it."
+        ),
+    )
+    gravity: Point2 = Field(
+        (0.0, 0.0),
+        description=(
+            "Gravity in the rod's plane [gx, gy] (m/s^2, world frame): a rod in a vertical plane, "
+            "e.g. [0, -9.81]. [0, 0]: weightless (the paper's set-up)."
+        ),
+    )
+    table_friction: NonNegativeFloat | None = Field(
+        None,
+        le=10.0,
+        description=(
+            "Coulomb friction coefficient of a table under a horizontal rod (its weight, at "
+            "standard gravity, presses it on the table). None: no table. Exclusive with gravity."
+        ),
     )
     segments: int = Field(50, le=1000, ge=2, description="Number of rigid segments in the chain.")
     clamp_pose: Pose = Field((0.0, 0.0, 0.0), description="Pose of the clamped end (world).")
@@ -131,6 +241,59 @@ class RodConfig(StrictModel):
         ),
     )
 
+    @model_serializer(mode="wrap")
+    def _omit_off_physics(self, handler: Any) -> Any:
+        """Leave `material`, `gravity` and `table_friction` out of a dump while they are off.
+
+        Why: the resolved config is logged in every run (MCAP metadata, header, attachment), and
+        a weightless rod without a table must keep producing byte-identical logs to the versions
+        before these keys existed. The keys are still in the schema (`rodctl config schema`).
+        """
+        data = handler(self)
+        if isinstance(data, dict):
+            if self.material is None:
+                data.pop("material", None)
+            if tuple(self.gravity) == (0.0, 0.0):
+                data.pop("gravity", None)
+            if self.table_friction is None:
+                data.pop("table_friction", None)
+        return data
+
+    @model_validator(mode="before")
+    @classmethod
+    def _material_sets_section(cls, data: Any) -> Any:
+        """Fill EI and rho*A from `material`; explicit values must agree (a resolved config
+        carries both, and must load again)."""
+        if not isinstance(data, dict) or data.get("material") is None:
+            return data
+        material = data["material"]
+        if not isinstance(material, MaterialConfig):
+            try:
+                material = MaterialConfig.model_validate(material)
+            except ValidationError:
+                return data  # the field's own validation reports it, at rod.material.<key>
+        ei, rho_a = material.stiffness_and_mass()
+        out = dict(data)
+        for key, value in (("bending_stiffness", ei), ("mass_per_length", rho_a)):
+            given = out.get(key)
+            if given is not None and not _close(given, value):
+                raise ValueError(
+                    f"{key} = {given} disagrees with material '{material.name}' ({value:.6g}); "
+                    f"give one or the other"
+                )
+            out[key] = value
+        out["material"] = material
+        return out
+
+    @model_validator(mode="after")
+    def _one_plane(self) -> RodConfig:
+        if self.table_friction is not None and tuple(self.gravity) != (0.0, 0.0):
+            raise ValueError(
+                "table_friction (a horizontal rod on a table) and an in-plane gravity (a rod in a "
+                "vertical plane) exclude each other; set one of them"
+            )
+        return self
+
     @model_validator(mode="after")
     def _home_inside(self) -> RodConfig:
         if self.home_pose is not None:
@@ -149,3 +312,10 @@ class RodConfig(StrictModel):
                     f"max_reach * length = {ws.max_reach * self.length:.4g} m from the clamp"
                 )
         return self
+
+
+def _close(given: Any, value: float) -> bool:
+    try:
+        return abs(float(given) - value) <= 1e-9 * abs(value)
+    except (TypeError, ValueError):
+        return False

@@ -10,6 +10,7 @@ from typing import Literal
 from pydantic import Field, PositiveFloat, PositiveInt, model_validator
 
 from rodctl.config.base import Pose, StrictModel, bounded
+from rodctl.events import Event
 
 Outcome = Literal[
     "converged", "stalled", "pinned", "step_limit", "diverged", "lost_tracking", "completed"
@@ -87,6 +88,11 @@ class RunConfig(StrictModel):
     )
     max_lost_frames: PositiveInt = Field(
         3, le=100_000, description="Consecutive failed centerline extractions that end the run."
+    )
+    events: list[Event] = Field(
+        default_factory=list,
+        description="Mid-run events: at a control step (probing included), before its move, the "
+        "rod, the clamp, the grasp or the camera changes (rodctl/events.py, README).",
     )
     expect: Outcome | None = Field(
         None,

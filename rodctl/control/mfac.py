@@ -20,13 +20,10 @@ from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field, field_validator
-from scipy.linalg import lapack
 
+from rodctl import fixedla as fla
 from rodctl.config.base import StrictModel
 from rodctl.registry import CONTROLLERS, BuildContext
-
-# A raw LAPACK call: numpy.linalg.solve spends more time checking a 3 x 3 system than solving it.
-_dposv = lapack.dposv
 
 
 def _check_weights(weights: Sequence[float]) -> np.ndarray:
@@ -97,15 +94,18 @@ def mfac_step(
 
     Arguments as in `mfac_cost`. Returns the (q,) command u_k.
     """
+    # Fixed-order arithmetic (rodctl.fixedla), not BLAS/LAPACK: the command must be the same
+    # bits on every machine (README, "Reproducibility"); a 3 x 3 Cholesky in Python floats is
+    # also faster than a LAPACK call.
     w1, w2, w3, w4, w5, w6, w7 = (float(x) for x in weights)
     q = J.shape[1]
-    JT = J.T
-    H = (w1 + w2 + w3 + w4) * (JT @ J)  # G_k^-1 (eq. 24) ...
+    JT = np.ascontiguousarray(J.T)
+    H = (w1 + w2 + w3 + w4) * fla.matmul(JT, J)  # G_k^-1 (eq. 24) ...
     H.flat[:: q + 1] += w5 + w6 + w7  # ... + (w5 + w6 + w7) I_q
-    rhs = JT @ (w1 * e - w2 * s + w4 * (J_prev @ u_prev)) - w5 * r + w7 * u_prev
-    _, u, info = _dposv(H, rhs, lower=1)  # H is symmetric positive definite
-    if info != 0:
-        raise np.linalg.LinAlgError(f"MFAC normal matrix not positive definite (info={info})")
+    rhs = fla.matvec(JT, w1 * e - w2 * s + w4 * fla.matvec(J_prev, u_prev)) - w5 * r + w7 * u_prev
+    u = fla.spd_solve(H, rhs)  # H is symmetric positive definite
+    if u is None:
+        raise np.linalg.LinAlgError("MFAC normal matrix not positive definite")
     return u
 
 

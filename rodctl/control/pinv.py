@@ -4,8 +4,9 @@ A re-implementation from published descriptions (method-notes section 4; researc
 section 3), not the authors' code. method-notes writes u = -lambda J^+ sat(s - s*); sat is odd,
 so that is the same law. Assumptions we made:
 - sat clips each feature-error component to +-`error_limit` (per component, not by norm);
-- J^+ is numpy's SVD pseudo-inverse with singular values below rcond * sigma_max dropped, so a
-  direction J barely observes does not ask for a huge move;
+- J^+ is the pseudo-inverse with singular values below rcond * sigma_max dropped (as numpy's
+  SVD pinv does; computed in fixed-order arithmetic, `rodctl.fixedla.pinv`), so a direction J
+  barely observes does not ask for a huge move;
 - the per-axis speed saturation of u is the loop's, as for every law.
 """
 
@@ -16,6 +17,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, PositiveFloat
 
+from rodctl import fixedla as fla
 from rodctl.config.base import StrictModel
 from rodctl.registry import CONTROLLERS, BuildContext
 
@@ -39,7 +41,9 @@ class PinvController:
     ) -> np.ndarray:
         """u = lambda J^+ clip(s* - s, +-error_limit); s, s* (p,), J (p, q), r unused. (q,)."""
         e = np.clip(np.asarray(s_target, float) - np.asarray(s, float), -self._limit, self._limit)
-        return self._gain * (np.linalg.pinv(np.asarray(J, float), rcond=self._rcond) @ e)
+        # rodctl.fixedla: the same bits on every machine, unlike LAPACK's SVD (README,
+        # "Reproducibility"); same truncation rule as numpy.linalg.pinv.
+        return self._gain * fla.matvec(fla.pinv(np.asarray(J, float), rcond=self._rcond), e)
 
 
 # --- config and registration ------------------------------------------------------------

@@ -24,6 +24,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
+from rodctl import fixedla as fla
 from rodctl.config.base import StrictModel
 from rodctl.registry import CONTROLLERS, BuildContext
 
@@ -63,13 +64,16 @@ def solve_box_qp(H: np.ndarray, g: np.ndarray, lower: np.ndarray, upper: np.ndar
         u = np.where(st == 1, lo, np.where(st == 2, hi, 0.0))
         free = st == 0
         if free.any():
-            rhs = -(g[free] + H[np.ix_(free, ~free)] @ u[~free])
-            u[free] = np.linalg.solve(H[np.ix_(free, free)], rhs)
+            rhs = -(g[free] + fla.matvec(H[np.ix_(free, ~free)], u[~free]))
+            sol = fla.spd_solve(H[np.ix_(free, free)], rhs)  # a principal block of an SPD H
+            if sol is None:
+                raise np.linalg.LinAlgError("QP Hessian is not positive definite")
+            u[free] = sol
             span = hi[free] - lo[free]
             slack = 1e-12 * (span + 1.0)
             if np.any(u[free] < lo[free] - slack) or np.any(u[free] > hi[free] + slack):
                 continue
-        grad = H @ u + g
+        grad = fla.matvec(H, u) + g
         # KKT: at a lower bound the objective must rise going up (grad >= 0), at an upper one
         # it must rise going down (grad <= 0).
         if np.any(grad[st == 1] < -tol) or np.any(grad[st == 2] > tol):
@@ -106,8 +110,9 @@ class QpController:
         """The QP step u (q,) from s, s* (p,) and J (p, q); r is unused."""
         J = np.asarray(J, dtype=float)
         e = np.asarray(s_target, dtype=float) - np.asarray(s, dtype=float)
-        H = J.T @ J + self._R
-        g = -self._gain * (J.T @ e)
+        JT = np.ascontiguousarray(J.T)
+        H = fla.matmul(JT, J) + self._R  # fixed order: the same bits on every machine
+        g = -self._gain * fla.matvec(JT, e)
         return solve_box_qp(H, g, -self._max, self._max)
 
 

@@ -8,7 +8,7 @@ Why it is written the way it is:
 - Speed. The loop runs one update per control step and the goal is <= 100 us for the AKF and the
   MFAC law together (p = 6, q = 3: an 18-dimensional state). M_k is never formed: with the
   Kronecker structure, P M^T is `P.reshape(pq, p, q) @ u` and M (P M^T) is `u @ (.).reshape(p,
-  q, p)`, so every product is a small dense numpy call; no scipy per step.
+  q, p)`, so every product is a small dense numpy call; no scipy.
 - Robustness. The noise estimates Q and R (eqs. 32-33) are fading-memory sums that can lose
   definiteness (eq. 32 subtracts a matrix, Q's increment contains P_k - P_{k|k-1}), so after each
   update they are symmetrised and their eigenvalues clipped to a floor. The clip costs an `eigh`
@@ -24,17 +24,20 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, PositiveFloat, model_validator
-from scipy.linalg import lapack
 
 from rodctl.config.base import StrictModel
 from rodctl.estimation.base import DEAD_ZONE_DOC, checked_jacobian
 from rodctl.registry import ESTIMATORS, BuildContext
 
-# Raw LAPACK calls: scipy.linalg's high-level wrappers (and numpy.linalg's) spend more time
-# checking their small inputs than the 18 x 18 factorisations themselves take.
-_dpotrf = lapack.dpotrf
-_dposv = lapack.dposv
-_dsyevd = lapack.dsyevd
+# numpy.linalg rather than scipy.linalg.lapack's raw calls: importing scipy.linalg costs about
+# 0.3 s of every run's start (issue #17), more than a whole run's extra per-call overhead.
+# These LAPACK calls (and the BLAS products below) are the one part of the per-step path whose
+# last bits still depend on the BLAS kernel: a fixed-order 18 x 18 eigendecomposition costs
+# about 1 ms in numpy (README, "Reproducibility").
+_cholesky = np.linalg.cholesky
+_eigh = np.linalg.eigh
+_solve = np.linalg.solve
+_LinAlgError = np.linalg.LinAlgError
 
 
 def igg3_factor(stat: float, c0: float, c1: float, floor: float) -> float:
@@ -79,14 +82,14 @@ def clip_psd(a: np.ndarray, floor: float, shifted_eye: np.ndarray | None = None)
     if shifted_eye is None:
         shifted_eye = floor * np.eye(a.shape[0])
     # All eigenvalues > floor  <=>  a - floor I is positive definite: then nothing to clip.
-    _, info = _dpotrf(a - shifted_eye, lower=1, clean=0, overwrite_a=1)
-    if info == 0:
+    try:
+        _cholesky(a - shifted_eye)
         return a
+    except _LinAlgError:
+        pass
     # A full eigendecomposition: clipping only the low eigenpairs (dsyevr with a range) is a
     # little faster but leaves eigenvalues ~1e-11 * ||a|| below the floor; this stays ~1e-13.
-    w, v, info = _dsyevd(a, compute_v=1, lower=1)
-    if info != 0:  # pragma: no cover - LAPACK failure on a finite symmetric matrix
-        raise np.linalg.LinAlgError(f"eigendecomposition failed (LAPACK info={info})")
+    w, v = _eigh(a)
     out = (v * np.maximum(w, floor)) @ v.T
     return 0.5 * (out + out.T)  # exactly symmetric again after the round trip
 
@@ -221,10 +224,8 @@ class AdaptiveKalmanJacobian:
         alpha = igg3_factor(stat, self._c0, self._c1, self._floor)  # eq. 29
         inv_a = 1.0 / alpha
 
-        S = inv_a * G + self._R  # eq. 28
-        _, SiMP, info = _dposv(S, PMt.T, lower=1)  # S^-1 M P-, S symmetric positive definite
-        if info != 0:
-            raise np.linalg.LinAlgError(f"innovation covariance not positive definite ({info})")
+        S = inv_a * G + self._R  # eq. 28; symmetric positive definite (R is clipped to r_min)
+        SiMP = _solve(S, PMt.T)  # S^-1 M P-
         K = inv_a * SiMP.T  # (n, p)
         Keps = K @ eps
         self._J = self._J + Keps.reshape(p, q)

@@ -31,18 +31,18 @@ projection Jacobian to get pixels.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field
 
+from rodctl import fixedla as fla
 from rodctl.config.base import StrictModel
 from rodctl.estimation.base import checked_jacobian
 from rodctl.geometry import resample_polyline
 from rodctl.registry import ESTIMATORS, BuildContext
-
-_ROT90 = np.array([[0.0, -1.0], [1.0, 0.0]])
 
 
 def asap_matrix(rest: np.ndarray) -> np.ndarray:
@@ -65,9 +65,10 @@ def asap_matrix(rest: np.ndarray) -> np.ndarray:
     A = np.zeros((2 * m, 2 * m))
     for k in range(m - 2):
         c = rest[k : k + 3].reshape(6)
-        cc = L @ c  # L_k c: centred triad
-        tc = (cc.reshape(3, 2) @ _ROT90.T).reshape(6)  # T L_k c = L_k T c
-        norm2 = float(cc @ cc)  # c^T L_k c (L_k symmetric idempotent)
+        # fixed-order arithmetic (rodctl.fixedla): the model must not depend on the BLAS kernel
+        cc = fla.matvec(L, c)  # L_k c: centred triad
+        tc = np.column_stack([-cc[1::2], cc[0::2]]).reshape(6)  # T L_k c = L_k T c (T: +90 deg)
+        norm2 = fla.dot(cc, cc)  # c^T L_k c (L_k symmetric idempotent)
         if norm2 <= 0.0:
             raise ValueError(f"nodes {k}..{k + 2} of the rest shape coincide")
         Ak = (np.outer(cc, cc) + np.outer(tc, tc)) / norm2 - L
@@ -109,7 +110,12 @@ def asap_node_jacobian(
 
     cg, cn = coords(g), coords(rest_idx)
     # Equilibrium of the non-held nodes: A_nn q_n + A_ng q_g = 0.
-    J_ng = -np.linalg.solve(A[np.ix_(cn, cn)], A[np.ix_(cn, cg)])
+    # -A_nn is symmetric positive definite (held nodes remove the similarity null space);
+    # solved by a fixed-order Cholesky so the model is the same bits on every machine.
+    L = fla.cholesky(-A[np.ix_(cn, cn)])
+    if L is None:
+        raise ValueError("the held nodes do not fix the chain (ASAP matrix not definite)")
+    J_ng = fla.cho_solve(L, A[np.ix_(cn, cg)])
     row_of = {int(node): i for i, node in enumerate(rest_idx)}
     rows = coords([row_of[i] for i in s])
     return J_ng[rows]
@@ -123,12 +129,12 @@ def gripper_block(rest: np.ndarray) -> np.ndarray:
     """
     rest = np.asarray(rest, dtype=float)
     d = rest[-1] - rest[-2]
-    grip = float(np.hypot(*d))  # spacing of the two held nodes
-    th = float(np.arctan2(d[1], d[0]))
+    grip = math.hypot(float(d[0]), float(d[1]))  # spacing of the two held nodes
+    th = math.atan2(float(d[1]), float(d[0]))
     return np.array(
         [
-            [1.0, 0.0, grip * np.sin(th)],
-            [0.0, 1.0, -grip * np.cos(th)],
+            [1.0, 0.0, grip * math.sin(th)],
+            [0.0, 1.0, -grip * math.cos(th)],
             [1.0, 0.0, 0.0],
             [0.0, 1.0, 0.0],
         ]
@@ -156,7 +162,8 @@ def asap_jacobian(rest: np.ndarray, servoed: Sequence[int], *, clamp_nodes: int 
     clamp = list(range(clamp_nodes))
     grip = [m - 2, m - 1]
     J_sg = asap_node_jacobian(rest, clamp + grip, servoed)
-    return J_sg[:, 2 * clamp_nodes :] @ gripper_block(rest)  # clamp columns get zero velocity
+    # clamp columns get zero velocity
+    return fla.matmul(J_sg[:, 2 * clamp_nodes :], gripper_block(rest))
 
 
 def servoed_indices(nodes: int, fractions: Sequence[float], *, clamp_nodes: int = 2) -> list[int]:

@@ -15,6 +15,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
+from rodctl import fixedla as fla
 from rodctl.config.base import StrictModel
 from rodctl.estimation.base import DEAD_ZONE_DOC, checked_jacobian
 from rodctl.registry import ESTIMATORS, BuildContext
@@ -57,13 +58,13 @@ class BroydenJacobian:
         """J += gamma (ds - J dr) dr^T / (dr^T dr); ds (p,), dr (q,). Returns (p, q)."""
         dr = np.asarray(dr, dtype=float)
         ds = np.asarray(ds, dtype=float)
-        nn = float(dr @ dr)
+        nn = fla.dot(dr, dr)  # fixed-order sums (rodctl.fixedla): no BLAS kernel in the loop
         if np.sqrt(nn) < self._dead_zone:
             self._info = {"skipped": 1.0, "residual": 0.0}
             return self._J.copy()
-        resid = ds - self._J @ dr
+        resid = ds - fla.matvec(self._J, dr)
         self._J = self._J + (self._gamma / nn) * np.outer(resid, dr)
-        self._info = {"skipped": 0.0, "residual": float(np.linalg.norm(resid))}
+        self._info = {"skipped": 0.0, "residual": fla.norm(resid)}
         return self._J.copy()
 
     def info(self) -> dict[str, float]:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from rodctl import fixedla as fla
+
 
 def probe_moves(q: int, size: np.ndarray) -> np.ndarray:
     """The q + 1 probing increments: +size_i along each axis i, then -sum of them.
@@ -50,8 +52,17 @@ def fit_jacobian(dS: np.ndarray, dR: np.ndarray) -> np.ndarray:
     if dS.ndim != 2 or dR.ndim != 2 or dS.shape[0] != dR.shape[0]:
         raise ValueError(f"need dS (n, p) and dR (n, q) with equal n, got {dS.shape}, {dR.shape}")
     q = dR.shape[1]
-    JT, _, rank, _ = np.linalg.lstsq(dR, dS, rcond=None)
-    if rank < q:
+    # Normal equations in fixed-order arithmetic (rodctl.fixedla) rather than LAPACK's lstsq,
+    # whose result depends on the machine's BLAS kernel: J_0 seeds every later estimate. The
+    # probing moves are q + 1 axis-aligned moves, so dR^T dR is well conditioned whenever it
+    # has full rank. Rank: eigenvalues of dR^T dR above 64 q eps times the largest (rounding
+    # leaves about eps * lambda_max where dR has no extent; a singular value ratio of 2e-7).
+    gram = fla.matmul(np.ascontiguousarray(dR.T), dR)
+    w, _ = fla.eigh_small(gram, vectors=False)
+    tol = 64 * q * np.finfo(float).eps * float(w[-1])
+    rank = int(np.sum(w > tol)) if w[-1] > 0 else 0
+    JT = fla.spd_solve(gram, fla.matmul(np.ascontiguousarray(dR.T), dS)) if rank == q else None
+    if JT is None:
         raise ValueError(
             f"the {dR.shape[0]} moves span only {rank} of {q} axes: J is not determined"
         )

@@ -18,6 +18,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
+from rodctl import fixedla as fla
 from rodctl.config.base import StrictModel
 from rodctl.estimation.base import DEAD_ZONE_DOC, checked_jacobian
 from rodctl.registry import ESTIMATORS, BuildContext
@@ -65,23 +66,35 @@ class WindowedLsJacobian:
         """Add the pair ds (p,), dr (q,) to the window and refit. Returns (p, q)."""
         dr = np.asarray(dr, dtype=float)
         ds = np.asarray(ds, dtype=float)
-        if float(np.linalg.norm(dr)) < self._dead_zone:
+        if fla.norm(dr) < self._dead_zone:
             self._info = {"skipped": 1.0, "window": float(len(self._dR))}
             return self._J.copy()
         self._dR.append(dr.copy())
         self._dS.append(ds.copy())
         R = np.asarray(self._dR)  # (w, q)
         S = np.asarray(self._dS)  # (w, p)
-        A = R.T @ R + self._ridge * np.eye(self.q)  # (q, q)
-        B = S.T @ R + self._ridge * self._J  # (p, q)
-        if self._ridge > 0.0 or np.linalg.matrix_rank(A) == self.q:
-            self._J = np.linalg.solve(A, B.T).T
+        # Fixed-order arithmetic (rodctl.fixedla), not BLAS/LAPACK: the same bits everywhere.
+        A = fla.matmul(R.T, R) + self._ridge * np.eye(self.q)  # (q, q)
+        B = fla.matmul(S.T, R) + self._ridge * self._J  # (p, q)
+        if self._ridge > 0.0 or _full_rank(A):
+            sol = fla.spd_solve(A, np.ascontiguousarray(B.T))
+            if sol is not None:
+                self._J = sol.T
         self._info = {"skipped": 0.0, "window": float(len(self._dR))}
         return self._J.copy()
 
     def info(self) -> dict[str, float]:
         """skipped (1.0 in the dead zone) and the number of pairs in the window."""
         return dict(self._info)
+
+
+def _full_rank(a: np.ndarray) -> bool:
+    """Whether the Gram matrix dR^T dR has full rank: every eigenvalue above 64 q eps times the
+    largest (rounding leaves about eps * lambda_max where the moves have no extent).
+    """
+    w, _ = fla.eigh_small(a, vectors=False)
+    top = float(w[-1])
+    return top > 0.0 and float(w[0]) > top * 64 * a.shape[0] * np.finfo(float).eps
 
 
 # --- config and registration ------------------------------------------------------------

@@ -14,63 +14,96 @@ first and last layers: a 200-128-64-6 forward pass is three small mat-vecs, a fe
 where one torch call costs tens of microseconds of overhead alone. `torch_encode` runs the same
 checkpoint through torch, and the tests check the two agree.
 
-A checkpoint is a plain dict of tensors, numbers and strings written by `torch.save`, loadable with
-`torch.load(..., weights_only=True)`. It carries a *fingerprint* of what the learned feature
-depends on: the rod geometry (length, clamp pose), the camera geometry, N and the architecture,
-but not noise levels, seeds or training settings. Loading it for a config whose fingerprint
-differs is a `UserError` naming the file and every differing field.
+A checkpoint comes in two files with the same content: `encoder.npz` (numpy arrays and one JSON
+text, read with `numpy.load(..., allow_pickle=False)`), which is what experiments load, without
+importing torch (torch takes about a second to import, longer than a whole default run: issue
+#17); and `encoder.pt`, a plain dict of tensors, numbers and strings written by `torch.save` and
+loadable with `torch.load(..., weights_only=True)`, kept for training tools. `EncoderCheckpoint.
+load` reads either, by suffix. A checkpoint carries a *fingerprint* of what the learned feature
+depends on: the rod geometry (length, clamp pose) and, when present, its in-plane gravity load
+per stiffness, the camera geometry, N and the architecture, but not noise levels, seeds, table
+friction or training settings. Loading it for a config whose fingerprint
+differs is a `UserError` naming the file and the config keys to change.
+
+torch is imported only inside the functions that need it (`AutoencoderNet`, `torch_encode`,
+`.pt` files), never at module import.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
-from torch import nn
 
+from rodctl import fixedla as fla
 from rodctl.config.experiment import ExperimentConfig
 from rodctl.errors import UserError
 from rodctl.features.autoencoder_config import AutoencoderFeatureConfig
 from rodctl.features.geometry import check_centerlines
+
+if TYPE_CHECKING:
+    import torch
 
 #: Identifies our checkpoints; bump VERSION when the layout changes.
 FORMAT = "rodctl.autoencoder"
 VERSION = 1
 
 #: The checkpoint packaged with rodctl and used when `feature.checkpoint` is None.
-DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "assets" / "encoder.pt"
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "assets" / "encoder.npz"
 
 
-class AutoencoderNet(nn.Module):
-    """Encoder 2N -> hidden -> p (linear latent) and a mirrored decoder, ReLU in between.
+def AutoencoderNet(inputs: int, hidden: list[int], latent_dim: int) -> torch.nn.Module:  # noqa: N802
+    """The torch module: encoder 2N -> hidden -> p (linear latent), mirrored decoder, ReLU in
+    between; `forward` maps (B, 2N) normalised inputs to their reconstruction.
+
+    A factory rather than a module-level class so that importing this module never imports
+    torch. Parameter names: encoder.{0,2,..}.weight/bias, decoder.{0,2,..}.weight/bias.
 
     Args:
         inputs: 2N.
         hidden: encoder hidden widths, e.g. [128, 64]; the decoder uses them reversed.
         latent_dim: p.
     """
+    from torch import nn
 
-    def __init__(self, inputs: int, hidden: list[int], latent_dim: int) -> None:
-        super().__init__()
-        self.encoder = _mlp([inputs, *hidden, latent_dim])
-        self.decoder = _mlp([latent_dim, *reversed(hidden), inputs])
+    class _Net(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.encoder = _mlp(nn, [inputs, *hidden, latent_dim])
+            self.decoder = _mlp(nn, [latent_dim, *reversed(hidden), inputs])
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """(B, 2N) normalised inputs -> (B, 2N) normalised reconstruction."""
-        return self.decoder(self.encoder(x))
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            return self.decoder(self.encoder(x))
+
+    return _Net()
 
 
-def _mlp(widths: list[int]) -> nn.Sequential:
-    layers: list[nn.Module] = []
+def _mlp(nn: Any, widths: list[int]) -> Any:
+    layers: list[Any] = []
     for i, (a, b) in enumerate(zip(widths[:-1], widths[1:], strict=True)):
         layers.append(nn.Linear(a, b))
         if i < len(widths) - 2:
             layers.append(nn.ReLU())
     return nn.Sequential(*layers)
+
+
+def parameter_shapes(arch: dict[str, Any]) -> dict[str, tuple[int, ...]]:
+    """{parameter name: shape} of the network an architecture record describes (no torch)."""
+    inputs, latent = int(arch["inputs"]), int(arch["latent_dim"])
+    hidden = [int(h) for h in arch["hidden"]]
+    out: dict[str, tuple[int, ...]] = {}
+    for part, widths in (
+        ("encoder", [inputs, *hidden, latent]),
+        ("decoder", [latent, *reversed(hidden), inputs]),
+    ):
+        for i, (a, b) in enumerate(zip(widths[:-1], widths[1:], strict=True)):
+            out[f"{part}.{2 * i}.weight"] = (b, a)
+            out[f"{part}.{2 * i}.bias"] = (b,)
+    return out
 
 
 def architecture_of(feature: AutoencoderFeatureConfig, points: int) -> dict[str, Any]:
@@ -103,7 +136,7 @@ def encoder_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
     return {
         "points": cfg.camera.points,
         "architecture": architecture_of(cfg.feature, cfg.camera.points),
-        "rod": {"length": cfg.rod.length, "clamp_pose": list(cfg.rod.clamp_pose)},
+        "rod": _rod_fingerprint(cfg),
         "camera": {
             "width": cfg.camera.width,
             "height": cfg.camera.height,
@@ -111,6 +144,31 @@ def encoder_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
             "arc_length": cfg.camera.extract.arc_length,
         },
     }
+
+
+def _rod_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
+    """The rod's part of the fingerprint: geometry, plus in-plane gravity when there is some.
+
+    A weightless rod's settled shapes depend only on L and the end poses. Gravity in the plane
+    changes the family of shapes: it adds the distributed load per stiffness ρA·g/EI (1/m³, the
+    only combination the heavy elastica depends on), so a checkpoint is refused when that
+    differs. Measured with `benchmarks/bench_encoder_fit.py` (300 fresh shapes each): the
+    packaged weightless encoder reconstructs 0.41 px mean on its own rod, 0.62 px with gravity
+    at q L³/EI = 19 and 1.59 px at 85 — the error grows with the load, so it is refused.
+
+    Table friction is left out on purpose: it only makes the shapes path-dependent within a
+    band of a few millimetres around the weightless equilibria (same family), and the packaged
+    encoder reconstructs table shapes (μ = 0.5) at 0.50 px mean, within its 1 px goal.
+
+    The gravity key is present only when gravity is on, so checkpoints of the weightless rod
+    (the packaged one included) keep their fingerprint.
+    """
+    rod = cfg.rod
+    out: dict[str, Any] = {"length": rod.length, "clamp_pose": list(rod.clamp_pose)}
+    if tuple(rod.gravity) != (0.0, 0.0):
+        scale = rod.mass_per_length / rod.bending_stiffness
+        out["gravity_load_per_stiffness"] = [scale * g for g in rod.gravity]
+    return out
 
 
 def fingerprint_differences(stored: Any, expected: Any, prefix: str = "") -> list[str]:
@@ -148,12 +206,84 @@ def fingerprint_differences(stored: Any, expected: Any, prefix: str = "") -> lis
     return [] if same else [f"{prefix}: checkpoint has {stored!r}, config has {expected!r}"]
 
 
+#: Fingerprint fields -> the config keys a user sets to change them.
+_FINGERPRINT_KEYS = {
+    "points": ["camera.points"],
+    "architecture.inputs": ["camera.points"],
+    "architecture.hidden": ["feature.hidden"],
+    "architecture.latent_dim": ["feature.latent_dim"],
+    "architecture.activation": ["feature.type"],
+    "rod.length": ["rod.length"],
+    "rod.clamp_pose": ["rod.clamp_pose"],
+    "camera.width": ["camera.width"],
+    "camera.height": ["camera.height"],
+    "camera.arc_length": ["camera.extract.arc_length"],
+    "camera.homography": [
+        "camera.fx",
+        "camera.fy",
+        "camera.cx",
+        "camera.cy",
+        "camera.look_at",
+        "camera.distance",
+        "camera.tilt_deg",
+        "camera.azimuth_deg",
+        "camera.width",
+        "camera.height",
+    ],
+}
+
+
+def _lookup(data: Any, dotted: str) -> Any:
+    for part in dotted.split("."):
+        if not isinstance(data, dict) or part not in data:
+            return None
+        data = data[part]
+    return data
+
+
+def config_key_differences(
+    checkpoint: EncoderCheckpoint, experiment: ExperimentConfig | None, diffs: list[str]
+) -> list[str]:
+    """The fingerprint differences `diffs` restated as the config keys that cause them.
+
+    Each differing fingerprint field is mapped to the config keys it derives from, and those
+    keys are compared between the config the checkpoint was trained with (`config_yaml`) and
+    `experiment`: "camera.tilt_deg: the encoder's 25.0, this config's 35.0". A field whose keys
+    cannot be compared (no experiment, an old checkpoint without its config) stays as it is,
+    with the keys that may cause it.
+    """
+    import yaml
+
+    try:
+        trained = yaml.safe_load(checkpoint.config_yaml) if checkpoint.config_yaml else None
+    except yaml.YAMLError:
+        trained = None
+    current = experiment.model_dump(mode="json") if experiment is not None else None
+    out: list[str] = []
+    for diff in diffs:
+        field_name = diff.split(":", 1)[0]
+        keys = _FINGERPRINT_KEYS.get(field_name, [])
+        named = []
+        if isinstance(trained, dict) and current is not None:
+            for key in keys:
+                a, b = _lookup(trained, key), _lookup(current, key)
+                if a != b:
+                    named.append(f"{key}: the encoder's {a!r}, this config's {b!r}")
+        if named:
+            out.extend(n for n in named if n not in out)
+        elif keys:
+            out.append(f"{diff} (set by {', '.join(keys)})")
+        else:
+            out.append(diff)
+    return out
+
+
 @dataclass
 class EncoderCheckpoint:
     """A trained autoencoder with everything needed to use and to trust it.
 
     Attributes:
-        state_dict: `AutoencoderNet` parameters (float32 tensors).
+        state_dict: `AutoencoderNet` parameters as float32 numpy arrays.
         architecture: {"inputs": 2N, "hidden": [...], "latent_dim": p, "activation": "relu"}.
         input_mean: (2N,) per-coordinate mean of the training centerlines, pixels.
         input_scale: pooled standard deviation of the training centerlines, pixels.
@@ -163,7 +293,7 @@ class EncoderCheckpoint:
         metrics: training figures (reconstruction errors in pixels, sizes, times).
     """
 
-    state_dict: dict[str, torch.Tensor]
+    state_dict: dict[str, np.ndarray]
     architecture: dict[str, Any]
     input_mean: np.ndarray
     input_scale: float
@@ -177,44 +307,71 @@ class EncoderCheckpoint:
         """N, the centerline points the encoder takes."""
         return int(self.architecture["inputs"]) // 2
 
-    def network(self) -> AutoencoderNet:
-        """The torch module with these weights, in eval mode."""
+    def network(self) -> torch.nn.Module:
+        """The torch module with these weights, in eval mode (imports torch)."""
+        import torch
+
         arch = self.architecture
         net = AutoencoderNet(int(arch["inputs"]), list(arch["hidden"]), int(arch["latent_dim"]))
-        net.load_state_dict(self.state_dict)
+        net.load_state_dict({k: torch.from_numpy(np.array(v)) for k, v in self.state_dict.items()})
         return net.eval()
 
     def feature_map(self, source: str = "") -> AutoencoderFeatureMap:
         """The numpy inference map of this checkpoint; `source` names it in messages."""
         return AutoencoderFeatureMap(self, source=source)
 
-    def to_dict(self) -> dict[str, Any]:
-        """The serialised form (tensors, numbers, strings): what `save` writes."""
+    def _meta(self) -> dict[str, Any]:
         return {
             "format": FORMAT,
             "version": VERSION,
-            "state_dict": {
-                k: v.detach().cpu().float().contiguous() for k, v in self.state_dict.items()
-            },
             "architecture": self.architecture,
-            "input_mean": torch.as_tensor(self.input_mean, dtype=torch.float64),
             "input_scale": float(self.input_scale),
-            "latent_scale": torch.as_tensor(self.latent_scale, dtype=torch.float64),
             "fingerprint": self.fingerprint,
             "config_yaml": self.config_yaml,
             "metrics": self.metrics,
         }
 
+    def to_dict(self) -> dict[str, Any]:
+        """The serialised form of `encoder.pt` (tensors, numbers, strings; imports torch)."""
+        import torch
+
+        meta = self._meta()
+        return {
+            "format": meta.pop("format"),
+            "version": meta.pop("version"),
+            "state_dict": {
+                k: torch.from_numpy(np.asarray(v, dtype=np.float32).copy())
+                for k, v in self.state_dict.items()
+            },
+            "input_mean": torch.as_tensor(self.input_mean, dtype=torch.float64),
+            "latent_scale": torch.as_tensor(self.latent_scale, dtype=torch.float64),
+            **meta,
+        }
+
     def save(self, path: str | Path) -> None:
-        """Write the checkpoint with `torch.save` (atomically: temporary file, then rename)."""
+        """Write the checkpoint atomically (temporary file, then rename): numpy's `.npz` when
+        `path` ends in .npz, `torch.save` otherwise."""
         path = Path(path)
         tmp = path.with_name(path.name + ".tmp")
-        torch.save(self.to_dict(), tmp)
+        if path.suffix == ".npz":
+            arrays = {f"w/{k}": np.asarray(v, dtype=np.float32) for k, v in self.state_dict.items()}
+            with open(tmp, "wb") as f:
+                np.savez(
+                    f,
+                    meta=np.array(json.dumps(self._meta(), sort_keys=True)),
+                    input_mean=np.asarray(self.input_mean, dtype=np.float64),
+                    latent_scale=np.asarray(self.latent_scale, dtype=np.float64),
+                    **arrays,
+                )
+        else:
+            import torch
+
+            torch.save(self.to_dict(), tmp)
         tmp.replace(path)
 
     @classmethod
     def load(cls, path: str | Path) -> EncoderCheckpoint:
-        """Read and validate a checkpoint written by `save`.
+        """Read and validate a checkpoint written by `save` (.npz without torch, else torch).
 
         Raises:
             UserError: the file is missing, unreadable, not a rodctl encoder checkpoint, of
@@ -224,8 +381,13 @@ class EncoderCheckpoint:
         if not path.is_file():
             raise UserError(f"{path}: encoder checkpoint not found")
         try:
-            data = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:  # noqa: BLE001 - torch raises many types on a corrupt file
+            if path.suffix == ".npz":
+                data = _read_npz(path)
+            else:
+                import torch
+
+                data = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001 - torch/numpy raise many types on a corrupt file
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
             raise UserError(
                 f"{path}: not a readable encoder checkpoint ({type(exc).__name__}: {first[:200]}); "
@@ -262,22 +424,26 @@ class EncoderCheckpoint:
         try:
             inputs, latent = int(arch["inputs"]), int(arch["latent_dim"])
             hidden = [int(h) for h in arch["hidden"]]
-            net = AutoencoderNet(inputs, hidden, latent)
-            net.load_state_dict(data["state_dict"])
-        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-            raise bad(f"weights do not match the recorded architecture ({exc})") from None
-        mean = np.asarray(data["input_mean"], dtype=np.float64)
-        lat = np.asarray(data["latent_scale"], dtype=np.float64)
+            shapes = parameter_shapes(arch)
+            weights = {k: _as_numpy(v) for k, v in dict(data["state_dict"]).items()}
+        except (KeyError, TypeError, ValueError) as exc:
+            raise bad(f"unreadable architecture or weights ({exc})") from None
+        if set(weights) != set(shapes) or any(
+            weights[k].shape != shape for k, shape in shapes.items()
+        ):
+            raise bad("weights do not match the recorded architecture")
+        mean = _as_numpy(data["input_mean"]).astype(np.float64)
+        lat = _as_numpy(data["latent_scale"]).astype(np.float64)
         scale = float(data["input_scale"])
         if mean.shape != (inputs,) or lat.shape != (latent,) or not scale > 0.0:
             raise bad("normalisation does not match the architecture")
         if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(lat)) and math.isfinite(scale)):
             raise bad("normalisation holds non-finite values")
-        for name, tensor in data["state_dict"].items():
-            if not torch.all(torch.isfinite(tensor)):
+        for name, w in weights.items():
+            if not np.all(np.isfinite(w)):
                 raise bad(f"weight {name} holds non-finite values")
         return cls(
-            state_dict=dict(data["state_dict"]),
+            state_dict={k: weights[k].astype(np.float32) for k in shapes},
             architecture={
                 "inputs": inputs,
                 "hidden": hidden,
@@ -292,27 +458,64 @@ class EncoderCheckpoint:
             metrics=dict(data.get("metrics", {})),
         )
 
-    def check_compatible(self, expected: dict[str, Any], source: str) -> None:
-        """Raise `UserError` naming `source` and every field where the fingerprints differ."""
+    def check_compatible(
+        self,
+        expected: dict[str, Any],
+        source: str,
+        experiment: ExperimentConfig | None = None,
+    ) -> None:
+        """Raise `UserError` naming `source` and every config key where the setups differ.
+
+        Args:
+            expected: the fingerprint of the config it is to be used with.
+            source: the checkpoint's path, for the message.
+            experiment: that config; with it, the message names the user's config keys (e.g.
+                `camera.tilt_deg`) instead of the fingerprint's derived quantities (the camera
+                homography), by comparing the config the checkpoint was trained with.
+        """
         diffs = fingerprint_differences(self.fingerprint, expected)
-        if diffs:
-            raise UserError(
-                f"{source}: this encoder checkpoint was trained for a different setup:\n  "
-                + "\n  ".join(diffs)
-                + "\nTrain one for this config with `rodctl train-encoder CONFIG` and set "
-                "feature.checkpoint to its encoder.pt."
-            )
+        if not diffs:
+            return
+        lines = config_key_differences(self, experiment, diffs)
+        raise UserError(
+            f"{source}: this encoder was trained for another rod or camera:\n  "
+            + "\n  ".join(lines)
+            + "\nTrain a quick encoder for this config (3,000 samples, 300 epochs: about 20 s "
+            "on 2 cores) with `rodctl train-encoder CONFIG --quick` (same --set options) and "
+            "set feature.checkpoint to its encoder.npz, or set feature.checkpoint=auto to "
+            "train one once and reuse it. `rodctl train-encoder CONFIG` trains the paper's "
+            "full-size encoder (about 15 minutes)."
+        )
 
 
-def _numpy_layers(state_dict: dict[str, torch.Tensor], prefix: str) -> list[list[np.ndarray]]:
+def _as_numpy(value: Any) -> np.ndarray:
+    """A numpy copy of an array or a (CPU) torch tensor, without importing torch."""
+    if hasattr(value, "detach"):  # a torch.Tensor
+        value = value.detach().cpu().numpy()
+    return np.array(value)
+
+
+def _read_npz(path: Path) -> dict[str, Any]:
+    """The serialised form (as `EncoderCheckpoint.from_dict` takes it) of an .npz checkpoint."""
+    with np.load(path, allow_pickle=False) as npz:
+        meta = json.loads(str(npz["meta"]))
+        if not isinstance(meta, dict):
+            raise ValueError("meta is not a mapping")
+        meta["state_dict"] = {k[2:]: npz[k] for k in npz.files if k.startswith("w/")}
+        meta["input_mean"] = npz["input_mean"]
+        meta["latent_scale"] = npz["latent_scale"]
+    return meta
+
+
+def _numpy_layers(state_dict: dict[str, np.ndarray], prefix: str) -> list[list[np.ndarray]]:
     """[[W (out, in), b (out,)], ...] float64 copies of the Linear layers under `prefix`."""
     layers: dict[int, list[np.ndarray]] = {}
-    for name, tensor in state_dict.items():
+    for name, array in state_dict.items():
         if not name.startswith(prefix + "."):
             continue
         _, index, kind = name.split(".")
         slot = layers.setdefault(int(index), [np.empty(0), np.empty(0)])
-        slot[0 if kind == "weight" else 1] = tensor.detach().cpu().double().numpy().copy()
+        slot[0 if kind == "weight" else 1] = _as_numpy(array).astype(np.float64)
     return [layers[i] for i in sorted(layers)]
 
 
@@ -349,7 +552,7 @@ class AutoencoderFeatureMap:
         # Fold x_n = (x - mean) / s into the first encoder layer:
         # W x_n + b = (W/s) x + (b - W mean / s)
         w0, b0 = enc[0]
-        enc[0] = [w0 / s, b0 - (w0 / s) @ mean]
+        enc[0] = [w0 / s, b0 - fla.matvec(w0 / s, mean)]
         # ... and x = s x_n + mean into the last decoder layer.
         wl, bl = dec[-1]
         dec[-1] = [wl * s, bl * s + mean]
@@ -366,7 +569,9 @@ class AutoencoderFeatureMap:
         x = x.reshape(-1)
         last = len(self._enc) - 1
         for i, (w, b) in enumerate(self._enc):
-            x = w @ x + b
+            # Fixed-order mat-vec, not `w @ x`: BLAS dgemv's sums differ between CPU kernels,
+            # and s feeds the closed loop (README, "Reproducibility").
+            x = fla.matvec(w, x) + b
             if i < last:
                 np.maximum(x, 0.0, out=x)
         return x
@@ -392,7 +597,7 @@ def _forward(x: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]]) -> np.n
     """Batched MLP pass with ReLU between layers; `layers` hold transposed weights (in, out)."""
     last = len(layers) - 1
     for i, (wt, b) in enumerate(layers):
-        x = x @ wt + b
+        x = x @ wt + b  # BLAS: batches (training figures, datasets) are not in the loop
         if i < last:
             np.maximum(x, 0.0, out=x)
     return x
@@ -408,6 +613,8 @@ def torch_encode(checkpoint: EncoderCheckpoint, centerlines_px: np.ndarray) -> n
     Returns:
         (B, p) float64 latents.
     """
+    import torch
+
     arr = check_centerlines(centerlines_px, checkpoint.points, batch=True)
     x = (arr.reshape(arr.shape[0], -1) - checkpoint.input_mean) / checkpoint.input_scale
     net = checkpoint.network()

@@ -17,11 +17,11 @@ monotonically with d.
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
 from pydantic import Field
-from scipy.special import comb
 
 from rodctl.config.base import StrictModel
 from rodctl.errors import UserError
@@ -40,7 +40,8 @@ def bernstein_basis(degree: int, rho: np.ndarray) -> np.ndarray:
         (N, d + 1) basis matrix.
     """
     k = np.arange(degree + 1)
-    return comb(degree, k)[None, :] * rho[:, None] ** k * (1.0 - rho[:, None]) ** (degree - k)
+    binom = np.array([math.comb(degree, i) for i in range(degree + 1)], dtype=np.float64)
+    return binom[None, :] * rho[:, None] ** k * (1.0 - rho[:, None]) ** (degree - k)
 
 
 class BezierFeatureMap(LinearBasisFeatureMap):

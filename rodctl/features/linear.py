@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rodctl import fixedla as fla
 from rodctl.features.geometry import check_centerlines, resample_uniform
 
 
@@ -34,7 +35,9 @@ class LinearBasisFeatureMap:
 
     def __init__(self, basis: np.ndarray) -> None:
         self._basis = np.ascontiguousarray(basis, dtype=np.float64)  # (N, K)
-        self._pinv = np.ascontiguousarray(np.linalg.pinv(self._basis))  # (K, N)
+        # Fixed-order QR (rodctl.fixedla), not LAPACK's SVD: the fit matrix must be the same
+        # bits on every machine, or so is no feature (README, "Reproducibility").
+        self._pinv = np.ascontiguousarray(fla.pinv_tall(self._basis))  # (K, N)
         self._rho = np.linspace(0.0, 1.0, self._basis.shape[0])
         self.points = int(self._basis.shape[0])
         self.terms = int(self._basis.shape[1])

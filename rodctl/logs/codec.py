@@ -6,19 +6,28 @@ bit with a fresh simulation), so encoding and decoding must be exact inverses an
 side. Nothing here imports `mcap` or `rerun`.
 
 Exactness: JSON numbers are written with Python's float `repr`, which round-trips every finite
-float64 exactly. JSON has no NaN or infinity, so a non-finite value is written as `null` (NaN) or
-the strings "Infinity" / "-Infinity"; `decode_real` maps them back. Camera frames travel as
-lossless PNG, so a decoded frame equals the logged one byte for byte.
+float64 exactly. JSON has no NaN or infinity, so a non-finite value is written as `null` and
+listed with its exact value in the message's `nonfinite` array (`Encoder`, `restore_nonfinite`).
+Camera frames travel as lossless PNG, so a decoded frame equals the logged one byte for byte.
 
-The contract fields of the three per-step topics (shared/design/architecture.md, "MCAP topics") are
-written exactly as named there; fields beyond the contract (phase, health flags, estimator
-diagnostics…) are extra JSON keys on the same messages, which a JSON-schema consumer ignores.
+Layout (format version 2): points are arrays of `{x, y}` objects, the Jacobian a flat row-major
+array with its shape beside it, maps arrays of `{key, value}` / `{name, value}` objects, so
+that every schema loads in Foxglove's JSON-schema parser (see `schemas`). The contract fields of
+the three per-step topics (README, "The MCAP log") come first, exactly as named there; fields
+beyond the contract (phase, health flags, estimator diagnostics...) follow on the same messages.
+
+Clock: MCAP log_time = `LOG_EPOCH_NS` + simulated time; `FrameSchedule` picks the camera frames
+by simulated time, so their rate holds in log time.
 """
 
 from __future__ import annotations
 
 import base64
+import json
 import math
+import re
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,9 +38,9 @@ import numpy as np
 from rodctl.records import RunHeader, RunSummary, StepRecord
 
 #: Version of the message layout below; bumped when a field changes meaning.
-FORMAT_VERSION = "1"
+FORMAT_VERSION = "2"
 
-# Contract topics (architecture.md), one message per control step.
+# Contract topics (README, "The MCAP log"), one message per control step.
 TOPIC_ROD_STATE = "/rod/state"
 TOPIC_CAMERA_CENTERLINE = "/camera/centerline"
 TOPIC_CONTROL = "/control"
@@ -40,6 +49,7 @@ TOPIC_ROD_SCENE = "/world/rod"
 TOPIC_TARGET_SCENE = "/world/target"
 TOPIC_GRIPPER_SCENE = "/world/gripper"
 TOPIC_IMAGE = "/camera/image"
+TOPIC_ANNOTATIONS = "/camera/annotations"
 TOPIC_LOG = "/log"
 # rodctl bookkeeping: one message each, what replay needs beyond the per-step topics.
 TOPIC_HEADER = "/run/header"
@@ -74,8 +84,98 @@ LOG_LEVELS = {"DEBUG": 1, "INFO": 2, "WARN": 3, "ERROR": 4}
 
 
 # ------------------------------------------------------------------------------------- numbers
+#: The non-finite values by their JSON name (`nonfinite` entries of a message).
+_NONFINITE_VALUES = {"NaN": math.nan, "Infinity": math.inf, "-Infinity": -math.inf}
+
+
+def _nonfinite_name(x: float) -> str:
+    return "NaN" if math.isnan(x) else ("Infinity" if x > 0 else "-Infinity")
+
+
+class Encoder:
+    """Encodes the numbers of one message exactly, collecting its non-finite values.
+
+    Finite floats are written as themselves (shortest round-trip repr, exact). A non-finite value
+    is written as `null` and listed in `nonfinite` as `{"path", "value"}` (e.g.
+    `{"path": "centerline[3].x", "value": "NaN"}`), which `restore_nonfinite` puts back. Why not
+    `null` alone: it cannot tell NaN from an infinity, and why not the strings "NaN"/"Infinity"
+    in place: the field's schema must be a plain `number` for Foxglove's parser (see `schemas`).
+    """
+
+    __slots__ = ("nonfinite",)
+
+    def __init__(self) -> None:
+        self.nonfinite: list[dict[str, str]] = []
+
+    def _note(self, path: str, x: float) -> None:
+        self.nonfinite.append({"path": path, "value": _nonfinite_name(x)})
+
+    def real(self, path: str, x: float) -> float | None:
+        """One float: itself when finite, else None (noted)."""
+        x = float(x)
+        if math.isfinite(x):
+            return x
+        self._note(path, x)
+        return None
+
+    def vec(self, path: str, a: np.ndarray) -> list[float | None]:
+        """A float array as a flat list (row-major), non-finite entries None (noted)."""
+        a = np.asarray(a, dtype=np.float64).ravel()
+        out: list[Any] = a.tolist()
+        if not np.isfinite(a).all():
+            for i in np.flatnonzero(~np.isfinite(a)).tolist():
+                self._note(f"{path}[{i}]", out[i])
+                out[i] = None
+        return out
+
+    def points(self, path: str, a: np.ndarray) -> list[dict[str, float | None]]:
+        """(M, 2) points as `[{"x": .., "y": ..}, ...]`, non-finite coordinates None (noted)."""
+        a = np.asarray(a, dtype=np.float64).reshape(-1, 2)
+        rows: list[Any] = a.tolist()
+        if not np.isfinite(a).all():
+            for i, j in zip(*np.nonzero(~np.isfinite(a)), strict=True):
+                i, j = int(i), int(j)
+                self._note(f"{path}[{i}].{'xy'[j]}", rows[i][j])
+                rows[i][j] = None
+        return [{"x": x, "y": y} for x, y in rows]
+
+
+_PATH_TOKEN = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)|\[(\d+)\]|\.([A-Za-z_][A-Za-z0-9_]*)")
+
+
+def restore_nonfinite(msg: dict[str, Any]) -> dict[str, Any]:
+    """Put the values listed in `msg["nonfinite"]` back in place (as Python floats); in place.
+
+    Raises:
+        ValueError: an entry whose path does not lead to a `null` of the message.
+    """
+    for entry in msg.get("nonfinite") or ():
+        path, name = entry.get("path"), entry.get("value")
+        if not isinstance(path, str) or name not in _NONFINITE_VALUES:
+            raise ValueError(f"bad nonfinite entry {entry!r}")
+        keys: list[Any] = []
+        pos = 0
+        while pos < len(path):
+            m = _PATH_TOKEN.match(path, pos)
+            if m is None or (pos == 0) != (m.group(1) is not None):
+                raise ValueError(f"bad nonfinite path {path!r}")
+            keys.append(int(m.group(2)) if m.group(2) is not None else (m.group(1) or m.group(3)))
+            pos = m.end()
+        node: Any = msg
+        try:
+            for key in keys[:-1]:
+                node = node[key]
+            if node[keys[-1]] is not None:
+                raise ValueError(f"nonfinite path {path!r} does not hold null")
+            node[keys[-1]] = _NONFINITE_VALUES[name]
+        except (KeyError, IndexError, TypeError):
+            raise ValueError(f"nonfinite path {path!r} is not in the message") from None
+    return msg
+
+
 def encode_real(x: float) -> float | str | None:
-    """One float as a JSON value: itself when finite, else None (NaN) or "±Infinity"."""
+    """One float as a free-form JSON value (summary, numeric environment): itself when finite,
+    else None (NaN) or "Infinity" / "-Infinity"."""
     x = float(x)
     if math.isfinite(x):
         return x
@@ -85,53 +185,51 @@ def encode_real(x: float) -> float | str | None:
 
 
 def decode_real(v: Any) -> float:
-    """Inverse of `encode_real`."""
-    if v is None:
-        return math.nan
-    if isinstance(v, str):
-        if v == "Infinity":
-            return math.inf
-        if v == "-Infinity":
-            return -math.inf
-        raise ValueError(f"not a number: {v!r}")
-    if isinstance(v, bool):
+    """A number of a message whose `nonfinite` entries are restored."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise ValueError(f"not a number: {v!r}")
     return float(v)
 
 
-def encode_array(a: np.ndarray) -> list[Any]:
-    """A float array as nested JSON lists, exactly (fast path when every value is finite)."""
-    a = np.asarray(a, dtype=np.float64)
-    if np.isfinite(a).all():
-        return a.tolist()
-    flat = [encode_real(x) for x in a.ravel().tolist()]
-    return np.array(flat, dtype=object).reshape(a.shape).tolist()
-
-
-def decode_array(v: Any, ndim: int) -> np.ndarray:
-    """Inverse of `encode_array` for an array of `ndim` dimensions (float64)."""
-    try:
-        out = np.array(v, dtype=np.float64)
-    except (TypeError, ValueError):
-        out = _decode_nested(v)
-    if out.ndim != ndim and not (out.size == 0 and ndim == 2):
-        raise ValueError(f"expected a {ndim}-D array, got shape {out.shape}")
-    if out.size == 0 and ndim == 2:
-        out = out.reshape(0, 2)
+def decode_vec(v: Any, n: int | None = None) -> np.ndarray:
+    """A flat number list as a (len,) float64 array (`n`: the length it must have)."""
+    if not isinstance(v, list):
+        raise ValueError(f"expected a list of numbers, got {type(v).__name__}")
+    if any(x is None or isinstance(x, (bool, str, list, dict)) for x in v):
+        raise ValueError("expected a list of numbers (a null not listed in `nonfinite`?)")
+    out = np.array(v, dtype=np.float64).reshape(-1)
+    if n is not None and out.shape != (n,):
+        raise ValueError(f"expected {n} numbers, got {out.shape[0]}")
     return out
 
 
-def _decode_nested(v: Any) -> np.ndarray:
-    if isinstance(v, list):
-        return np.array([_decode_nested(x) for x in v], dtype=np.float64)
-    return np.float64(decode_real(v))
+def decode_points(v: Any) -> np.ndarray:
+    """`[{"x": .., "y": ..}, ...]` as an (M, 2) float64 array."""
+    if not isinstance(v, list):
+        raise ValueError(f"expected a list of points, got {type(v).__name__}")
+    try:
+        flat = [c for p in v for c in (p["x"], p["y"])]
+    except (KeyError, TypeError):
+        raise ValueError("expected a list of {x, y} points") from None
+    return decode_vec(flat).reshape(-1, 2)
+
+
+#: MCAP log times are simulated time plus this fixed offset: 2000-01-01T00:00:00Z in ns since
+#: the Unix epoch. Why an offset: viewers read log times as dates, and 0 ns shows as 1970-01-01;
+#: why fixed rather than the wall clock: reruns of one config must write identical bytes.
+LOG_EPOCH_NS = 946_684_800 * 1_000_000_000
 
 
 def time_ns(sim_time: float) -> int:
-    """Simulated time (s) as MCAP log_time (ns, never negative)."""
+    """Simulated time (s) in integer ns (never negative); the Rerun `sim_time` timeline."""
     if not math.isfinite(sim_time):
         return 0
     return max(0, round(sim_time * 1e9))
+
+
+def log_time_ns(sim_time: float) -> int:
+    """Simulated time (s) as MCAP log_time: `LOG_EPOCH_NS` + simulated ns."""
+    return LOG_EPOCH_NS + time_ns(sim_time)
 
 
 def foxglove_time(t_ns: int) -> dict[str, int]:
@@ -139,38 +237,104 @@ def foxglove_time(t_ns: int) -> dict[str, int]:
     return {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000}
 
 
-# -------------------------------------------------------------------------------------- images
-class PngCache:
-    """PNG bytes of the most recent frame, so the MCAP and Rerun sinks encode it only once.
+class FrameSchedule:
+    """Which camera frames a sink logs: at most `rate_hz` frames per second of simulated time.
 
-    The cache holds a reference to the array it encoded, so its `id` cannot be reused by another
-    array while cached. A frame mutated in place after being handed to a sink would be served
-    stale; the loop hands each step a fresh frame.
+    Why in the sinks and by `sim_time`: log time is simulated time, and a control step's simulated
+    time is its move plus however long the rod takes to settle, so a rate counted in control
+    periods drifts from the rate a viewer sees. Simulated time is cut into slots of 1 / rate_hz
+    from t = 0, and the first record of a slot that carries a frame is taken: one frame per slot,
+    so the rate holds on average even when steps do not divide the period evenly, and never more
+    than one frame per control step (steps slower than the period give one frame each). A record
+    without a frame leaves its slot open for the next record that has one, so the schedule works
+    whether the loop attaches a frame to every record or to some. The decision depends on the
+    records alone: both sinks and a replay take the same frames.
     """
 
-    def __init__(self) -> None:
-        self._image: np.ndarray | None = None
-        self._level = -1
-        self._png = b""
+    def __init__(self, rate_hz: float) -> None:
+        self.period_ns = round(1e9 / rate_hz) if rate_hz > 0 else 0
+        self._next_ns = 0
 
-    def encode(self, image: np.ndarray, level: int) -> bytes:
-        """PNG bytes of an (H, W, 3) RGB or (H, W) grey uint8 frame."""
-        if image is self._image and level == self._level:
-            return self._png
-        png = encode_png(image, level)
-        self._image, self._level, self._png = image, level, png
-        return png
+    def due(self, record: StepRecord) -> bool:
+        """Whether `take` would take this record's frame (nothing changes)."""
+        if record.image is None or self.period_ns <= 0:
+            return False
+        return time_ns(record.sim_time) >= self._next_ns
+
+    def take(self, record: StepRecord) -> bool:
+        """Whether to log `record.image`; advances the schedule when it does."""
+        if record.image is None or self.period_ns <= 0:
+            return False
+        t = time_ns(record.sim_time)
+        if t < self._next_ns:
+            return False
+        self._next_ns = (t // self.period_ns + 1) * self.period_ns
+        return True
 
 
-#: Shared between sinks in one process (the loop writes them one after the other, same thread).
-PNG_CACHE = PngCache()
+# -------------------------------------------------------------------------------------- images
+class FrameEncoder:
+    """PNG encoding of camera frames on one bounded background thread, shared by the sinks.
+
+    Why: a lossless PNG of a 640 x 480 frame costs 1.3-2.5 ms, most of what logging costs the
+    loop. OpenCV releases the GIL while encoding, so a worker thread encodes frame k while the
+    loop simulates step k + 1, and the sinks write frame k one step later (`LAG`, a fixed number
+    of steps, so what lands in which MCAP chunk never depends on timing: reruns stay
+    byte-identical). At most `max_pending` frames wait for the worker; a sink that gets ahead
+    blocks until the oldest is done, so memory stays bounded.
+
+    `submit` returns a future of the PNG bytes. Submitting the same array again (the next sink,
+    same step) returns the same future, so each frame is encoded once. The encoder keeps a
+    reference to the last array it was given, so its `id` cannot be reused while cached; a frame
+    mutated in place after being handed to a sink would be served stale (the loop hands each step
+    a fresh frame).
+    """
+
+    def __init__(self, max_pending: int = 4) -> None:
+        self.max_pending = max_pending
+        self._pool: ThreadPoolExecutor | None = None
+        self._last: tuple[np.ndarray | None, int, Future[bytes] | None] = (None, -1, None)
+        self._pending: deque[Future[bytes]] = deque()
+
+    def submit(self, image: np.ndarray, level: int) -> Future[bytes]:
+        """Start encoding an (H, W, 3) RGB or (H, W) grey uint8 frame; a bad frame raises here."""
+        last_image, last_level, last_future = self._last
+        if image is last_image and level == last_level and last_future is not None:
+            return last_future
+        check_frame(image)
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rodctl-png")
+        while self._pending and self._pending[0].done():
+            self._pending.popleft()
+        while len(self._pending) >= self.max_pending:
+            self._pending.popleft().exception()  # wait for the oldest; errors go to its sink
+        future = self._pool.submit(encode_png, image, level)
+        self._pending.append(future)
+        self._last = (image, level, future)
+        return future
+
+    def reset(self) -> None:
+        """Forget the cached frame (benchmarks: no frame carried over from the previous run)."""
+        self._last = (None, -1, None)
+
+
+#: Shared between the sinks of one process (the loop writes them one after the other).
+FRAMES = FrameEncoder()
+#: Steps by which the sinks delay writing a frame (and, in the MCAP, the whole step with it).
+LAG = 1
+
+
+def check_frame(image: np.ndarray) -> None:
+    """Raise ValueError unless `image` is an (H, W, 3) or (H, W) uint8 frame."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
+        raise ValueError(f"a frame must be (H, W, 3) or (H, W) uint8, got {img.shape} {img.dtype}")
 
 
 def encode_png(image: np.ndarray, level: int = 1) -> bytes:
     """Lossless PNG of an (H, W, 3) RGB or (H, W) grey uint8 frame."""
+    check_frame(image)
     img = np.asarray(image)
-    if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
-        raise ValueError(f"a frame must be (H, W, 3) or (H, W) uint8, got {img.shape} {img.dtype}")
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)  # OpenCV writes BGR
     # No filter + run-length zlib strategy: 1.3 ms for a plain 640 x 480 render (6 kB) and 1.5 ms
@@ -206,42 +370,74 @@ def b64(data: bytes) -> str:
 
 
 # -------------------------------------------------------------------------------------- header
+class FormatVersionError(ValueError):
+    """A log written in a message layout this version of rodctl does not read."""
+
+
+def check_format_version(d: dict[str, Any]) -> None:
+    """Refuse a /run/header of another layout (version 1 logs had nested point arrays)."""
+    version = d.get("format_version")
+    if version != FORMAT_VERSION:
+        raise FormatVersionError(
+            f"log format version {version!r}, but this rodctl reads format version "
+            f"{FORMAT_VERSION!r} only (version 1 logs, written before the Foxglove-loadable "
+            f"schemas, nested their point arrays); run the config again to get a new log"
+        )
+
+
 def header_to_json(h: RunHeader) -> dict[str, Any]:
     """The RunHeader as a JSON object (exact), less the run id.
 
     The run id names the run directory and carries its start time; leaving it out of the log
     keeps two runs of one config byte-identical. Readers take it from the file's folder.
+    `numeric_env` travels as `[{key, value}]` with each value as JSON text (the schema parser
+    Foxglove uses admits no free-form maps); its values must be JSON-able.
     """
-    return {
+    e = Encoder()
+    out = {
         "format_version": FORMAT_VERSION,
         "method": h.method,
         "config_yaml": h.config_yaml,
         "image_size": [int(h.image_size[0]), int(h.image_size[1])],
-        "clamp_pose": encode_array(h.clamp_pose),
-        "home_pose": encode_array(h.home_pose),
-        "target_centerline": encode_array(h.target_centerline),
-        "target_pixels": encode_array(h.target_pixels),
-        "target_feature": encode_array(h.target_feature),
-        "target_pose": encode_array(h.target_pose),
-        "rod_length": encode_real(h.rod_length),
+        "clamp_pose": e.vec("clamp_pose", h.clamp_pose),
+        "home_pose": e.vec("home_pose", h.home_pose),
+        "target_centerline": e.points("target_centerline", h.target_centerline),
+        "target_pixels": e.points("target_pixels", h.target_pixels),
+        "target_feature": e.vec("target_feature", h.target_feature),
+        "target_pose": e.vec("target_pose", h.target_pose),
+        "rod_length": e.real("rod_length", h.rod_length),
+        "numeric_env": [
+            {"key": str(k), "value": json.dumps(sanitize(v), ensure_ascii=False)}
+            for k, v in h.numeric_env.items()
+        ],
     }
+    out["nonfinite"] = e.nonfinite
+    return out
 
 
 def header_from_json(d: dict[str, Any], run_id: str) -> RunHeader:
-    """Inverse of `header_to_json`; `run_id` is the name of the run's folder."""
+    """Inverse of `header_to_json`; `run_id` is the name of the run's folder.
+
+    Raises:
+        FormatVersionError: the header is of another format version.
+        ValueError, KeyError, TypeError: a malformed header.
+    """
+    check_format_version(d)
+    d = restore_nonfinite(d)
     w, h = d["image_size"]
     return RunHeader(
         run_id=run_id,
         method=str(d["method"]),
         config_yaml=str(d["config_yaml"]),
         image_size=(int(w), int(h)),
-        clamp_pose=decode_array(d["clamp_pose"], 1),
-        home_pose=decode_array(d["home_pose"], 1),
-        target_centerline=decode_array(d["target_centerline"], 2),
-        target_pixels=decode_array(d["target_pixels"], 2),
-        target_feature=decode_array(d["target_feature"], 1),
-        target_pose=decode_array(d["target_pose"], 1),
+        clamp_pose=decode_vec(d["clamp_pose"], 3),
+        home_pose=decode_vec(d["home_pose"], 3),
+        target_centerline=decode_points(d["target_centerline"]),
+        target_pixels=decode_points(d["target_pixels"]),
+        target_feature=decode_vec(d["target_feature"]),
+        target_pose=decode_vec(d["target_pose"], 3),
         rod_length=decode_real(d["rod_length"]),
+        numeric_env={str(kv["key"]): json.loads(kv["value"]) for kv in d["numeric_env"]},
     )
 
 
@@ -271,29 +467,37 @@ def summary_to_json(summary: RunSummary | None, status: str) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------------------- steps
+# Each per-step message starts with its contract fields (shared design contract: `step` and the
+# names below, exactly), then extras, then `nonfinite`. Points are [{x, y}, ...] and J is flat
+# row-major with `J_shape`: Foxglove's JSON-schema parser admits no arrays of arrays.
 def rod_state_message(r: StepRecord) -> dict[str, Any]:
     """/rod/state: contract fields `step, sim_time, gripper, centerline`, then extras."""
+    e = Encoder()
     return {
         "step": int(r.step),
-        "sim_time": encode_real(r.sim_time),
-        "gripper": encode_array(r.gripper),
-        "centerline": encode_array(r.centerline),
+        "sim_time": e.real("sim_time", r.sim_time),
+        "gripper": e.vec("gripper", r.gripper),
+        "centerline": e.points("centerline", r.centerline),
         "phase": r.phase,
         "settled": bool(r.settled),
         "clipped": bool(r.clipped),
-        "max_joint_gap": encode_real(r.max_joint_gap),
-        "kinetic_energy": encode_real(r.kinetic_energy),
+        "max_joint_gap": e.real("max_joint_gap", r.max_joint_gap),
+        "kinetic_energy": e.real("kinetic_energy", r.kinetic_energy),
+        "events": [str(line) for line in r.events],
+        "nonfinite": e.nonfinite,
     }
 
 
 def camera_message(r: StepRecord) -> dict[str, Any]:
     """/camera/centerline: contract fields `step, extracted, projected_truth`, then extras."""
+    e = Encoder()
     return {
         "step": int(r.step),
-        "extracted": encode_array(r.extracted),
-        "projected_truth": encode_array(r.projected_truth),
+        "extracted": e.points("extracted", r.extracted),
+        "projected_truth": e.points("projected_truth", r.projected_truth),
         "extraction_ok": bool(r.extraction_ok),
         "extraction_note": r.extraction_note,
+        "nonfinite": e.nonfinite,
     }
 
 
@@ -302,43 +506,52 @@ def control_message(r: StepRecord) -> dict[str, Any]:
     J = np.asarray(r.J, dtype=np.float64)
     if J.ndim != 2:
         raise ValueError(f"step {r.step}: J must be (p, q), got shape {J.shape}")
+    e = Encoder()
     return {
         "step": int(r.step),
-        "u": encode_array(r.u),
-        "s": encode_array(r.s),
-        "s_target": encode_array(r.s_target),
-        "T1": encode_real(r.T1),
-        "J": encode_array(J.ravel()),
-        "pixel_error": encode_real(r.pixel_error),
+        "u": e.vec("u", r.u),
+        "s": e.vec("s", r.s),
+        "s_target": e.vec("s_target", r.s_target),
+        "T1": e.real("T1", r.T1),
+        "J": e.vec("J", J),
+        "pixel_error": e.real("pixel_error", r.pixel_error),
         "J_shape": [int(J.shape[0]), int(J.shape[1])],
-        "J_singular_values": encode_array(r.J_singular_values),
-        "u_raw": encode_array(r.u_raw),
+        "J_singular_values": e.vec("J_singular_values", r.J_singular_values),
+        "u_raw": e.vec("u_raw", r.u_raw),
         "saturated": [bool(x) for x in np.asarray(r.saturated).ravel()],
         "phase": r.phase,
-        "estimator_info": {str(k): encode_real(v) for k, v in r.estimator_info.items()},
+        "estimator_info": [
+            {"name": str(k), "value": e.real(f"estimator_info[{i}].value", v)}
+            for i, (k, v) in enumerate(r.estimator_info.items())
+        ],
+        "nonfinite": e.nonfinite,
     }
 
 
 def record_from_messages(
     rod: dict[str, Any], cam: dict[str, Any], ctl: dict[str, Any], image: np.ndarray | None
 ) -> StepRecord:
-    """Rebuild one StepRecord from its three per-step messages (and its frame, if logged)."""
+    """Rebuild one StepRecord from its three per-step messages (and its frame, if logged).
+
+    The messages' `nonfinite` values are restored in place first.
+    """
+    rod, cam, ctl = (restore_nonfinite(m) for m in (rod, cam, ctl))
     p, q = (int(n) for n in ctl["J_shape"])
     return StepRecord(
         step=int(rod["step"]),
         sim_time=decode_real(rod["sim_time"]),
         phase=str(rod["phase"]),
-        gripper=decode_array(rod["gripper"], 1),
-        centerline=decode_array(rod["centerline"], 2),
-        extracted=decode_array(cam["extracted"], 2),
-        projected_truth=decode_array(cam["projected_truth"], 2),
-        u=decode_array(ctl["u"], 1),
-        u_raw=decode_array(ctl["u_raw"], 1),
-        s=decode_array(ctl["s"], 1),
-        s_target=decode_array(ctl["s_target"], 1),
+        gripper=decode_vec(rod["gripper"]),
+        centerline=decode_points(rod["centerline"]),
+        extracted=decode_points(cam["extracted"]),
+        projected_truth=decode_points(cam["projected_truth"]),
+        u=decode_vec(ctl["u"]),
+        u_raw=decode_vec(ctl["u_raw"]),
+        s=decode_vec(ctl["s"]),
+        s_target=decode_vec(ctl["s_target"]),
         T1=decode_real(ctl["T1"]),
-        J=decode_array(ctl["J"], 1).reshape(p, q),
-        J_singular_values=decode_array(ctl["J_singular_values"], 1),
+        J=decode_vec(ctl["J"], p * q).reshape(p, q),
+        J_singular_values=decode_vec(ctl["J_singular_values"]),
         pixel_error=decode_real(ctl["pixel_error"]),
         settled=bool(rod["settled"]),
         saturated=np.array(ctl["saturated"], dtype=bool),
@@ -347,7 +560,8 @@ def record_from_messages(
         kinetic_energy=decode_real(rod["kinetic_energy"]),
         extraction_ok=bool(cam["extraction_ok"]),
         extraction_note=str(cam["extraction_note"]),
-        estimator_info={str(k): decode_real(v) for k, v in ctl["estimator_info"].items()},
+        estimator_info={str(kv["name"]): decode_real(kv["value"]) for kv in ctl["estimator_info"]},
+        events=[str(line) for line in rod.get("events", [])],
         image=image,
     )
 
@@ -362,7 +576,7 @@ def step_log_lines(prev: StepRecord | None, r: StepRecord) -> list[tuple[str, st
 
     Both sinks log exactly these lines (foxglove.Log on /log, Rerun TextLog at /log).
     """
-    lines: list[tuple[str, str]] = []
+    lines: list[tuple[str, str]] = [("WARN", f"step {r.step}: {line}") for line in r.events]
     if prev is None or prev.phase != r.phase:
         lines.append(("INFO", f"step {r.step}: phase {r.phase}"))
     if not r.extraction_ok:

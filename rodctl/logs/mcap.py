@@ -4,21 +4,34 @@ Why MCAP is the source of truth: it is one self-describing, indexed, compressed 
 opens without configuration and that `rodctl replay` turns back into the exact step records the
 loop produced (see `codec`), so every other output (run.rrd, figures) can be rebuilt from it.
 
-Layout (topic contract in shared/design/architecture.md):
+Layout (topic contract in the README, "The MCAP log"):
 - `/rod/state`, `/camera/centerline`, `/control`: JSON-schema channels, one message per step,
   contract fields exactly as named, extras after them; MCAP `sequence` = step.
 - `/world/rod`, `/world/target`, `/world/gripper` (foxglove.SceneUpdate), `/camera/image`
-  (foxglove.CompressedImage, PNG), `/log` (foxglove.Log): what people look at in Foxglove.
+  (foxglove.CompressedImage, PNG), `/camera/annotations` (foxglove.ImageAnnotations: target,
+  extracted centerline and projected truth over each logged frame), `/log` (foxglove.Log): what
+  people look at in Foxglove, with the official schemas embedded.
 - `/run/header`, `/run/summary`: one message each (RunHeader; summary.json + closing status).
 - metadata `rodctl.run`, `rodctl.config` (the resolved config, flattened to dotted keys),
   `rodctl.end` (closing status); attachment `config.yaml`.
 
-Determinism: `log_time` = `publish_time` = simulated time in ns, attachment times 0, the library
+Clock: `log_time` = `publish_time` = `codec.LOG_EPOCH_NS` (2000-01-01T00:00:00Z) + simulated
+time in ns, for every message; foxglove.* `timestamp` fields carry the same time. Camera frames
+are chosen by `codec.FrameSchedule` (at most `logging.image_rate_hz` per simulated second).
+
+Determinism: log times derive from simulated time only, attachment times 0, the library
 string carries no version or time, channels and schemas are registered in a fixed order, and JSON
 is written compactly with fixed key order: the same records give the same bytes.
 
+Speed: camera frames are PNG-encoded on a background thread (`codec.FRAMES`), and a writer
+thread encodes each step's JSON, writes, compresses and flushes, while the loop computes the
+next one; `write` returns once the step `codec.LAG` steps back is in the file. OpenCV and zstd
+release the GIL, and the JSON is built while the loop is in C (simulator, renderer, torch). The
+order is fixed by step counts, so the bytes do not depend on timing.
+
 Crash safety: every `flush_every_steps` steps the open chunk is closed and the file flushed to
-the OS, so a run killed without warning (SIGKILL, power loss) loses at most those steps; the
+the OS, so a run killed without warning (SIGKILL, power loss) loses at most those steps (plus
+the `codec.LAG` steps not yet written); the
 reader detects the missing footer and refuses the file unless asked to recover what is complete.
 """
 
@@ -28,8 +41,11 @@ import json
 import os
 import signal
 import threading
+from collections import deque
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import IO, Any
 
@@ -69,14 +85,23 @@ CHANNELS: tuple[tuple[str, dict[str, Any]], ...] = (
     (codec.TOPIC_TARGET_SCENE, schemas.SCENE_UPDATE),
     (codec.TOPIC_GRIPPER_SCENE, schemas.SCENE_UPDATE),
     (codec.TOPIC_IMAGE, schemas.COMPRESSED_IMAGE),
+    (codec.TOPIC_ANNOTATIONS, schemas.IMAGE_ANNOTATIONS),
     (codec.TOPIC_LOG, schemas.LOG),
     (codec.TOPIC_SUMMARY, schemas.RUN_SUMMARY),
 )
 
-# Colours (r, g, b) of the scene: rod blue, target green, gripper orange.
+# Colours (r, g, b[, a]) of the 3D scene: rod blue on top, target a wider translucent green
+# band just below it (so a rod lying on the target shows as blue inside green), gripper orange.
 _ROD_RGB = (0.1, 0.45, 0.95)
-_TARGET_RGB = (0.1, 0.75, 0.25)
+_TARGET_RGB = (0.1, 0.75, 0.25, 0.6)
 _GRIPPER_RGB = (1.0, 0.55, 0.0)
+_TARGET_Z = -1e-3
+# Image overlays (r, g, b, a), picked to differ from the rendered rod (red) and from each other:
+# target green, projected ground truth a wide translucent yellow band, extracted centerline blue.
+_ANN_TARGET = (0.0, 0.7, 0.2, 1.0)
+_ANN_TRUTH = (1.0, 0.85, 0.0, 0.7)
+_ANN_EXTRACTED = (0.1, 0.3, 1.0, 1.0)
+_LINE_STRIP_2D = 3  # foxglove.PointsAnnotationType.LINE_STRIP
 
 
 _DEFERRED = (signal.SIGINT, signal.SIGTERM)
@@ -125,7 +150,7 @@ def _dumps(msg: dict[str, Any]) -> bytes:
 
     orjson instead of the standard library: 20x faster on the per-step messages (0.27 ms ->
     0.012 ms for the three contract topics), which is most of the MCAP sink's own cost. The
-    codec has already mapped non-finite values (`encode_real`), so none reach it.
+    codec has already replaced non-finite values (`codec.Encoder`), so none reach it.
     """
     return orjson.dumps(msg)
 
@@ -152,8 +177,8 @@ def config_metadata(config_yaml: str) -> dict[str, str]:
     return out
 
 
-def _color(rgb: tuple[float, float, float]) -> dict[str, float]:
-    return {"r": rgb[0], "g": rgb[1], "b": rgb[2], "a": 1.0}
+def _color(rgb: tuple[float, ...]) -> dict[str, float]:
+    return {"r": rgb[0], "g": rgb[1], "b": rgb[2], "a": rgb[3] if len(rgb) > 3 else 1.0}
 
 
 _IDENTITY_POSE = {
@@ -177,21 +202,54 @@ def _entity(t_ns: int, entity_id: str, **primitives: list[Any]) -> dict[str, Any
 
 
 def line_strip_scene(
-    t_ns: int, entity_id: str, points: np.ndarray, rgb: tuple[float, float, float], width: float
+    t_ns: int,
+    entity_id: str,
+    points: np.ndarray,
+    rgb: tuple[float, ...],
+    width: float,
+    z: float = 0.0,
 ) -> dict[str, Any]:
-    """A foxglove.SceneUpdate holding one line strip through (M, 2) world points (z = 0)."""
+    """A foxglove.SceneUpdate holding one line strip through (M, 2) world points (at height z)."""
     pts = np.nan_to_num(np.asarray(points, dtype=np.float64)).tolist()
     line = {
         "type": 0,  # LINE_STRIP
         "pose": _IDENTITY_POSE,
         "thickness": width,
         "scale_invariant": False,
-        "points": [{"x": x, "y": y, "z": 0.0} for x, y in pts],
+        "points": [{"x": x, "y": y, "z": z} for x, y in pts],
         "color": _color(rgb),
         "colors": [],
         "indices": [],
     }
     return {"deletions": [], "entities": [_entity(t_ns, entity_id, lines=[line])]}
+
+
+def _strip_2d(ts: dict[str, int], points: np.ndarray, rgba: tuple, width: float) -> dict:
+    pts = np.nan_to_num(np.asarray(points, dtype=np.float64)).reshape(-1, 2).tolist()
+    return {
+        "timestamp": ts,
+        "type": _LINE_STRIP_2D,
+        "points": [{"x": u, "y": v} for u, v in pts],
+        "outline_color": _color(rgba),
+        "outline_colors": [],
+        "fill_color": _color((0.0, 0.0, 0.0, 0.0)),
+        "thickness": width,
+    }
+
+
+def image_annotations(t_ns: int, header: RunHeader, r: StepRecord) -> dict[str, Any]:
+    """A foxglove.ImageAnnotations for the frame of step r (same timestamp, so Foxglove's Image
+    panel draws it over that frame): target, projected ground truth, extracted centerline."""
+    ts = codec.foxglove_time(t_ns)
+    return {
+        "circles": [],
+        "points": [
+            _strip_2d(ts, header.target_pixels, _ANN_TARGET, 2.0),
+            _strip_2d(ts, r.projected_truth, _ANN_TRUTH, 6.0),
+            _strip_2d(ts, r.extracted, _ANN_EXTRACTED, 1.5),
+        ],
+        "texts": [],
+    }
 
 
 def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, Any]:
@@ -217,6 +275,19 @@ def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, A
     return {"deletions": [], "entities": [_entity(t_ns, "gripper", arrows=[arrow])]}
 
 
+#: The array fields of a StepRecord (everything the writer thread reads but the frame).
+_ARRAY_FIELDS = tuple(
+    f.name for f in fields(StepRecord) if f.name != "image" and f.type in ("np.ndarray", np.ndarray)
+)
+
+
+def _snapshot(r: StepRecord) -> StepRecord:
+    """A copy of `r` the loop cannot change any more: its arrays and dict copied (~10 us), the
+    frame left out (it travels as its PNG future). The writer thread reads the copy later."""
+    copies: dict[str, Any] = {name: np.array(getattr(r, name)) for name in _ARRAY_FIELDS}
+    return replace(r, image=None, estimator_info=dict(r.estimator_info), **copies)
+
+
 class McapSink:
     """Writes a run as run.mcap (see the module docstring for the layout).
 
@@ -234,7 +305,10 @@ class McapSink:
         self._header: RunHeader | None = None
         self._prev: StepRecord | None = None
         self._steps = 0
-        self._last_ns = 0
+        self._last_ns = codec.LOG_EPOCH_NS
+        self._frames = codec.FrameSchedule(self.cfg.image_rate_hz)
+        self._queue: deque[Future[None]] = deque()
+        self._worker: ThreadPoolExecutor | None = None
         self._closed = False
 
     # ---------------------------------------------------------------------------- Sink protocol
@@ -272,7 +346,7 @@ class McapSink:
             {
                 "method": header.method,
                 "format_version": codec.FORMAT_VERSION,
-                "log_time": "simulated time (ns)",
+                "log_time": "ns: 2000-01-01T00:00:00Z + simulated time",
             },
         )
         w.add_metadata("rodctl.config", config_metadata(header.config_yaml))
@@ -283,26 +357,59 @@ class McapSink:
             media_type="application/yaml",
             data=header.config_yaml.encode("utf-8"),
         )
-        self._add(codec.TOPIC_HEADER, 0, 0, codec.header_to_json(header))
+        t0 = codec.LOG_EPOCH_NS
+        self._add(codec.TOPIC_HEADER, t0, 0, codec.header_to_json(header))
         self._add(
             codec.TOPIC_TARGET_SCENE,
+            t0,
             0,
-            0,
-            line_strip_scene(0, "target", header.target_centerline, _TARGET_RGB, 0.004),
+            line_strip_scene(
+                t0, "target", header.target_centerline, _TARGET_RGB, 0.012, z=_TARGET_Z
+            ),
         )
-        self._log(0, *codec.open_log_line(header))
+        self._log(t0, *codec.open_log_line(header))
         self._flush()
 
     def write(self, record: StepRecord) -> None:
-        """Append one step: the three contract messages, the scene, the frame, log lines."""
+        """Queue one step: the three contract messages, the scene, the frame, log lines.
+
+        The writer thread encodes the step's JSON, writes it (waiting for its PNG from the
+        background encoder), compresses and flushes chunks, in step order, while the loop
+        computes the next step; the loop's thread only checks the record and picks the frame.
+        `write` returns once every step up to `codec.LAG` steps back is in the file: which step
+        lands in which chunk is fixed by step counts alone, so the bytes never depend on timing,
+        and a run killed after `write(k)` keeps what was flushed up to step k - LAG. The thread
+        works on a copy of the record, so the loop may reuse its arrays. An error while encoding
+        step k is raised by `write(k + LAG)` or `close`, and step k is then not in the file.
+        """
         if self._writer is None or self._header is None:
             raise RuntimeError("McapSink.write called before open (or after close)")
         r = record
-        t = codec.time_ns(r.sim_time)
+        if np.ndim(r.J) != 2:
+            raise ValueError(f"step {r.step}: J must be (p, q), got shape {np.shape(r.J)}")
+        frame: Future[bytes] | None = None
+        if r.image is not None and self._frames.due(r):
+            frame = codec.FRAMES.submit(r.image, self.cfg.png_compression)
+            self._frames.take(r)
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rodctl-mcap")
+        r = _snapshot(r)
+        self._queue.append(self._worker.submit(self._commit, r, self._prev, frame))
+        self._prev = r
+        self._last_ns = max(self._last_ns, codec.log_time_ns(r.sim_time))
+        while len(self._queue) > codec.LAG:
+            self._queue.popleft().result()  # normally long done: it had a loop step's time
+
+    def _commit(self, r: StepRecord, prev: StepRecord | None, frame: Future[bytes] | None) -> None:
+        """Encode and write one step (waiting for its PNG if need be); flush every N steps.
+
+        Runs on the writer thread, one step at a time in order. Everything is encoded before
+        the first message is added, so an encoding error leaves the file as it was. Signals are
+        delivered to the main thread only, so an interrupt cannot cut a chunk in half here.
+        """
+        assert self._writer is not None and self._header is not None
+        t = codec.log_time_ns(r.sim_time)
         k = int(r.step)
-        self._last_ns = max(self._last_ns, t)
-        # Encode everything first, then hand it to the writer: an exception while encoding
-        # leaves the file untouched.
         msgs = [
             (codec.TOPIC_ROD_STATE, codec.rod_state_message(r)),
             (codec.TOPIC_CAMERA_CENTERLINE, codec.camera_message(r)),
@@ -310,21 +417,17 @@ class McapSink:
             (codec.TOPIC_ROD_SCENE, line_strip_scene(t, "rod", r.centerline, _ROD_RGB, 0.006)),
             (codec.TOPIC_GRIPPER_SCENE, gripper_scene(t, r.gripper, self._header.rod_length)),
         ]
-        if r.image is not None:
-            png = codec.PNG_CACHE.encode(r.image, self.cfg.png_compression)
-            msgs.append(
-                (
-                    codec.TOPIC_IMAGE,
-                    {
-                        "timestamp": codec.foxglove_time(t),
-                        "frame_id": "camera",
-                        "data": codec.b64(png),
-                        "format": "png",
-                    },
-                )
-            )
+        if frame is not None:
+            image = {
+                "timestamp": codec.foxglove_time(t),
+                "frame_id": "camera",
+                "data": codec.b64(frame.result()),
+                "format": "png",
+            }
+            msgs.append((codec.TOPIC_IMAGE, image))
+            msgs.append((codec.TOPIC_ANNOTATIONS, image_annotations(t, self._header, r)))
         data = [(topic, _dumps(m)) for topic, m in msgs]
-        lines = codec.step_log_lines(self._prev, r)
+        lines = codec.step_log_lines(prev, r)
         with signals_deferred():
             for topic, payload in data:
                 self._writer.add_message(
@@ -336,7 +439,6 @@ class McapSink:
                 )
             for level, text in lines:
                 self._log(t, level, text, sequence=k)
-            self._prev = r
             self._steps += 1
             if self._steps % self.cfg.flush_every_steps == 0:
                 self._flush()
@@ -353,8 +455,15 @@ class McapSink:
         self._closed = True
         errors: list[BaseException] = []
         w, f = self._writer, self._file
-        self._writer = None
         if w is not None:
+            while self._queue:  # the steps the writer thread has not finished
+                try:
+                    self._queue.popleft().result()
+                except Exception as exc:  # noqa: BLE001 - collected, see docstring
+                    errors.append(exc)
+            if self._worker is not None:
+                self._worker.shutdown(wait=True)
+            self._writer = None
             t = self._last_ns
             try:
                 self._add_with(
@@ -551,6 +660,8 @@ def _assemble(
         header = codec.header_from_json(
             _json(path, codec.TOPIC_HEADER, header_msgs[0]), run_id=path.resolve().parent.name
         )
+    except codec.FormatVersionError as exc:
+        raise UserError(f"{path}: {exc}") from None
     except (KeyError, TypeError, ValueError) as exc:
         raise UserError(f"{path}: malformed run header: {exc!r}") from None
 

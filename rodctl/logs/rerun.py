@@ -1,27 +1,37 @@
 """The Rerun recording of a run (run.rrd): what a person scrubs through after a run.
 
 Why a native recording next to the MCAP: Rerun's MCAP importer does not draw Foxglove scene
-updates and leaves JSON channels raw (shared/reference/research/ecosystem.md 2.7), so the rod, the
-camera view and the time series are logged here directly, with the same entity paths as the MCAP
-topics where they overlap.
+updates and leaves JSON channels raw, so the rod, the camera view and the time series are logged
+here directly, with the same entity paths as the MCAP topics where they overlap.
 
-Entities (timelines `step` = control step k, `sim_time` = simulated seconds; no wall-clock
-`log_time`, so two recordings of the same records compare equal with
+Entities (timelines `step` = control step k, `sim_time` = simulated time since t = 0; no
+wall-clock `log_time`, so two recordings of the same records compare equal with
 `rerun rrd compare --unordered`; the .rrd bytes and chunk order are not reproducible, because
 Rerun batches rows into chunks on a background thread):
-- `/world/rod`, `/world/target` (static), `/world/clamp` (static), `/world/gripper`: the scene
-  in world metres with **y negated**: Rerun's 2D views are y-down while the world is y-up, so the
-  stored y is -y_world and the view shows the rod the right way up.
-- `/camera/image` (PNG frames, when logged), `/camera/centerline` (extracted),
-  `/camera/projected_truth`, `/camera/target` (static): pixels, already y-down.
-- `/control/T1`, `/control/pixel_error`, `/control/u/{x,y,theta}`: scalars.
+- `/world/rod` (coloured by phase: probing violet, control blue), `/world/target` (static, a
+  wide translucent green band under the rod), `/world/clamp` (static, light grey, labelled),
+  `/world/gripper`: the scene in world metres with **y negated**: Rerun's 2D views are y-down
+  while the world is y-up, so the stored y is -y_world and the view shows the rod the right way up.
+- `/camera/image` (PNG frames chosen by `codec.FrameSchedule`), `/camera/target` (static,
+  green), `/camera/projected_truth` (wide translucent yellow band), `/camera/centerline`
+  (extracted, thin blue on top): pixels, already y-down; colours differ from the rendered rod
+  (red) and from each other, and the draw order puts the extracted line above the truth.
+- `/control/T1`, `/control/pixel_error`, `/control/u/{x,y,theta}`: scalars;
+  `/control/probing/{T1,pixel_error}`: violet markers on the probing steps.
 - `/log`: the same log lines as the MCAP's `/log`.
-The blueprint (2D scene, camera with the centerline over the image, T1, pixel error and the
-three command axes, the log) is embedded in the file.
+The blueprint (2D scene, camera with the overlays over the image, T1, pixel error and the three
+command axes, the log) gives both 2D views fixed bounds, so nothing refits while scrubbing: the
+camera view the image frame, the scene a box around the clamp of one rod length plus the gripper
+arrow (sent when the recording starts, so a killed run still has a layout), replaced when the
+recording closes by the box around everything the run drew, with a 10 % margin.
 """
 
 from __future__ import annotations
 
+import json
+from collections import deque
+from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -35,13 +45,24 @@ from rodctl.records import RunHeader, RunSummary, StepRecord
 
 APPLICATION_ID = "rodctl"
 
-_ROD = (25, 115, 240)
-_TARGET = (25, 190, 65)
-_GRIPPER = (255, 140, 0)
-_EXTRACTED = (255, 40, 40)
-_TRUTH = (40, 200, 255)
+# Scene colours, for Rerun's dark background.
+_ROD = (70, 150, 255)
+_ROD_PROBE = (190, 120, 255)
+_TARGET = (40, 200, 90, 150)
+_CLAMP = (225, 225, 225)
+_GRIPPER = (255, 150, 20)
+# Camera overlays: the rendered rod is red on a light background.
+_CAM_TARGET = (0, 170, 50)
+_EXTRACTED = (20, 70, 255)
+_TRUTH = (255, 215, 0, 170)
+_PROBE_MARK = _ROD_PROBE
 _AXES = ("x", "y", "theta")
 _AXIS_COLORS = ((220, 50, 47), (38, 139, 210), (133, 153, 0))
+#: Arrow length of the gripper, as a fraction of the rod length.
+_GRIPPER_SIZE = 0.12
+_MARGIN = 0.10
+#: Most tasks (column batches, frames, log lines) waiting for the background thread.
+_MAX_TASKS = 8
 
 
 def flip_y(points: np.ndarray) -> np.ndarray:
@@ -51,12 +72,86 @@ def flip_y(points: np.ndarray) -> np.ndarray:
     return out
 
 
+def _gripper_size(header: RunHeader) -> float:
+    L = float(header.rod_length)
+    return _GRIPPER_SIZE * L if np.isfinite(L) and L > 0 else 0.05
+
+
+def _box(points: Sequence[np.ndarray], margin: float = _MARGIN) -> rrb.VisualBounds2D:
+    """Bounds around every finite stored point, `margin` of the larger side added all round."""
+    pts = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in points])
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) == 0:
+        pts = np.zeros((1, 2))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    pad = max(margin * float((hi - lo).max()), 0.02)
+    return rrb.VisualBounds2D(
+        x_range=[float(lo[0] - pad), float(hi[0] + pad)],
+        y_range=[float(lo[1] - pad), float(hi[1] + pad)],
+    )
+
+
+def reach_bounds(header: RunHeader) -> rrb.VisualBounds2D:
+    """Scene bounds known before the run: no point of the rod is farther than one rod length
+    from the clamp, and the gripper arrow adds its own length; the target is included."""
+    reach = float(header.rod_length) + _gripper_size(header)
+    if not np.isfinite(reach) or reach <= 0:
+        reach = 1.0
+    c = flip_y(header.clamp_pose[:2])[0]
+    corners = np.array([c - reach, c + reach])
+    return _box([corners, flip_y(header.target_centerline)], margin=0.0)
+
+
+def blueprint(header: RunHeader, scene_bounds: rrb.VisualBounds2D | None = None) -> rrb.Blueprint:
+    """The layout: scene and camera on the left, time series and log on the right.
+
+    Both 2D views have fixed bounds (`scene_bounds`, by default `reach_bounds`; the camera view
+    the image frame with a small margin) so that they do not refit to the data every step.
+    """
+    w, h = header.image_size
+    pad = 0.03 * max(w, h)
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial2DView(
+                    origin="/world",
+                    name="scene (world m, y up)",
+                    visual_bounds=scene_bounds or reach_bounds(header),
+                ),
+                rrb.Spatial2DView(
+                    origin="/camera",
+                    name="camera (px): target green, truth yellow, extracted blue",
+                    visual_bounds=rrb.VisualBounds2D(
+                        x_range=[-pad, w + pad], y_range=[-pad, h + pad]
+                    ),
+                ),
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(
+                    origin="/control",
+                    contents=["/control/T1", "/control/probing/T1"],
+                    name="T1 (probing steps marked)",
+                ),
+                rrb.TimeSeriesView(
+                    origin="/control",
+                    contents=["/control/pixel_error", "/control/probing/pixel_error"],
+                    name="pixel error (px)",
+                ),
+                rrb.TimeSeriesView(origin="/control/u", name="command u (m, m, rad)"),
+                rrb.TextLogView(origin="/log", name="log"),
+            ),
+        ),
+        collapse_panels=True,
+    )
+
+
 def _empty_buffer() -> dict[str, list]:
     return {
         key: []
         for key in (
             "step",
             "sim_time",
+            "probe",
             "rod",
             "origin",
             "vector",
@@ -69,25 +164,8 @@ def _empty_buffer() -> dict[str, list]:
     }
 
 
-def blueprint() -> rrb.Blueprint:
-    """The default layout: scene and camera on the left, time series and log on the right."""
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                rrb.Spatial2DView(origin="/world", name="scene (world m, y up)"),
-                rrb.Spatial2DView(origin="/camera", name="camera (px)"),
-            ),
-            rrb.Vertical(
-                rrb.TimeSeriesView(origin="/control", contents="/control/T1", name="T1"),
-                rrb.TimeSeriesView(
-                    origin="/control", contents="/control/pixel_error", name="pixel error (px)"
-                ),
-                rrb.TimeSeriesView(origin="/control/u", name="command u (m, m, rad)"),
-                rrb.TextLogView(origin="/log", name="log"),
-            ),
-        ),
-        collapse_panels=True,
-    )
+#: Longest wait for Rerun's file writer to take a flush (s); past it the run goes on or closes.
+FLUSH_TIMEOUT_S = 10.0
 
 
 class RerunSink:
@@ -109,6 +187,12 @@ class RerunSink:
         self._last_time = np.timedelta64(0, "ns")
         self._closed = False
         self._buf = _empty_buffer()
+        self._frames = codec.FrameSchedule(self.cfg.image_rate_hz)
+        self._worker: ThreadPoolExecutor | None = None
+        self._tasks: deque[Future[None]] = deque()
+        # Box of everything drawn in the scene so far (stored coordinates), for the final bounds.
+        self._lo = np.full(2, np.inf)
+        self._hi = np.full(2, -np.inf)
 
     # ---------------------------------------------------------------------------- Sink protocol
     def open(self, header: RunHeader) -> None:
@@ -125,7 +209,7 @@ class RerunSink:
             batcher_config=rr.ChunkBatcherConfig.NEVER(),
         )
         rec.set_log_time_enabled(False)
-        rec.save(self.path, default_blueprint=blueprint())
+        rec.save(self.path, default_blueprint=blueprint(header))
         self._rec = rec
         # No recording name: it would only repeat the id, and the id (which carries the start
         # time) is the one thing allowed to differ between two runs of one config.
@@ -136,47 +220,71 @@ class RerunSink:
                 config_yaml=header.config_yaml,
                 rod_length_m=float(header.rod_length),
                 image_size=np.asarray(header.image_size, dtype=np.int64),
+                numeric_env=json.dumps(codec.sanitize(header.numeric_env), sort_keys=True),
             ),
         )
+        target = flip_y(header.target_centerline)
+        clamp = flip_y(header.clamp_pose[:2])
+        self._extend(target)
+        self._extend(clamp)
+        L = float(header.rod_length) if np.isfinite(header.rod_length) else 0.5
         rec.log(
             "/world/target",
             rr.LineStrips2D(
-                [flip_y(header.target_centerline)], colors=[_TARGET], radii=0.003, labels=["target"]
+                [target], colors=[_TARGET], radii=0.012 * L, labels=["target"], draw_order=10.0
             ),
             static=True,
         )
         rec.log(
             "/world/clamp",
-            rr.Points2D(
-                flip_y(header.clamp_pose[:2]), colors=[(0, 0, 0)], radii=0.01, labels=["clamp"]
-            ),
+            rr.Points2D(clamp, colors=[_CLAMP], radii=0.025 * L, labels=["clamp"], draw_order=40.0),
             static=True,
         )
         rec.log(
             "/camera/target",
-            rr.LineStrips2D([header.target_pixels], colors=[_TARGET], radii=1.0),
+            rr.LineStrips2D(
+                [header.target_pixels],
+                colors=[_CAM_TARGET],
+                radii=1.5,
+                labels=["target"],
+                draw_order=20.0,
+            ),
             static=True,
         )
-        rec.log("/world/rod", rr.LineStrips2D.from_fields(colors=[_ROD], radii=0.004), static=True)
         rec.log(
-            "/world/gripper", rr.Arrows2D.from_fields(colors=[_GRIPPER], radii=0.004), static=True
+            "/world/rod",
+            rr.LineStrips2D.from_fields(colors=[_ROD], radii=0.005 * L, draw_order=20.0),
+            static=True,
+        )
+        rec.log(
+            "/world/gripper",
+            rr.Arrows2D.from_fields(colors=[_GRIPPER], radii=0.006 * L, draw_order=30.0),
+            static=True,
         )
         rec.log(
             "/camera/centerline",
-            rr.LineStrips2D.from_fields(colors=[_EXTRACTED], radii=1.0),
+            rr.LineStrips2D.from_fields(colors=[_EXTRACTED], radii=0.8, draw_order=30.0),
             static=True,
         )
         rec.log(
             "/camera/projected_truth",
-            rr.LineStrips2D.from_fields(colors=[_TRUTH], radii=0.7),
+            rr.LineStrips2D.from_fields(colors=[_TRUTH], radii=3.0, draw_order=25.0),
             static=True,
         )
         rec.log("/control/T1", rr.SeriesLines(names="T1", colors=[_ROD]), static=True)
         rec.log(
             "/control/pixel_error",
-            rr.SeriesLines(names="pixel error", colors=[_EXTRACTED]),
+            rr.SeriesLines(names="pixel error", colors=[_ROD]),
             static=True,
         )
+        for name in ("T1", "pixel_error"):
+            rec.log(
+                f"/control/probing/{name}",
+                rr.SeriesPoints(
+                    names="probing", colors=[_PROBE_MARK], markers="diamond", marker_sizes=4.0
+                ),
+                static=True,
+            )
         for axis, color in zip(_AXES, _AXIS_COLORS, strict=True):
             rec.log(
                 f"/control/u/{axis}", rr.SeriesLines(names=f"u_{axis}", colors=[color]), static=True
@@ -190,8 +298,10 @@ class RerunSink:
         """Buffer one step; every `flush_every_steps` steps the buffer is sent as columns.
 
         Sending columns (one call per entity per batch instead of one per entity per step) cuts
-        the Python-side cost of Rerun logging about fivefold; frames and log lines are rare and
-        are logged at once. What was sent reaches the file within Rerun's batching tick (0.2 s).
+        the Python-side cost of Rerun logging about fivefold. Batches, frames (PNG-encoded by
+        `codec.FRAMES`) and log lines go to the recording through the sink's FIFO thread
+        (`_in_order`); what they need of the record is copied first, so the loop may reuse its
+        arrays.
         """
         rec, header = self._rec, self._header
         if rec is None or header is None:
@@ -202,35 +312,86 @@ class RerunSink:
         t = np.timedelta64(codec.time_ns(r.sim_time), "ns")
         self._last_step, self._last_time = k, t
         lines = codec.step_log_lines(self._prev, r)
-        if r.image is not None or lines:
-            rec.set_time("step", sequence=k)
-            rec.set_time("sim_time", duration=t)
-            if r.image is not None:
-                png = codec.PNG_CACHE.encode(r.image, self.cfg.png_compression)
-                rec.log("/camera/image", rr.EncodedImage(contents=png, media_type="image/png"))
-            for level, text in lines:
-                rec.log("/log", rr.TextLog(text, level=level))
+        if r.image is not None and self._frames.due(r):
+            future = codec.FRAMES.submit(r.image, self.cfg.png_compression)
+            self._frames.take(r)
+            self._in_order(self._log_frame, k, t, future)
+        if lines:
+            self._in_order(self._log_lines, k, t, lines)
         g = np.asarray(r.gripper, dtype=np.float64)
-        size = 0.12 * header.rod_length if header.rod_length > 0 else 0.05
+        size = _gripper_size(header)
+        rod = flip_y(r.centerline)
+        origin = (g[0], -g[1])
+        vector = (size * np.cos(g[2]), -size * np.sin(g[2]))
+        self._extend(rod)
+        self._extend(np.array([origin, (origin[0] + vector[0], origin[1] + vector[1])]))
         b = self._buf
         b["step"].append(k)
         b["sim_time"].append(t)
-        b["rod"].append(flip_y(r.centerline))
-        b["origin"].append((g[0], -g[1]))
-        b["vector"].append((size * np.cos(g[2]), -size * np.sin(g[2])))
-        b["centerline"].append(np.asarray(r.extracted, dtype=np.float64))
-        b["projected_truth"].append(np.asarray(r.projected_truth, dtype=np.float64))
+        b["probe"].append(r.phase == "probe")
+        b["rod"].append(rod)
+        b["origin"].append(origin)
+        b["vector"].append(vector)
+        # Copies: the FIFO thread reads them later, and the loop may reuse its arrays.
+        b["centerline"].append(np.array(r.extracted, dtype=np.float64))
+        b["projected_truth"].append(np.array(r.projected_truth, dtype=np.float64))
         b["T1"].append(float(r.T1))
         b["pixel_error"].append(float(r.pixel_error))
-        b["u"].append(np.asarray(r.u, dtype=np.float64)[:3])
+        b["u"].append(np.array(r.u, dtype=np.float64)[:3])
         self._prev = r
         self._steps += 1
         if len(b["step"]) >= self.cfg.flush_every_steps:
-            self._send()
+            buf, self._buf = self._buf, _empty_buffer()
+            self._in_order(self._send, buf)
 
-    def _send(self) -> None:
-        """Send the buffered steps as one column batch per entity."""
-        rec, b = self._rec, self._buf
+    def _in_order(self, fn, *args) -> None:
+        """Run `fn(*args)` on the sink's background thread, after everything handed over before.
+
+        Why: building Rerun's columns, and logging frames (which waits for their PNG), cost the
+        loop ~1 ms a step on its own thread. Every call to the recording after `open` goes
+        through this one FIFO thread, so the file's chunks are cut where `_send` flushes whatever
+        the timing (two runs of one config still compare equal). At most `_MAX_TASKS` tasks
+        wait; beyond that the loop waits for the oldest. A failure surfaces there or at close.
+        """
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rodctl-rerun")
+        while self._tasks and self._tasks[0].done():
+            self._tasks.popleft().result()
+        while len(self._tasks) >= _MAX_TASKS:
+            self._tasks.popleft().result()
+        self._tasks.append(self._worker.submit(fn, *args))
+
+    def _log_frame(self, k: int, t: np.timedelta64, future: Future[bytes]) -> None:
+        rec = self._rec
+        png = future.result()
+        if rec is not None:
+            rec.set_time("step", sequence=k)
+            rec.set_time("sim_time", duration=t)
+            rec.log("/camera/image", rr.EncodedImage(contents=png, media_type="image/png"))
+
+    def _log_lines(self, k: int, t: np.timedelta64, lines: list[tuple[str, str]]) -> None:
+        rec = self._rec
+        if rec is not None:
+            rec.set_time("step", sequence=k)
+            rec.set_time("sim_time", duration=t)
+            for level, text in lines:
+                rec.log("/log", rr.TextLog(text, level=level))
+
+    def _extend(self, points: np.ndarray) -> None:
+        """Grow the scene box by (M, 2) stored points (non-finite ones ignored)."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        if not np.isfinite(pts).all():
+            pts = pts[np.isfinite(pts).all(axis=1)]
+            if len(pts) == 0:
+                return
+        np.minimum(self._lo, pts.min(axis=0), out=self._lo)
+        np.maximum(self._hi, pts.max(axis=0), out=self._hi)
+
+    def _send(self, b: dict[str, list] | None = None) -> None:
+        """Send buffered steps (`b`, default the current buffer) as one column batch per entity."""
+        rec = self._rec
+        if b is None:
+            b, self._buf = self._buf, _empty_buffer()
         n = len(b["step"])
         if rec is None or n == 0:
             return
@@ -239,8 +400,12 @@ class RerunSink:
             rr.TimeColumn("sim_time", duration=np.asarray(b["sim_time"], dtype="timedelta64[ns]")),
         ]
         ones = [1] * n
+        probe = np.asarray(b["probe"], dtype=bool)
+        colors = [_ROD_PROBE if p else _ROD for p in probe]
         rec.send_columns(
-            "/world/rod", idx, rr.LineStrips2D.columns(strips=b["rod"]).partition(ones)
+            "/world/rod",
+            idx,
+            rr.LineStrips2D.columns(strips=b["rod"], colors=colors).partition(ones),
         )
         rec.send_columns(
             "/world/gripper",
@@ -258,8 +423,22 @@ class RerunSink:
         u = np.asarray(b["u"], dtype=np.float64).reshape(n, 3)
         for i, axis in enumerate(_AXES):
             rec.send_columns(f"/control/u/{axis}", idx, rr.Scalars.columns(scalars=u[:, i]))
-        self._buf = _empty_buffer()
-        rec.flush()  # the batched rows become chunks here, and reach the file
+        if probe.any():
+            pidx = [
+                rr.TimeColumn("step", sequence=np.asarray(b["step"], dtype=np.int64)[probe]),
+                rr.TimeColumn(
+                    "sim_time",
+                    duration=np.asarray(b["sim_time"], dtype="timedelta64[ns]")[probe],
+                ),
+            ]
+            for name in ("T1", "pixel_error"):
+                values = np.asarray(b[name], dtype=np.float64)[probe]
+                rec.send_columns(
+                    f"/control/probing/{name}", pidx, rr.Scalars.columns(scalars=values)
+                )
+        # The batched rows become chunks here, and reach the file. Bounded: a full disk can make
+        # the file writer stop accepting data, and an unbounded flush then waits for ever.
+        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
 
     def close(self, summary: RunSummary | None, status: str) -> None:
         """Log the closing line and finish the file (footer). Idempotent.
@@ -270,11 +449,17 @@ class RerunSink:
         if self._closed:
             return
         self._closed = True
-        rec, self._rec = self._rec, None
+        rec = self._rec
         if rec is None:
             return
         errors: list[BaseException] = []
-        self._rec = rec  # _send needs it
+        while self._tasks:  # everything handed to the background thread, in order
+            try:
+                self._tasks.popleft().result()
+            except Exception as exc:  # noqa: BLE001 - collected, see docstring
+                errors.append(exc)
+        if self._worker is not None:
+            self._worker.shutdown(wait=True)
         try:
             self._send()
         except Exception as exc:  # noqa: BLE001 - collected, see docstring
@@ -299,7 +484,16 @@ class RerunSink:
         except Exception as exc:  # noqa: BLE001 - collected, see docstring
             errors.append(exc)
         try:
-            rec.flush()
+            # The whole run is known now: fix the scene's bounds around everything it drew.
+            if self._header is not None and np.isfinite(self._lo).all():
+                bounds = _box([np.array([self._lo, self._hi])])
+                rec.send_blueprint(
+                    blueprint(self._header, bounds), make_active=True, make_default=True
+                )
+        except Exception as exc:  # noqa: BLE001 - collected, see docstring
+            errors.append(exc)
+        try:
+            rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         except Exception as exc:  # noqa: BLE001
             errors.append(exc)
         try:

@@ -3,37 +3,112 @@
 Why hand-written JSON schemas rather than foxglove-sdk's protobuf: one writer (`mcap`, already a
 dependency) for the whole file keeps the bytes reproducible and the reader trivial (`json.loads`),
 and Foxglove renders its well-known schemas in JSON encoding as well as protobuf; it recognises
-them by the schema *name* (`foxglove.SceneUpdate`, …), so those names are exact. The Foxglove
-schemas below are the subset of the official ones (foxglove/foxglove-sdk
-`schemas/jsonschema/*.json`) covering the fields rodctl writes, with the same `required` lists, so
-every message we write validates against the official schema too.
+them by the schema *name* (`foxglove.SceneUpdate`, ...).
 
-`real` (a float64 that may be non-finite) follows `codec.encode_real`: a number, `null` for NaN,
-or the strings "Infinity" / "-Infinity".
+Two sources:
+- `foxglove.*` channels embed the **official** schemas, unchanged, vendored from the npm package
+  `@foxglove/schemas` 2.1.0 under `foxglove_schemas/` (see its SOURCE.md). A subset would not do:
+  Foxglove's JSON-schema parser skips a channel whose schema has an array without typed `items`.
+- rodctl's own channels (`rodctl.*`) are written here so that they load in that parser too, whose
+  rules are (Lichtblick / open-source Foxglove Studio, `mcap-support/parseJsonSchema.ts`; checked
+  by `tests/logs/test_foxglove.py`):
+  - every object node is `"type": "object"` with a `properties` mapping (no free-form maps);
+  - every property has one `type` string among boolean, string (optionally base64), number,
+    integer, object, array; or a `oneOf` whose alternatives are all numeric `const`s (an enum);
+    so no `anyOf`, no type lists, no `null`;
+  - every array has `items` with a `type` of boolean, string, number, integer or object: **no
+    arrays of arrays**. Points are therefore arrays of `{x, y}` objects, matrices are flat
+    row-major arrays with their shape beside them, and maps are arrays of `{key, value}` objects.
+
+Non-finite numbers: JSON has no NaN or infinity, and the parser admits no nullable number, so a
+non-finite value is written as `null` in its number field and listed, with its exact value, in
+the message's `nonfinite` array (`codec.Encoder`). A strict validator rejects that `null`; every
+finite message validates against its schema (tested). Foxglove shows the `null` as an empty value.
 """
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
-_REAL: dict[str, Any] = {
-    "anyOf": [{"type": "number"}, {"type": "null"}, {"enum": ["Infinity", "-Infinity"]}],
-}
+#: Version of the vendored official Foxglove schemas (npm @foxglove/schemas).
+FOXGLOVE_SCHEMAS_VERSION = "2.1.0"
+FOXGLOVE_SCHEMA_DIR = Path(__file__).with_name("foxglove_schemas")
+
+
+def official(name: str) -> dict[str, Any]:
+    """The official Foxglove JSON schema `foxglove.<name>` as vendored (key order kept)."""
+    path = FOXGLOVE_SCHEMA_DIR / f"{name}.json"
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+SCENE_UPDATE = official("SceneUpdate")
+COMPRESSED_IMAGE = official("CompressedImage")
+IMAGE_ANNOTATIONS = official("ImageAnnotations")
+LOG = official("Log")
+
+#: The primitive lists of a foxglove.SceneEntity (every one required, empty when unused).
+PRIMITIVE_LISTS: tuple[str, ...] = tuple(
+    name
+    for name, prop in SCENE_UPDATE["properties"]["entities"]["items"]["properties"].items()
+    if prop.get("type") == "array" and name != "metadata"
+)
+
+# ------------------------------------------------------------------------- rodctl's own schemas
+_NUM_NOTE = " Non-finite values are null here and listed in `nonfinite`."
+
+
+def _num(desc: str) -> dict[str, Any]:
+    return {"type": "number", "description": desc + _NUM_NOTE}
 
 
 def _vec(n: int | None, desc: str) -> dict[str, Any]:
-    out: dict[str, Any] = {"type": "array", "items": _REAL, "description": desc}
+    out: dict[str, Any] = {
+        "type": "array",
+        "items": {"type": "number"},
+        "description": desc + _NUM_NOTE,
+    }
     if n is not None:
         out["minItems"] = out["maxItems"] = n
     return out
 
 
-def _points(desc: str) -> dict[str, Any]:
-    return {"type": "array", "items": _vec(2, "point"), "description": desc}
+def _points(unit: str, desc: str) -> dict[str, Any]:
+    return {
+        "type": "array",
+        "items": {
+            "type": "object",
+            "title": "rodctl.Point2",
+            "properties": {
+                "x": {"type": "number", "description": f"First coordinate ({unit})."},
+                "y": {"type": "number", "description": f"Second coordinate ({unit})."},
+            },
+            "required": ["x", "y"],
+        },
+        "description": desc + _NUM_NOTE,
+    }
 
+
+_NONFINITE: dict[str, Any] = {
+    "type": "array",
+    "description": "The message's non-finite numbers (written as null): where and which.",
+    "items": {
+        "type": "object",
+        "title": "rodctl.NonFinite",
+        "properties": {
+            "path": {
+                "type": "string",
+                "description": "The value's place: `field`, `field[i]` or `field[i].x`.",
+            },
+            "value": {"type": "string", "enum": ["NaN", "Infinity", "-Infinity"]},
+        },
+        "required": ["path", "value"],
+    },
+}
 
 _STEP = {"type": "integer", "minimum": 0, "description": "Control step k (0 = initial)."}
+_PHASE = {"type": "string", "enum": ["initial", "probe", "control"]}
 
 ROD_STATE: dict[str, Any] = {
     "title": "rodctl.RodState",
@@ -41,16 +116,22 @@ ROD_STATE: dict[str, Any] = {
     "type": "object",
     "properties": {
         "step": _STEP,
-        "sim_time": {**_REAL, "description": "Simulated time at the end of the step (s)."},
+        "sim_time": _num("Simulated time at the end of the step (s)."),
         "gripper": _vec(3, "Gripper pose [x, y, theta] (m, m, rad), world frame."),
-        "centerline": _points("Ground-truth centerline [[x, y], ...] (m), clamp end first."),
-        "phase": {"type": "string", "enum": ["initial", "probe", "control"]},
+        "centerline": _points("m", "Ground-truth centerline [{x, y}, ...] (m), clamp end first."),
+        "phase": _PHASE,
         "settled": {"type": "boolean"},
         "clipped": {"type": "boolean"},
-        "max_joint_gap": {**_REAL, "description": "Largest pivot-joint separation (m)."},
-        "kinetic_energy": {**_REAL, "description": "Rod kinetic energy at step end (J)."},
+        "max_joint_gap": _num("Largest pivot-joint separation (m)."),
+        "kinetic_energy": _num("Rod kinetic energy at step end (J)."),
+        "events": {
+            "type": "array",
+            "items": {"type": "string"},
+            "description": "Mid-run events applied before this step's move (run.events).",
+        },
+        "nonfinite": _NONFINITE,
     },
-    "required": ["step", "sim_time", "gripper", "centerline"],
+    "required": ["step", "sim_time", "gripper", "centerline", "nonfinite"],
 }
 
 CAMERA_CENTERLINE: dict[str, Any] = {
@@ -59,12 +140,13 @@ CAMERA_CENTERLINE: dict[str, Any] = {
     "type": "object",
     "properties": {
         "step": _STEP,
-        "extracted": _points("Centerline extracted from the image [[u, v], ...] (px)."),
-        "projected_truth": _points("Ground truth projected by the camera model (px)."),
+        "extracted": _points("px", "Centerline extracted from the image [{x: u, y: v}, ...]."),
+        "projected_truth": _points("px", "Ground truth projected by the camera model."),
         "extraction_ok": {"type": "boolean"},
         "extraction_note": {"type": "string"},
+        "nonfinite": _NONFINITE,
     },
-    "required": ["step", "extracted", "projected_truth"],
+    "required": ["step", "extracted", "projected_truth", "nonfinite"],
 }
 
 CONTROL: dict[str, Any] = {
@@ -76,17 +158,36 @@ CONTROL: dict[str, Any] = {
         "u": _vec(3, "Applied pose increment [dx, dy, dtheta] (m, m, rad)."),
         "s": _vec(None, "Shape feature s_k (p,)."),
         "s_target": _vec(None, "Target feature s* (p,)."),
-        "T1": {**_REAL, "description": "||s* - s_k||, the paper's deformation metric."},
-        "J": _vec(None, "Jacobian estimate, row-major p x q (p*q,)."),
-        "pixel_error": {**_REAL, "description": "Mean centerline distance to target (px)."},
-        "J_shape": {"type": "array", "items": {"type": "integer"}, "minItems": 2, "maxItems": 2},
+        "T1": _num("||s* - s_k||, the paper's deformation metric."),
+        "J": _vec(None, "Jacobian estimate, row-major p x q (p*q,); shape in J_shape."),
+        "pixel_error": _num("Mean centerline distance to target (px)."),
+        "J_shape": {
+            "type": "array",
+            "items": {"type": "integer"},
+            "minItems": 2,
+            "maxItems": 2,
+            "description": "[p, q]",
+        },
         "J_singular_values": _vec(None, "Singular values of J, largest first."),
         "u_raw": _vec(3, "Command before saturation and workspace clipping."),
         "saturated": {"type": "array", "items": {"type": "boolean"}},
-        "phase": {"type": "string"},
-        "estimator_info": {"type": "object", "additionalProperties": _REAL},
+        "phase": _PHASE,
+        "estimator_info": {
+            "type": "array",
+            "description": "Scalar diagnostics of the estimator, by name.",
+            "items": {
+                "type": "object",
+                "title": "rodctl.NamedValue",
+                "properties": {
+                    "name": {"type": "string"},
+                    "value": _num("The diagnostic's value."),
+                },
+                "required": ["name", "value"],
+            },
+        },
+        "nonfinite": _NONFINITE,
     },
-    "required": ["step", "u", "s", "s_target", "T1", "J", "pixel_error"],
+    "required": ["step", "u", "s", "s_target", "T1", "J", "pixel_error", "J_shape", "nonfinite"],
 }
 
 RUN_HEADER: dict[str, Any] = {
@@ -106,11 +207,23 @@ RUN_HEADER: dict[str, Any] = {
         },
         "clamp_pose": _vec(3, "Clamp pose [x, y, theta] (m, m, rad)."),
         "home_pose": _vec(3, "Gripper pose at the start (m, m, rad)."),
-        "target_centerline": _points("Target centerline (m), clamp first."),
-        "target_pixels": _points("Target centerline as extracted (px)."),
+        "target_centerline": _points("m", "Target centerline (m), clamp first."),
+        "target_pixels": _points("px", "Target centerline as extracted (px)."),
         "target_feature": _vec(None, "s* (p,)."),
         "target_pose": _vec(3, "Gripper pose that produced the target (m, m, rad)."),
-        "rod_length": {**_REAL, "description": "Rod length L (m)."},
+        "rod_length": _num("Rod length L (m)."),
+        "numeric_env": {
+            "type": "array",
+            "description": "The numeric environment (CPU, BLAS, library builds): each value as "
+            "JSON text.",
+            "items": {
+                "type": "object",
+                "title": "rodctl.KeyJson",
+                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
+                "required": ["key", "value"],
+            },
+        },
+        "nonfinite": _NONFINITE,
     },
     "required": [
         "format_version",
@@ -124,185 +237,25 @@ RUN_HEADER: dict[str, Any] = {
         "target_feature",
         "target_pose",
         "rod_length",
+        "numeric_env",
+        "nonfinite",
     ],
 }
 
 RUN_SUMMARY: dict[str, Any] = {
     "title": "rodctl.RunSummary",
-    "description": "summary.json as logged when the run closed, plus the closing status.",
+    "description": "summary.json as logged when the run closed (its run-independent keys; "
+    "non-finite numbers as the strings NaN / Infinity / -Infinity), plus the closing status.",
     "type": "object",
-    "properties": {"closing_status": {"type": "string"}},
+    "properties": {
+        "closing_status": {"type": "string"},
+        "status": {"type": "string"},
+        "outcome": {"type": "string"},
+        "method": {"type": "string"},
+        "steps": {"type": "integer"},
+        "converged": {"type": "boolean"},
+    },
     "required": ["closing_status"],
-}
-
-# ------------------------------------------------------------------ Foxglove well-known (subset)
-_TIME = {
-    "type": "object",
-    "title": "time",
-    "properties": {
-        "sec": {"type": "integer", "minimum": 0},
-        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
-    },
-}
-_DURATION = {
-    "type": "object",
-    "title": "duration",
-    "properties": {
-        "sec": {"type": "integer"},
-        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
-    },
-}
-
-
-def _xyz(title: str, names: tuple[str, ...] = ("x", "y", "z")) -> dict[str, Any]:
-    return {
-        "title": title,
-        "type": "object",
-        "properties": {n: {"type": "number"} for n in names},
-        "required": list(names),
-    }
-
-
-_COLOR = _xyz("foxglove.Color", ("r", "g", "b", "a"))
-_POSE = {
-    "title": "foxglove.Pose",
-    "type": "object",
-    "properties": {
-        "position": _xyz("foxglove.Vector3"),
-        "orientation": _xyz("foxglove.Quaternion", ("x", "y", "z", "w")),
-    },
-    "required": ["position", "orientation"],
-}
-_LINE = {
-    "title": "foxglove.LinePrimitive",
-    "type": "object",
-    "properties": {
-        "type": {
-            "title": "foxglove.LineType",
-            "oneOf": [
-                {"title": "LINE_STRIP", "const": 0},
-                {"title": "LINE_LOOP", "const": 1},
-                {"title": "LINE_LIST", "const": 2},
-            ],
-        },
-        "pose": _POSE,
-        "thickness": {"type": "number"},
-        "scale_invariant": {"type": "boolean"},
-        "points": {"type": "array", "items": _xyz("foxglove.Point3")},
-        "color": _COLOR,
-        "colors": {"type": "array", "items": _COLOR},
-        "indices": {"type": "array", "items": {"type": "integer", "minimum": 0}},
-    },
-    "required": [
-        "type",
-        "pose",
-        "thickness",
-        "scale_invariant",
-        "points",
-        "color",
-        "colors",
-        "indices",
-    ],
-}
-_ARROW = {
-    "title": "foxglove.ArrowPrimitive",
-    "type": "object",
-    "properties": {
-        "pose": _POSE,
-        "shaft_length": {"type": "number"},
-        "shaft_diameter": {"type": "number"},
-        "head_length": {"type": "number"},
-        "head_diameter": {"type": "number"},
-        "color": _COLOR,
-    },
-    "required": ["pose", "shaft_length", "shaft_diameter", "head_length", "head_diameter", "color"],
-}
-#: The primitive lists of a foxglove.SceneEntity (every one required, empty when unused).
-PRIMITIVE_LISTS = (
-    "arrows",
-    "cubes",
-    "spheres",
-    "cylinders",
-    "lines",
-    "triangles",
-    "texts",
-    "models",
-)
-_ENTITY = {
-    "title": "foxglove.SceneEntity",
-    "type": "object",
-    "properties": {
-        "timestamp": _TIME,
-        "frame_id": {"type": "string"},
-        "id": {"type": "string"},
-        "lifetime": _DURATION,
-        "frame_locked": {"type": "boolean"},
-        "metadata": {
-            "type": "array",
-            "items": {
-                "title": "foxglove.KeyValuePair",
-                "type": "object",
-                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
-                "required": ["key", "value"],
-            },
-        },
-        **{name: {"type": "array"} for name in PRIMITIVE_LISTS},
-        "arrows": {"type": "array", "items": _ARROW},
-        "lines": {"type": "array", "items": _LINE},
-    },
-    "required": [
-        "timestamp",
-        "frame_id",
-        "id",
-        "lifetime",
-        "frame_locked",
-        "metadata",
-        *PRIMITIVE_LISTS,
-    ],
-}
-SCENE_UPDATE: dict[str, Any] = {
-    "title": "foxglove.SceneUpdate",
-    "description": "An update to the entities displayed in a 3D scene",
-    "type": "object",
-    "properties": {
-        "deletions": {"type": "array", "items": {"type": "object"}},
-        "entities": {"type": "array", "items": _ENTITY},
-    },
-    "required": ["deletions", "entities"],
-}
-
-COMPRESSED_IMAGE: dict[str, Any] = {
-    "title": "foxglove.CompressedImage",
-    "description": "A compressed image",
-    "type": "object",
-    "properties": {
-        "timestamp": _TIME,
-        "frame_id": {"type": "string"},
-        "data": {"type": "string", "contentEncoding": "base64"},
-        "format": {"type": "string"},
-    },
-    "required": ["timestamp", "frame_id", "data", "format"],
-}
-
-LOG: dict[str, Any] = {
-    "title": "foxglove.Log",
-    "description": "A log message",
-    "type": "object",
-    "properties": {
-        "timestamp": _TIME,
-        "level": {
-            "title": "foxglove.LogLevel",
-            "oneOf": [
-                {"title": t, "const": i}
-                for i, t in enumerate(("UNKNOWN", "DEBUG", "INFO", "WARNING", "ERROR", "FATAL"))
-            ],
-        },
-        "message": {"type": "string"},
-        "name": {"type": "string"},
-        "file": {"type": "string"},
-        "line": {"type": "integer", "minimum": 0},
-    },
-    "required": ["timestamp", "level", "message", "name", "file", "line"],
 }
 
 #: Every schema by name, as registered in the MCAP file.
@@ -316,11 +269,13 @@ ALL: dict[str, dict[str, Any]] = {
         RUN_SUMMARY,
         SCENE_UPDATE,
         COMPRESSED_IMAGE,
+        IMAGE_ANNOTATIONS,
         LOG,
     )
 }
 
 
 def schema_bytes(schema: dict[str, Any]) -> bytes:
-    """The schema as stored in MCAP: compact, key order fixed, so files are byte-stable."""
-    return json.dumps(schema, separators=(",", ":"), sort_keys=True).encode("utf-8")
+    """The schema as stored in MCAP: compact JSON, key order as defined (the official schemas'
+    own order), so files are byte-stable and the official schemas keep their JSON value."""
+    return json.dumps(schema, separators=(",", ":"), ensure_ascii=False).encode("utf-8")

@@ -1,8 +1,10 @@
 """The simulated rod: a pymunk chain validated against the planar elastica.
 
 `RodSim` is what the experiment loop drives (gripper moves, settling, workspace safety,
-ground-truth centreline); `RodChain` is the bare physics, also built directly by the validation
-tests (free end, dead tip load); `rodctl.sim.elastica` holds the continuum reference solutions.
+ground-truth centreline, and the mid-run changes of `rodctl/events.py`); `RodChain` is the bare
+physics (optionally with in-plane gravity or table friction), also built directly by the
+validation tests (free end, dead tip load, self-weight); `rodctl.sim.elastica` holds the
+continuum reference solutions, the heavy elastica included.
 """
 
 from rodctl.sim.chain import RodChain, first_mode_rate, stable_dt_limit

@@ -15,7 +15,10 @@ Discretisation (see shared/reference/rod-validation.md and research/simulation.m
   (+3.4 % at N = 50 on the cantilever) instead of second order.
 
 Quasi-static speed-up (legitimate because only the SETTLED shape is used, and the static
-equilibrium of this chain does not depend on masses or inertias when no body force acts):
+equilibrium of this chain does not depend on masses or inertias when no body force acts; with
+gravity it depends on the masses ρA·l, which are the real ones, but never on the rotary inertia;
+with table friction the stopping point of a sliding rod does depend on the dynamics, so there the
+shapes are those of *a* slowly driven frictional rod, see the README):
 
 * every segment gets a fictitious extra rotary inertia m·(g L)^2 (a radius of gyration g·L, like
   a very thick Rayleigh beam). Kinetic energy is then dominated by rotation, which turns the
@@ -123,6 +126,25 @@ class RodChain:
             rod's end; False: the far end is free.
         tip_force: (2,) dead load (N, world frame) on the free end, reapplied every step. Only
             with `gripped=False`.
+        gravity: (2,) acceleration (m/s², world frame) in the rod's plane, i.e. a vertical plane.
+            pymunk adds it to every segment's velocity after the damping factor, so it is not
+            softened by `damping_rate` the way the springs are (Munk2D `cpBodyUpdateVelocity`).
+            Lumped at each segment's centre: the midpoint rule on the distributed load ρA·g,
+            second order in 1/N like the springs.
+        table_friction: Coulomb coefficient μ of a table under a horizontal rod (gravity normal
+            to the plane); None: no table. pymunk's top-down friction idiom: per segment, a
+            `PivotJoint` to the static body at the segment centre with max_force μ m g and a
+            `GearJoint` with max torque μ m g l/4 (the Coulomb torque of a uniformly loaded
+            segment spinning about its centre), both with max_bias 0 so they only resist motion
+            and never pull the rod back. μ = 0 builds the joints with zero force (a table without
+            friction): the same shapes as no table.
+        table_gravity: g (m/s²) pressing the rod on the table (only with `table_friction`).
+        movable_clamp: hold the clamped end by a kinematic body that `step` can drive (like the
+            gripper) instead of pinning it to the static body. False builds exactly the chain
+            of earlier versions (bit-identical runs).
+        segment_inertia: rotary inertia of every segment (kg m²); None: from
+            `segment_rotary_inertia`. A rebuilt chain passes its predecessor's, so that a
+            stiffness change or a shorter held length keeps the same time-step limit.
     """
 
     def __init__(
@@ -138,6 +160,11 @@ class RodChain:
         inertia_radius: float,
         gripped: bool = True,
         tip_force: Sequence[float] | None = None,
+        gravity: Sequence[float] = (0.0, 0.0),
+        table_friction: float | None = None,
+        table_gravity: float = 9.81,
+        movable_clamp: bool = False,
+        segment_inertia: float | None = None,
     ) -> None:
         if tip_force is not None and gripped:
             raise ValueError("a tip force needs a free end (gripped=False)")
@@ -152,11 +179,18 @@ class RodChain:
         n, seg = self.segments, self.seg_length
         mass = mass_per_length * seg
         inertia = segment_rotary_inertia(length, mass_per_length, segments, inertia_radius)
+        if segment_inertia is not None:
+            inertia = float(segment_inertia)
         self.segment_mass = mass
         self.segment_inertia = inertia
+        self.bending_stiffness = float(bending_stiffness)
+        self.mass_per_length = float(mass_per_length)
 
         space = pymunk.Space()
         space.iterations = int(iterations)
+        self.gravity = (float(gravity[0]), float(gravity[1]))
+        if self.gravity != (0.0, 0.0):
+            space.gravity = self.gravity
         # Velocities are multiplied by damping**dt each step: damping = e^(-c) per second.
         space.damping = math.exp(-damping_rate)
         # Undo the spring softening by damping**dt (pitfall 2 of rod-validation.md).
@@ -178,8 +212,23 @@ class RodChain:
         constraints: list[pymunk.Constraint] = []
         # Clamp: pivot at the clamp point + spring of 2EI/l; torque = (a.angle - b.angle - rest)k
         # with a = static body (angle 0), so rest = -theta_clamp keeps segment 0 at theta_clamp.
-        constraints.append(pymunk.PivotJoint(space.static_body, bodies[0], (x0, y0), (-half, 0)))
-        constraints.append(pymunk.DampedRotarySpring(space.static_body, bodies[0], -th0, k_end, 0))
+        self.clamp_body: pymunk.Body | None = None
+        if movable_clamp:
+            # Torque = (a.angle - b.angle - rest) k: the clamp body carries theta_clamp itself.
+            clamp = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+            clamp.position = (x0, y0)
+            clamp.angle = th0
+            space.add(clamp)
+            constraints.append(pymunk.PivotJoint(clamp, bodies[0], (0, 0), (-half, 0)))
+            constraints.append(pymunk.DampedRotarySpring(clamp, bodies[0], 0.0, k_end, 0))
+            self.clamp_body = clamp
+        else:
+            constraints.append(
+                pymunk.PivotJoint(space.static_body, bodies[0], (x0, y0), (-half, 0))
+            )
+            constraints.append(
+                pymunk.DampedRotarySpring(space.static_body, bodies[0], -th0, k_end, 0)
+            )
         for i in range(1, n):
             pivot = pymunk.PivotJoint(bodies[i - 1], bodies[i], (half, 0), (-half, 0))
             pivot.collide_bodies = False
@@ -194,6 +243,19 @@ class RodChain:
             constraints.append(pymunk.PivotJoint(grip, bodies[-1], (0, 0), (half, 0)))
             constraints.append(pymunk.DampedRotarySpring(bodies[-1], grip, 0, k_end, 0))
             self.gripper = grip
+        self.friction_joints: list[pymunk.Constraint] = []
+        self.table_friction = None if table_friction is None else float(table_friction)
+        self.table_gravity = float(table_gravity)
+        if self.table_friction is not None:
+            for body in bodies:
+                slide = pymunk.PivotJoint(space.static_body, body, (0, 0), (0, 0))
+                spin = pymunk.GearJoint(space.static_body, body, 0.0, 1.0)
+                for joint in (slide, spin):
+                    joint.max_bias = 0.0  # friction resists velocity only, no position pull-back
+                    joint.collide_bodies = False
+                self.friction_joints += [slide, spin]
+            self.set_table_friction(self.table_friction)
+            constraints.extend(self.friction_joints)
         space.add(*constraints)
         self.space = space
         self.bodies = bodies
@@ -209,6 +271,55 @@ class RodChain:
         self._nrows = len(ids)
         first = int(self._rows[0])
         self._contiguous = bool(np.array_equal(self._rows, np.arange(first, first + n)))
+
+    # ------------------------------------------------------------------ changing the rod
+    def set_table_friction(self, mu: float) -> None:
+        """Set the table's Coulomb coefficient (only on a chain built with `table_friction`)."""
+        if self.table_friction is None:
+            raise ValueError("this chain has no table (built with table_friction=None)")
+        if not (math.isfinite(mu) and mu >= 0):
+            raise ValueError(f"table friction must be finite and >= 0, got {mu}")
+        self.table_friction = float(mu)
+        normal = self.segment_mass * self.table_gravity
+        for i in range(0, len(self.friction_joints), 2):
+            self.friction_joints[i].max_force = mu * normal
+            self.friction_joints[i + 1].max_force = mu * normal * self.seg_length / 4.0
+
+    def set_bending_stiffness(self, bending_stiffness: float) -> None:
+        """Change EI in place, keeping the time step stable and the damping critical.
+
+        Every rotary spring is rescaled by the ratio r (the clamp's and the gripper's stay at
+        twice the interior ones; the damping compensation is unchanged because the damping rate
+        is). The segments' rotary inertia is scaled by r too: the bending frequencies go as
+        sqrt(k/J), so they, the explicit-spring stability limit of `dt` and the critical damping
+        of mode 1 all stay what they were. Rotary inertia does not enter any settled shape (it is
+        already fictitious, see the module docstring), so only the clock of the settling changes.
+        """
+        if not (math.isfinite(bending_stiffness) and bending_stiffness > 0):
+            raise ValueError(f"bending stiffness must be finite and > 0, got {bending_stiffness}")
+        ratio = bending_stiffness / self.bending_stiffness
+        for c in self.space.constraints:
+            if isinstance(c, pymunk.DampedRotarySpring):
+                c.stiffness = c.stiffness * ratio
+        self.segment_inertia *= ratio
+        for body in self.bodies:
+            body.moment = self.segment_inertia
+        self.bending_stiffness = float(bending_stiffness)
+
+    def set_mass_per_length(self, mass_per_length: float) -> None:
+        """Change ρA in place: every segment's mass and rotary inertia scale with it (so the
+        settling speed-up is kept), and the table's friction forces follow the new weight."""
+        if not (math.isfinite(mass_per_length) and mass_per_length > 0):
+            raise ValueError(f"mass per length must be finite and > 0, got {mass_per_length}")
+        ratio = mass_per_length / self.mass_per_length
+        self.segment_mass *= ratio
+        self.segment_inertia *= ratio
+        for body in self.bodies:
+            body.mass = self.segment_mass
+            body.moment = self.segment_inertia
+        self.mass_per_length = float(mass_per_length)
+        if self.table_friction is not None:
+            self.set_table_friction(self.table_friction)
 
     # ------------------------------------------------------------------ readouts
     def _read(self, fields: pbatch.BodyFields) -> np.ndarray:
@@ -251,7 +362,7 @@ class RodChain:
     def joint_gaps(self) -> np.ndarray:
         """(N+1,) or (N,) separation (m) of every pivot joint: clamp, interior, gripper."""
         start, end = self.segment_ends()
-        gaps = [np.hypot(*(start[0] - self.clamp_pose[:2]))]
+        gaps = [np.hypot(*(start[0] - self.current_clamp_pose()[:2]))]
         gaps.extend(np.hypot(*(end[:-1] - start[1:]).T))
         if self.gripper is not None:
             gaps.append(np.hypot(*(end[-1] - np.array(self.gripper.position))))
@@ -270,6 +381,35 @@ class RodChain:
         rot = 0.5 * self.segment_inertia * float(np.sum(vel[:, 2] ** 2))
         return lin + rot
 
+    def current_clamp_pose(self) -> np.ndarray:
+        """(3,) the clamped end's pose now (it moves only with `movable_clamp`)."""
+        if self.clamp_body is None:
+            return self.clamp_pose.copy()
+        p = self.clamp_body.position
+        return np.array([p.x, p.y, self.clamp_body.angle])
+
+    def place(self, states: np.ndarray, gripper_pose: Sequence[float] | None = None) -> None:
+        """Put a freshly built chain into a given shape, at rest (used to rebuild a chain).
+
+        Args:
+            states: (N, 3) segment centres and angles [x, y, angle], world frame, consistent
+                with the clamp pose (joint gaps of micrometres are corrected by the solver).
+            gripper_pose: (3,) pose of the kinematic gripper, if the chain has one.
+        """
+        if self.steps:
+            raise RuntimeError("place() is for a chain that has not been stepped yet")
+        states = np.asarray(states, dtype=float)
+        if states.shape != (self.segments, 3):
+            raise ValueError(f"states must be ({self.segments}, 3), got {states.shape}")
+        for body, (x, y, a) in zip(self.bodies, states, strict=True):
+            body.position = (float(x), float(y))
+            body.angle = float(a)
+            body.velocity = (0.0, 0.0)
+            body.angular_velocity = 0.0
+        if gripper_pose is not None and self.gripper is not None:
+            self.gripper.position = (float(gripper_pose[0]), float(gripper_pose[1]))
+            self.gripper.angle = float(gripper_pose[2])
+
     def gripper_pose(self) -> np.ndarray:
         """(3,) kinematic gripper pose [x, y, theta]; the free end's pose without a gripper."""
         if self.gripper is None:
@@ -280,12 +420,27 @@ class RodChain:
         return np.array([p.x, p.y, self.gripper.angle])
 
     # ------------------------------------------------------------------ stepping
-    def step(self, target: np.ndarray | None = None) -> None:
+    def step(
+        self, target: np.ndarray | None = None, clamp_target: np.ndarray | None = None
+    ) -> None:
         """Advance one time step; drive the gripper towards `target` [x, y, theta] by velocity.
 
         The gripper's velocity is set so that it lands exactly on `target` at the end of the
         step (kinematic bodies are integrated from their velocity). `target=None` holds it still.
+        `clamp_target` drives a movable clamp the same way (None: it stays).
         """
+        clamp = self.clamp_body
+        if clamp is not None:
+            if clamp_target is None:
+                clamp.velocity = (0.0, 0.0)
+                clamp.angular_velocity = 0.0
+            else:
+                p = clamp.position
+                inv = 1.0 / self.dt
+                clamp.velocity = ((clamp_target[0] - p.x) * inv, (clamp_target[1] - p.y) * inv)
+                clamp.angular_velocity = (clamp_target[2] - clamp.angle) * inv
+        elif clamp_target is not None:
+            raise ValueError("this chain's clamp is fixed (built with movable_clamp=False)")
         grip = self.gripper
         if grip is not None:
             if target is None:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rodctl.config.rod import RodConfig
+from rodctl.config.rod import STANDARD_GRAVITY, RodConfig
 from rodctl.errors import UserError
 from rodctl.geometry import resample_polyline
 from rodctl.sim.chain import RodChain, first_mode_rate, stable_dt_limit
@@ -120,6 +120,7 @@ class RodSim:
                 "Increase rod.inertia_radius (it slows every mode without changing the settled "
                 "shape), or lower rod.damping, or use a longer / softer rod"
             )
+        self._damping_rate = damping_rate
         self.chain = RodChain(
             length=cfg.length,
             bending_stiffness=cfg.bending_stiffness,
@@ -131,8 +132,13 @@ class RodSim:
             # Critical damping of mode 1: c = 2 ω1 (scaled by cfg.damping).
             damping_rate=damping_rate,
             inertia_radius=cfg.inertia_radius,
+            gravity=cfg.gravity,
+            table_friction=cfg.table_friction,
+            table_gravity=STANDARD_GRAVITY,
         )
         self._diverged = False
+        #: Segments between the clamp and the grasp (all N until a grasp slip).
+        self._held = n
 
         if cfg.home_pose is not None:
             home = np.asarray(cfg.home_pose, dtype=float)
@@ -179,6 +185,28 @@ class RodSim:
     def sim_time(self) -> float:
         """Simulated time so far (s), the home move included."""
         return self.chain.steps * self.dt
+
+    @property
+    def clamp_pose(self) -> np.ndarray:
+        """(3,) the clamped end's pose now [x, y, theta] (changes only with `move_clamp`)."""
+        return self.chain.current_clamp_pose()
+
+    @property
+    def held_length(self) -> float:
+        """Arc length (m) from the clamp to the grasp: L until a `slip_grasp`."""
+        if self._held == self.cfg.segments:
+            return float(self.cfg.length)  # exactly, not N * (L / N)
+        return self._held * self.chain.seg_length
+
+    @property
+    def bending_stiffness(self) -> float:
+        """EI (N m²) now (changed by `set_bending_stiffness`)."""
+        return self.chain.bending_stiffness
+
+    @property
+    def mass_per_length(self) -> float:
+        """ρA (kg/m) now (changed by `set_mass_per_length`)."""
+        return self.chain.mass_per_length
 
     @property
     def diverged(self) -> bool:
@@ -231,8 +259,8 @@ class RodSim:
         lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]])
         hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]])
         out = np.clip(pose, lo, hi)
-        clamp = np.asarray(self.cfg.clamp_pose[:2], dtype=float)
-        reach = ws.max_reach * self.cfg.length
+        clamp = self.chain.current_clamp_pose()[:2]
+        reach = ws.max_reach * self.held_length
         for _ in range(3):  # the reach cut and the box cut may need a second pass
             d = out[:2] - clamp
             dist = float(np.hypot(*d))
@@ -377,3 +405,208 @@ class RodSim:
     def _is_slow(self) -> bool:
         speed = self.chain.max_speed()
         return math.isfinite(speed) and speed < self.cfg.settle_speed_tol
+
+    # ------------------------------------------------------------------ changing the rod
+    # Mid-run events (rodctl/events.py) go through these. Each keeps the simulator's clock and
+    # its stability: the time step, damping rate and control period never change.
+
+    def set_bending_stiffness(self, bending_stiffness: float) -> ApplyResult:
+        """Change EI mid-run, then let the rod settle into its new shape.
+
+        Without a body force the settled shape does not depend on EI (only the end poses), so
+        under the paper's weightless set-up this changes nothing but the settling; under gravity
+        or on a table it changes the shape (tested).
+
+        Returns:
+            The settling, as an `ApplyResult` with a zero move.
+        """
+        self.chain.set_bending_stiffness(float(bending_stiffness))
+        return self._hold()
+
+    def set_mass_per_length(self, mass_per_length: float) -> ApplyResult:
+        """Change ρA mid-run (e.g. the rod picks up weight), then settle."""
+        self.chain.set_mass_per_length(float(mass_per_length))
+        return self._hold()
+
+    def set_table_friction(self, mu: float) -> ApplyResult:
+        """Change the table's Coulomb coefficient (a rod built with `table_friction`), settle."""
+        if self.chain.table_friction is None:
+            raise ValueError("rod.table_friction is not set: this rod lies on no table")
+        self.chain.set_table_friction(float(mu))
+        return self._hold()
+
+    def _hold(self) -> ApplyResult:
+        """Settle with the gripper where it is (after a change of the rod itself)."""
+        if self._diverged:
+            return ApplyResult(False, False, False, True, np.zeros(3), 0.0)
+        steps0 = self.chain.steps
+        settled, diverged = self._settle(self.gripper_pose)
+        diverged = diverged or self._gaps_too_wide()
+        if diverged:
+            self._diverged = True
+            settled = False
+        return ApplyResult(
+            settled=settled,
+            clipped=False,
+            refused=False,
+            diverged=diverged,
+            u_applied=np.zeros(3),
+            settle_time=(self.chain.steps - steps0) * self.dt,
+            sim_steps=self.chain.steps - steps0,
+        )
+
+    def _gaps_too_wide(self) -> bool:
+        gaps = self.chain.joint_gaps()
+        return not bool(np.all(np.isfinite(gaps)) and np.max(gaps) <= self.cfg.gap_limit)
+
+    def clamp_reach_limit(self, clamp_pose: np.ndarray) -> float:
+        """Largest fraction f in [0, 1] of the straight move from the clamp now to `clamp_pose`
+        that keeps the gripper within `max_reach` of the held length (the distance is convex
+        along the move, so checking the end of each prefix is enough)."""
+        start = self.clamp_pose[:2]
+        end = np.asarray(clamp_pose, dtype=float)[:2]
+        grip = self.gripper_pose[:2]
+        reach = self.cfg.workspace.max_reach * self.held_length
+        d = end - start
+        r0 = start - grip
+        # |r0 + f d|² = reach²  ->  a f² + b f + c = 0
+        a, b, c = float(d @ d), float(2 * r0 @ d), float(r0 @ r0 - reach**2)
+        if c > 0:
+            return 0.0  # already out of reach (cannot happen after a settled step)
+        if a == 0.0 or a + b + c <= 0:
+            return 1.0
+        return float((-b + math.sqrt(b * b - 4 * a * c)) / (2 * a))
+
+    def move_clamp(self, pose: np.ndarray, max_step: np.ndarray | None = None) -> ApplyResult:
+        """Drive the clamped end to a new pose, the gripper holding still (a bumped fixture).
+
+        The clamp moves in a straight line in equal increments within `max_step` per control
+        period (default `rod.max_step`), velocity-driven like the gripper, settling after each.
+        If the new clamp pose would put the gripper beyond `max_reach` of the held length, the
+        clamp stops where the limit is reached (`clipped` is True).
+
+        The first call rebuilds the chain with a kinematic clamp body in the current shape (the
+        fixed clamp is pinned to the static body, which cannot move).
+
+        Args:
+            pose: (3,) new clamp pose [x, y, theta], world frame.
+            max_step: (3,) per-axis limit per control period; None = `rod.max_step`.
+
+        Returns:
+            The combined result; `u_applied` is the clamp's displacement.
+        """
+        target = np.asarray(pose, dtype=float).reshape(3)
+        if not np.all(np.isfinite(target)):
+            raise ValueError(f"RodSim.move_clamp: non-finite pose {target}")
+        limit = self._max_step if max_step is None else np.asarray(max_step, dtype=float)
+        if self._diverged:
+            return ApplyResult(False, False, True, True, np.zeros(3), 0.0)
+        if self.chain.clamp_body is None:
+            self._rebuild(self._held, movable_clamp=True)
+        start = self.clamp_pose
+        frac = self.clamp_reach_limit(target)
+        clipped = frac < 1.0
+        end = start + (target - start) * frac
+        delta = end - start
+        n = max(1, math.ceil(float(np.max(np.abs(delta) / limit)) - 1e-9))
+        total = ApplyResult(True, clipped, False, False, np.zeros(3), 0.0)
+        chain = self.chain
+        grip = self.gripper_pose
+        for k in range(1, n + 1):
+            a = start + delta * ((k - 1) / n)
+            b = start + delta * (k / n)
+            steps0 = chain.steps
+            m = self._move_steps
+            for j in range(1, m + 1):
+                chain.step(grip, a + (b - a) * (j / m))
+            settled, diverged = self._settle(grip)
+            diverged = diverged or self._gaps_too_wide()
+            total.settled = settled
+            total.sim_steps += chain.steps - steps0
+            total.settle_time += (chain.steps - steps0 - m) * self.dt
+            if diverged:
+                self._diverged = True
+                total.diverged = True
+                total.settled = False
+                break
+        total.u_applied = self.clamp_pose - start
+        return total
+
+    def slip_grasp(self, ds: float) -> ApplyResult:
+        """The grasp point slides by `ds` along the rod; the gripper ends where it was.
+
+        ds > 0: towards the clamp, the held length shrinks by ds (the rest of the rod is pulled
+        through the gripper); ds < 0: away from it, the held length grows by |ds| (at most back
+        to the rod's full length L). ds is rounded to whole segments (L/N); the part beyond
+        the grasp is not simulated: the gripper is rigid, so it carries no load into the held
+        part, and `centerline()` is the held part only (clamp -> grasp), which is what the
+        camera pipeline expects.
+
+        How: the chain is rebuilt with the new number of segments in the current shape (extra
+        segments continue straight along the gripper's tangent), the gripper is put on the new
+        grasp point and driven back to its pose within `max_step` like any move. Without
+        friction the settled shape does not depend on that path.
+
+        Raises:
+            ValueError: the held length would be < 2 segments or > L.
+        """
+        k = round(float(ds) / self.chain.seg_length)
+        held = self._held - k
+        if not 2 <= held <= self.cfg.segments:
+            raise ValueError(
+                f"grasp slip of {ds} m leaves a held length of {held * self.chain.seg_length:.4g}"
+                f" m, outside [2 segments, rod.length = {self.cfg.length} m]"
+            )
+        if self._diverged:
+            return ApplyResult(False, False, True, True, np.zeros(3), 0.0)
+        pose = self.gripper_pose
+        if k == 0:
+            return self._hold()
+        self._rebuild(held, movable_clamp=self.chain.clamp_body is not None)
+        return self.move_to(pose)
+
+    def _rebuild(self, held: int, movable_clamp: bool) -> None:
+        """A new chain of `held` segments in the current shape, at rest, same clock and EI/ρA."""
+        old = self.chain
+        states = old.segment_states()
+        grip = old.gripper_pose()
+        seg = old.seg_length
+        if held == old.segments:
+            grip_pose = grip  # the same grasp: the gripper keeps its exact pose
+        elif held < old.segments:
+            # The new grasp is joint `held`: its position is where the two segments meet, its
+            # tangent the mean of theirs (the continuum rod's tangent at that point).
+            ends = old.joint_points()
+            angle = 0.5 * (states[held - 1, 2] + states[held, 2])
+            grip_pose = np.array([ends[held, 0], ends[held, 1], angle])
+            states = states[:held]
+        else:
+            # Segments come back out of the gripper, straight along its tangent.
+            extra = held - old.segments
+            u = np.array([math.cos(grip[2]), math.sin(grip[2])])
+            i = np.arange(extra) + 0.5
+            more = np.column_stack(
+                [grip[0] + i * seg * u[0], grip[1] + i * seg * u[1], np.full(extra, grip[2])]
+            )
+            states = np.vstack([states, more])
+            grip_pose = np.array([*(grip[:2] + extra * seg * u), grip[2]])
+        chain = RodChain(
+            length=held * seg,
+            bending_stiffness=old.bending_stiffness,
+            mass_per_length=old.mass_per_length,
+            segments=held,
+            clamp_pose=old.current_clamp_pose(),
+            dt=self.dt,
+            iterations=self.cfg.iterations,
+            damping_rate=self._damping_rate,
+            inertia_radius=self.cfg.inertia_radius,
+            gravity=old.gravity,
+            table_friction=old.table_friction,
+            table_gravity=old.table_gravity,
+            movable_clamp=movable_clamp,
+            segment_inertia=old.segment_inertia,
+        )
+        chain.place(states, grip_pose)
+        chain.steps = old.steps  # one clock across rebuilds (sim_time)
+        self.chain = chain
+        self._held = held

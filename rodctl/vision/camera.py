@@ -20,9 +20,12 @@ accuracy to be worth owning.
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
+from rodctl import fixedla as fla
 from rodctl.config.camera import CameraConfig
 
 #: Sub-pixel bits for OpenCV drawing calls: coordinates are passed in units of 1/16 px.
@@ -73,26 +76,96 @@ class Camera:
         cx = (self.width - 1) / 2.0 if cfg.cx is None else float(cfg.cx)
         cy = (self.height - 1) / 2.0 if cfg.cy is None else float(cfg.cy)
         self.camera_matrix = np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
+        self._set_extrinsics(cfg)
 
+    def _set_extrinsics(self, cfg: CameraConfig) -> None:
+        """Pose, homography and background from `cfg.look_at/distance/tilt_deg/azimuth_deg`."""
         # Camera pose: centre at `distance` from `look_at`, tilted towards world -y by tilt_deg,
         # the whole rig turned by azimuth_deg about world z. Rows of R are the camera axes
         # expressed in the world frame; at tilt 0: x_c = +x, y_c = -y, z_c = -z (det R = +1).
-        tilt = np.deg2rad(cfg.tilt_deg)
-        az = np.deg2rad(cfg.azimuth_deg)
-        rz = np.array([[np.cos(az), -np.sin(az), 0.0], [np.sin(az), np.cos(az), 0.0], [0, 0, 1.0]])
-        to_camera = rz @ np.array([0.0, -np.sin(tilt), np.cos(tilt)])  # look_at -> centre
+        # Fixed-order arithmetic (rodctl.fixedla, math's scalar functions) instead of BLAS and
+        # LAPACK: the homography feeds every pixel of every frame, so its last bits must not
+        # depend on the machine's BLAS kernel (README, "Reproducibility").
+        tilt = math.radians(cfg.tilt_deg)
+        az = math.radians(cfg.azimuth_deg)
+        ca, sa = math.cos(az), math.sin(az)
+        rz = np.array([[ca, -sa, 0.0], [sa, ca, 0.0], [0, 0, 1.0]])
+        to_camera = fla.matvec(rz, np.array([0.0, -math.sin(tilt), math.cos(tilt)]))
         self.center = np.array([cfg.look_at[0], cfg.look_at[1], 0.0]) + cfg.distance * to_camera
-        z_c = -to_camera
-        x_c = rz @ np.array([1.0, 0.0, 0.0])
+        z_c = -to_camera  # look_at -> centre, reversed
+        x_c = rz[:, 0].copy()
         y_c = np.cross(z_c, x_c)
         self.rotation = np.stack([x_c, y_c, z_c])
-        self.translation = -self.rotation @ self.center
-        self.homography = self.camera_matrix @ np.column_stack(
-            [self.rotation[:, 0], self.rotation[:, 1], self.translation]
+        self.translation = -fla.matvec(self.rotation, self.center)
+        self.homography = fla.matmul(
+            self.camera_matrix,
+            np.column_stack([self.rotation[:, 0], self.rotation[:, 1], self.translation]),
         )
         self.homography /= self.homography[2, 2]
-        self._homography_inv = np.linalg.inv(self.homography)
+        self._homography_inv = fla.inv3(self.homography)
         self._background = self._make_background()
+
+    # ------------------------------------------------------------------ mid-run changes
+    def _with(self, **changes: object) -> CameraConfig:
+        """A validated copy of the camera config with `changes` (the caller's config object is
+        left alone: it may be shared with the experiment's config)."""
+        data = self.cfg.model_dump()
+        render = changes.pop("render", None)
+        data.update(changes)
+        if render is not None:
+            data["render"] = {**data["render"], **render}  # type: ignore[dict-item]
+        return type(self.cfg).model_validate(data)
+
+    def set_pose(
+        self,
+        look_at: tuple[float, float] | None = None,
+        distance: float | None = None,
+        tilt_deg: float | None = None,
+        azimuth_deg: float | None = None,
+    ) -> None:
+        """Move the camera (a bump): new extrinsics, same intrinsics. None keeps a value.
+
+        Everything derived from the pose (rotation, translation, homography, a checkerboard
+        background) is recomputed. A `CenterlineExtractor` built on this camera calibrated its
+        clamp pixel from the old pose: rebuild it.
+        """
+        changes = {
+            k: v
+            for k, v in (
+                ("look_at", look_at),
+                ("distance", distance),
+                ("tilt_deg", tilt_deg),
+                ("azimuth_deg", azimuth_deg),
+            )
+            if v is not None
+        }
+        self.cfg = self._with(**changes)
+        self._set_extrinsics(self.cfg)
+
+    def set_noise(self, noise_std: float, blur_sigma: float | None = None) -> None:
+        """New pixel noise σ (and blur σ unless None) for the following frames."""
+        render: dict[str, float] = {"noise_std": float(noise_std)}
+        if blur_sigma is not None:
+            render["blur_sigma"] = float(blur_sigma)
+        self.cfg = self._with(render=render)
+
+    def add_occlusion(self, box: tuple[float, float, float, float]) -> None:
+        """An occluder [u0, v0, u1, v1] (px) appears in the following frames."""
+        boxes = [tuple(b) for b in self.cfg.render.occlusions]
+        self.cfg = self._with(render={"occlusions": [*boxes, tuple(float(v) for v in box)]})
+
+    def remove_occlusion(self, box: tuple[float, float, float, float]) -> None:
+        """Remove the occluder [u0, v0, u1, v1] (px).
+
+        Raises:
+            ValueError: no such occluder.
+        """
+        boxes = [tuple(float(v) for v in b) for b in self.cfg.render.occlusions]
+        key = tuple(float(v) for v in box)
+        if key not in boxes:
+            raise ValueError(f"no occluder {list(key)} to remove (present: {boxes})")
+        boxes.remove(key)
+        self.cfg = self._with(render={"occlusions": boxes})
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -172,9 +245,9 @@ class Camera:
         """
         x, y, th = (float(c) for c in pose)
         eps = 1e-4
-        pix = self.project(np.array([[x, y], [x + eps * np.cos(th), y + eps * np.sin(th)]]))
+        pix = self.project(np.array([[x, y], [x + eps * math.cos(th), y + eps * math.sin(th)]]))
         d = pix[1] - pix[0]
-        return pix[0], d / np.linalg.norm(d)
+        return pix[0], d / math.hypot(float(d[0]), float(d[1]))
 
     # ------------------------------------------------------------------ rendering
     def _make_background(self) -> np.ndarray:
@@ -195,7 +268,7 @@ class Camera:
         self, img: np.ndarray, pose: np.ndarray, boxes: tuple, color: tuple[int, int, int]
     ) -> None:
         x, y, th = (float(c) for c in pose)
-        c, s = np.cos(th), np.sin(th)
+        c, s = math.cos(th), math.sin(th)
         for (a0, a1), (l0, l1) in boxes:
             local = np.array([[a0, l0], [a1, l0], [a1, l1], [a0, l1]])
             world = np.column_stack(

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from rodctl import fixedla as fla
 from rodctl.config.camera import CameraConfig
 from rodctl.errors import UserError
 from rodctl.geometry import polyline_length, resample_polyline
@@ -86,6 +87,43 @@ class Extraction:
     ok: bool
     note: str = ""
     bridged: bool = False
+
+
+def _cos_sin(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """cos and sin of a short array through the C library's scalar functions.
+
+    numpy may dispatch its vectorised cos/sin to other code on other CPUs (AVX-512); the C
+    library's scalar functions give the same bits on every x86-64 machine with FMA
+    (README, "Reproducibility"). The arrays here hold a few dozen angles.
+    """
+    values = angles.tolist()
+    return np.array([math.cos(v) for v in values]), np.array([math.sin(v) for v in values])
+
+
+def _min_norm_lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The least-squares solution of a x = b (minimum norm when under-determined), in fixed-order
+    arithmetic (replaces `numpy.linalg.lstsq`, whose LAPACK result depends on the BLAS kernel).
+
+    For a (k, 4) with k <= 4 rows: x = a^T (a a^T + eps I)^-1 b; otherwise the normal equations
+    (a^T a + eps I) x = a^T b. The tiny ridge eps (1e-12 of the trace, colours scaled to [0, 1])
+    keeps repeated or coplanar colours (several greys) solvable; it moves the solution by about
+    1e-12, far below the 0.1 the caller checks.
+    """
+    scale = 255.0
+    a_s = np.asarray(a, dtype=np.float64) / np.array([scale, scale, scale, 1.0])
+    k, n = a_s.shape
+    if k <= n:
+        gram = fla.matmul(a_s, a_s.T)
+        gram += (1e-12 * max(float(np.trace(gram)), 1.0)) * np.eye(k)
+        y = fla.spd_solve(gram, b)
+        x = None if y is None else fla.matvec(np.ascontiguousarray(a_s.T), y)
+    else:
+        gram = fla.matmul(a_s.T, a_s)
+        gram += (1e-12 * max(float(np.trace(gram)), 1.0)) * np.eye(n)
+        x = fla.spd_solve(gram, fla.matvec(np.ascontiguousarray(a_s.T), b))
+    if x is None:  # pragma: no cover - a ridge-regularised Gram matrix is positive definite
+        return np.zeros(n)
+    return x / np.array([scale, scale, scale, 1.0])
 
 
 def _unit_normals(points: np.ndarray) -> np.ndarray:
@@ -205,6 +243,7 @@ class CenterlineExtractor:
         self._half_track = 0.5 * self._band_prior + 4.0
         self._half_refine = 0.5 * self._band_prior + 2.5
         self._coverage_w, self._coverage_b = self._coverage_map()
+        self._cov_b32 = np.float32(self._coverage_b)
         self._bg_value = tuple(float(c) for c in r.background_color)
         self._max_steps = int(4 * (camera.width + camera.height) / self._step) + 10
 
@@ -223,8 +262,8 @@ class CenterlineExtractor:
         a = np.column_stack([colours, np.ones(len(colours))])
         target = np.zeros(len(colours))
         target[0] = 1.0
-        sol, *_ = np.linalg.lstsq(a, target, rcond=None)
-        got = a @ sol
+        sol = _min_norm_lstsq(a, target)
+        got = fla.matvec(a, sol)
         if abs(got[0] - 1.0) > 0.1 or np.abs(got[1:]).max() > 0.1:
             raise UserError(
                 "camera.render: the rod colour cannot be told apart from the other scene colours "
@@ -239,8 +278,16 @@ class CenterlineExtractor:
         Args:
             image: (H, W, 3) uint8 RGB.
         """
-        cov = image.astype(np.float32) @ self._coverage_w + self._coverage_b
-        return np.clip(cov, 0.0, 1.0)
+        return np.clip(self._affine(image.astype(np.float32)), 0.0, 1.0)
+
+    def _affine(self, rgb: np.ndarray) -> np.ndarray:
+        """w . rgb + b over the last axis of float32 (..., 3), in a fixed order of operations.
+
+        Written out instead of `rgb @ w`: float32 matmul goes to BLAS sgemv, whose kernel (and so
+        the last bit of every coverage value) differs between CPUs (README, "Reproducibility").
+        """
+        w = self._coverage_w
+        return (rgb[..., 0] * w[0] + rgb[..., 1] * w[1]) + (rgb[..., 2] * w[2] + self._cov_b32)
 
     def _sample(self, image: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """Rod coverage at (..., 2) pixel positions, bilinear; 0 outside the image (unclipped)."""
@@ -255,8 +302,7 @@ class CenterlineExtractor:
             borderValue=self._bg_value,
         )
         # not clipped to [0, 1]: only 50 % crossings are used, and clipping costs time
-        cov = rgb.reshape(-1, 3).astype(np.float32) @ self._coverage_w + self._coverage_b
-        return cov.reshape(shape)
+        return self._affine(rgb.reshape(-1, 3).astype(np.float32)).reshape(shape)
 
     # ------------------------------------------------------------------ cross-sections
     def _cross_sections(
@@ -433,13 +479,14 @@ class CenterlineExtractor:
         constant-curvature arc (tangent at p = last chord d turned by half a step's turn)."""
         k = turn / self._step
         heading = math.atan2(d[1], d[0]) + 0.5 * turn + k * t
-        dirs = np.column_stack([np.cos(heading), np.sin(heading)])
+        cos_h, sin_h = _cos_sin(heading)
+        dirs = np.column_stack([cos_h, sin_h])
         if abs(k) < 1e-9:
             pos = p[None, :] + t[:, None] * dirs[:1]
         else:
             h0 = heading[0] - k * t[0]
             pos = p[None, :] + np.column_stack(
-                [(np.sin(heading) - math.sin(h0)) / k, (math.cos(h0) - np.cos(heading)) / k]
+                [(sin_h - math.sin(h0)) / k, (math.cos(h0) - cos_h) / k]
             )
         return pos, dirs
 
@@ -473,7 +520,7 @@ class CenterlineExtractor:
         ang = turn / h * dist  # heading change along the predicted constant-curvature arc
         heading = math.atan2(d[1], d[0]) + ang
         # positions by integrating the heading along the arc (cumulative sum of small steps)
-        dirs = np.column_stack([np.cos(heading), np.sin(heading)])
+        dirs = np.column_stack(_cos_sin(heading))
         steps = np.diff(np.concatenate([[0.0], dist]))
         pos = p[None, :] + np.cumsum(dirs * steps[:, None], axis=0)
         normals = np.column_stack([-dirs[:, 1], dirs[:, 0]])
@@ -611,7 +658,10 @@ class CenterlineExtractor:
     @staticmethod
     def _trim_after(path: list[np.ndarray], end: np.ndarray, d: np.ndarray) -> list[np.ndarray]:
         """Drop the walk's last points that lie beyond `end` (they sat inside the rod's cap)."""
-        while len(path) > 1 and float(np.dot(path[-1] - end, d)) >= -1e-9:
+        dx, dy = float(d[0]), float(d[1])
+        while len(path) > 1 and (
+            float(path[-1][0] - end[0]) * dx + float(path[-1][1] - end[1]) * dy >= -1e-9
+        ):
             path.pop()
         return path
 

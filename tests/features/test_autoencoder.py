@@ -66,11 +66,11 @@ def test_training_is_reproducible_from_the_seed(tiny_cfg, synthetic_split):
         for _ in range(2)
     ]
     for k, v in runs[0].state_dict.items():
-        assert torch.equal(v, runs[1].state_dict[k])
+        assert np.array_equal(v, runs[1].state_dict[k])
     other = fit_autoencoder(
         train[:500], held[:50], cfg.feature, seed=6, fingerprint={}, progress=False
     )
-    assert not all(torch.equal(v, other.state_dict[k]) for k, v in runs[0].state_dict.items())
+    assert not all(np.array_equal(v, other.state_dict[k]) for k, v in runs[0].state_dict.items())
 
 
 def test_latent_scale_is_the_training_spread(tiny_checkpoint, synthetic_split):
@@ -211,3 +211,46 @@ def _merge(base: dict, change: dict) -> dict:
         else:
             out[k] = v
     return out
+
+
+def test_npz_checkpoint_round_trip_and_no_torch_on_the_inference_path(
+    tmp_path, tiny_checkpoint, synthetic_split
+):
+    """encoder.npz holds exactly what encoder.pt holds, and loading and encoding with it never
+    imports torch (issue #17: torch's import alone took longer than a default run)."""
+    import subprocess
+    import sys
+
+    _, held = synthetic_split
+    tiny_checkpoint.save(tmp_path / "encoder.npz")
+    tiny_checkpoint.save(tmp_path / "encoder.pt")
+    a = EncoderCheckpoint.load(tmp_path / "encoder.npz")
+    b = EncoderCheckpoint.load(tmp_path / "encoder.pt")
+    assert a.state_dict.keys() == b.state_dict.keys()
+    assert all(np.array_equal(a.state_dict[k], b.state_dict[k]) for k in a.state_dict)
+    assert a.fingerprint == b.fingerprint and a.metrics == b.metrics
+    np.testing.assert_array_equal(
+        a.feature_map().encode_batch(held[:5]), tiny_checkpoint.feature_map().encode_batch(held[:5])
+    )
+    code = (
+        "import sys, numpy as np\n"
+        "from rodctl.config import ExperimentConfig\n"
+        "from rodctl.features import make_feature_map\n"
+        "cfg = ExperimentConfig()\n"
+        "fmap = make_feature_map(cfg.feature, points=100, experiment=cfg)\n"
+        "fmap.encode(np.column_stack([np.linspace(300, 500, 100), np.full(100, 240.0)]))\n"
+        "assert 'torch' not in sys.modules, 'torch was imported'\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+
+
+def test_npz_with_wrong_weights_is_a_user_error(tmp_path, tiny_checkpoint):
+    path = tmp_path / "encoder.npz"
+    tiny_checkpoint.save(path)
+    with np.load(path) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    arrays["w/encoder.0.weight"] = arrays["w/encoder.0.weight"][:, :-1]
+    np.savez(path, **arrays)
+    with pytest.raises(UserError, match=r"encoder\.npz.*architecture"):
+        EncoderCheckpoint.load(path)

@@ -101,8 +101,9 @@ def test_dataset_round_trip_and_setup_check(tmp_path, small_cfg, small_dataset):
 def test_train_encoder_writes_dataset_checkpoint_and_metrics(tmp_path, small_cfg):
     run = RunDir.create(tmp_path, small_cfg, "train-encoder")
     metrics = train_encoder(small_cfg, run, progress=False)
-    for name in ("dataset.npz", "encoder.pt", "metrics.json"):
+    for name in ("dataset.npz", "encoder.npz", "encoder.pt", "metrics.json"):
         assert (run.path / name).is_file()
+    assert metrics["checkpoint"] == str(run.path / "encoder.npz")
     on_disk = json.loads((run.path / "metrics.json").read_text())
     assert on_disk == json.loads(json.dumps(metrics))
     assert on_disk["train"]["mean_px"] > 0 and on_disk["validation"]["mean_px"] > 0
@@ -112,11 +113,14 @@ def test_train_encoder_writes_dataset_checkpoint_and_metrics(tmp_path, small_cfg
     assert raw["metrics"]["validation"]["mean_px"] == pytest.approx(
         on_disk["validation"]["mean_px"]
     )
-    cfg = small_cfg.model_copy(deep=True)
-    cfg.feature.checkpoint = str(run.path / "encoder.pt")
-    fmap = make_feature_map(cfg.feature, points=100, experiment=cfg)
     data = CenterlineDataset.load(run.path / "dataset.npz")
-    assert fmap.encode(data.centerlines[0]).shape == (6,)
+    encoded = []
+    for name in ("encoder.pt", "encoder.npz"):  # the same checkpoint in both formats
+        cfg = small_cfg.model_copy(deep=True)
+        cfg.feature.checkpoint = str(run.path / name)
+        fmap = make_feature_map(cfg.feature, points=100, experiment=cfg)
+        encoded.append(fmap.encode(data.centerlines[0]))
+    assert encoded[0].shape == (6,) and np.array_equal(encoded[0], encoded[1])
 
     # Training again from the cached dataset collects nothing and gives the same weights.
     run2 = RunDir.create(tmp_path, small_cfg, "train-encoder")

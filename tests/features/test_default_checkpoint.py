@@ -1,4 +1,4 @@
-"""The packaged default encoder (rodctl/assets/encoder.pt): fits the default setup, <= 1 px.
+"""The packaged default encoder (rodctl/assets/encoder.npz): fits the default setup, <= 1 px.
 
 The held-out shapes are collected fresh through the simulator and the camera with a seed the
 checkpoint was not trained with, so this also catches a simulator or camera change that leaves

@@ -1,6 +1,6 @@
 """run.mcap read back with the standard `mcap` reader: the topic contract, units, timing, schemas.
 
-The contract is shared/design/architecture.md ("MCAP topics"); field names are checked exactly.
+The contract is the README's "The MCAP log" table; field names are checked exactly.
 """
 
 from __future__ import annotations
@@ -24,6 +24,11 @@ CONTRACT = {
     "/camera/centerline": ["step", "extracted", "projected_truth"],
     "/control": ["step", "u", "s", "s_target", "T1", "J", "pixel_error"],
 }
+
+
+def _xy(points):
+    """[{x, y}, ...] as an (M, 2) array."""
+    return np.array([[p["x"], p["y"]] for p in points], dtype=np.float64).reshape(-1, 2)
 
 
 def _messages(path):
@@ -58,9 +63,10 @@ def test_contract_topics_fields_and_step_count(mcap_file, synthetic):
     for r in records:
         assert rod[r.step]["sim_time"] == r.sim_time
         assert np.array_equal(rod[r.step]["gripper"], r.gripper)
-        assert np.shape(rod[r.step]["centerline"]) == (51, 2)
-        assert np.shape(cam[r.step]["extracted"]) == (100, 2)
-        assert np.array_equal(cam[r.step]["projected_truth"], r.projected_truth)
+        assert np.array_equal(_xy(rod[r.step]["centerline"]), r.centerline)
+        assert _xy(cam[r.step]["extracted"]).shape == (100, 2)
+        assert np.array_equal(_xy(cam[r.step]["projected_truth"]), r.projected_truth)
+        assert rod[r.step]["nonfinite"] == [] == cam[r.step]["nonfinite"]
 
 
 def test_units_timing_and_sequence(mcap_file, synthetic):
@@ -72,7 +78,10 @@ def test_units_timing_and_sequence(mcap_file, synthetic):
     assert channels["/rod/state"].metadata["unit.gripper"].startswith("m, m, rad")
     assert channels["/camera/centerline"].metadata["unit.extracted"].startswith("px")
     assert channels["/control"].metadata["unit.pixel_error"] == "px"
-    sim_ns = {r.step: round(r.sim_time * 1e9) for r in records}
+    # Log time = 2000-01-01T00:00:00Z + simulated time, so viewers show a date, not 1970.
+    epoch = 946_684_800 * 10**9
+    assert codec.LOG_EPOCH_NS == epoch
+    sim_ns = {r.step: epoch + round(r.sim_time * 1e9) for r in records}
     for _, c, m, d in msgs:
         if c.topic in CONTRACT:
             assert m.log_time == m.publish_time == sim_ns[d["step"]]
@@ -80,11 +89,12 @@ def test_units_timing_and_sequence(mcap_file, synthetic):
     # Units are physical: the world centerline spans about the rod length (m), pixels fit in
     # the 640 x 480 frame.
     d = next(d for _, c, _, d in msgs if c.topic == "/rod/state")
-    arc = np.linalg.norm(np.diff(np.asarray(d["centerline"]), axis=0), axis=1).sum()
+    arc = np.linalg.norm(np.diff(_xy(d["centerline"]), axis=0), axis=1).sum()
     assert 0.3 < arc < 1.0
-    px = np.asarray(next(d for _, c, _, d in msgs if c.topic == "/camera/centerline")["extracted"])
+    px = _xy(next(d for _, c, _, d in msgs if c.topic == "/camera/centerline")["extracted"])
     assert px.min() >= 0 and px[:, 0].max() < 640 and px[:, 1].max() < 480
-    # log_time = simulated time: nothing later than the last step.
+    # log_time = simulated time: nothing before the epoch, nothing later than the last step.
+    assert summary.statistics.message_start_time == epoch
     assert summary.statistics.message_end_time == sim_ns[records[-1].step]
     assert summary.statistics.message_count == len(msgs)
 

@@ -73,7 +73,57 @@ def test_non_finite_values_round_trip(tmp_path, synthetic, helpers):
     run = read_mcap(path)
     assert compare_records(run.records, recs) == []
     assert math.isinf(run.records[1].pixel_error) and math.isnan(run.records[1].T1)
+    assert run.records[2].s[0] == -math.inf and math.isnan(run.records[2].s[3])
     assert run.status == "failed" and run.summary["final_T1"] is None
+
+
+def test_non_finite_points_and_header_round_trip(tmp_path, helpers):
+    """Points ({x, y} objects) and header arrays carry NaN and infinities exactly too."""
+    run0 = SyntheticRun(seed=5, image_every=0)
+    header = run0.header
+    header.target_pixels = header.target_pixels.copy()
+    header.target_pixels[7, 1] = math.inf
+    header.rod_length = math.nan
+    header.numeric_env = {"cpu": "Test CPU 9000", "blas": {"vendor": "openblas", "threads": 1}}
+    recs = run0.records(3)
+    recs[1].centerline = recs[1].centerline.copy()
+    recs[1].centerline[4] = [math.nan, -math.inf]
+    recs[2].extracted = recs[2].extracted.copy()
+    recs[2].extracted[99, 0] = math.inf
+    path = helpers.write_run(McapSink, tmp_path / "nan.mcap", header, recs, None, "failed")
+    run = read_mcap(path)
+    assert compare_records(run.records, recs) == []
+    assert math.isnan(run.records[1].centerline[4, 0]) and run.records[1].centerline[4, 1] < 0
+    assert run.header.target_pixels[7, 1] == math.inf and math.isnan(run.header.rod_length)
+    assert np.array_equal(run.header.target_pixels, header.target_pixels, equal_nan=True)
+    assert run.header.numeric_env == header.numeric_env
+
+
+def test_a_null_without_its_nonfinite_entry_is_malformed(tmp_path, helpers):
+    from rodctl.logs import codec
+
+    rec = SyntheticRun(seed=1, image_every=0).records(1)[0]
+    rod = codec.rod_state_message(rec)
+    rod["centerline"][2]["x"] = None  # a null that `nonfinite` does not explain
+    with pytest.raises(ValueError, match="nonfinite"):
+        codec.record_from_messages(rod, codec.camera_message(rec), codec.control_message(rec), None)
+    ctl = codec.control_message(rec)
+    ctl["nonfinite"] = [{"path": "T1", "value": "NaN"}]  # T1 is a number, not null
+    with pytest.raises(ValueError, match="null"):
+        codec.record_from_messages(
+            codec.rod_state_message(rec), codec.camera_message(rec), ctl, None
+        )
+
+
+def test_older_format_is_refused_naming_its_version(tmp_path, helpers, monkeypatch):
+    from rodctl.logs import codec
+
+    run0 = SyntheticRun(seed=2, image_every=0)
+    monkeypatch.setattr(codec, "FORMAT_VERSION", "1")
+    path = helpers.write_run(McapSink, tmp_path / "old.mcap", run0.header, run0.records(2), None)
+    monkeypatch.undo()
+    with pytest.raises(UserError, match="format version '1'.*reads format version '2'"):
+        read_mcap(path)
 
 
 @pytest.mark.parametrize(

@@ -26,6 +26,8 @@ ENTITIES = {
     "/control/u/x",
     "/control/u/y",
     "/control/u/theta",
+    "/control/probing/T1",
+    "/control/probing/pixel_error",
     "/log",
 }
 
@@ -62,7 +64,9 @@ def test_recording_entities_timelines_and_blueprint(rrd_file, synthetic):
     reader = RrdReader(rrd_file)
     [rec] = reader.recordings()
     assert rec.recording_id == header.run_id and rec.application_id == "rodctl"
-    assert len(reader.blueprints()) == 1
+    # The layout sent at the start (bounds from the rod's reach) and the one sent at close
+    # (bounds around the whole run).
+    assert len(reader.blueprints()) == 2
     chunks = _chunks(rrd_file)
     assert ENTITIES <= set(chunks)
     for entity in ("/world/rod", "/camera/centerline", "/control/T1", "/control/u/theta"):
@@ -133,3 +137,57 @@ def test_close_is_idempotent_and_write_after_close_fails(tmp_path, synthetic):
     chunks = _chunks(tmp_path / "y.rrd")
     steps, _ = _column(chunks["/control/T1"], "Scalars:scalars")
     assert steps == [0]  # the buffered step was sent on close
+
+
+def _view_bounds(path) -> list[dict[str, dict]]:
+    """Per blueprint: view name -> VisualBounds2D range."""
+    reader = RrdReader(path)
+    out = []
+    for store in reader.blueprints():
+        names, ranges = {}, {}
+        for ch in reader.stream(store=store):
+            rb = ch.to_record_batch()
+            if "ViewBlueprint:display_name" in rb.schema.names:
+                names[ch.entity_path] = rb.column("ViewBlueprint:display_name").to_pylist()[0][0]
+            if "VisualBounds2D:range" in rb.schema.names:
+                view = ch.entity_path.rsplit("/", 1)[0]
+                ranges[view] = rb.column("VisualBounds2D:range").to_pylist()[0][0]
+        out.append({names[v]: r for v, r in ranges.items()})
+    return out
+
+
+def test_blueprint_bounds_are_fixed_and_cover_the_whole_run(rrd_file, synthetic):
+    header, records = synthetic
+    blueprints = _view_bounds(rrd_file)
+    scene = [b["scene (world m, y up)"] for b in blueprints]
+    camera = [v for b in blueprints for k, v in b.items() if k.startswith("camera")]
+    w, h = header.image_size
+    for c in camera:  # the image frame, not the data: the view never refits
+        assert c["x_range"][0] < 0 < w < c["x_range"][1]
+        assert c["y_range"][0] < 0 < h < c["y_range"][1]
+    # Stored scene points: the world with y negated.
+    pts = np.concatenate([r.centerline for r in records] + [header.target_centerline]) * [1, -1]
+    reach = 1.12 * header.rod_length
+    start = next(b for b in scene if b["x_range"][1] - b["x_range"][0] > 2 * reach)
+    final = next(b for b in scene if b is not start)
+    for b in (start, final):  # both cover everything the run drew
+        assert b["x_range"][0] < pts[:, 0].min() and pts[:, 0].max() < b["x_range"][1]
+        assert b["y_range"][0] < pts[:, 1].min() and pts[:, 1].max() < b["y_range"][1]
+    # The final box is the run's own (10 % margin), much tighter than the reach box.
+    span = final["x_range"][1] - final["x_range"][0]
+    assert span < 0.7 * (start["x_range"][1] - start["x_range"][0])
+    assert final["x_range"][0] > pts[:, 0].min() - 0.2 * span
+
+
+def test_probing_steps_are_marked(rrd_file, synthetic):
+    _, records = synthetic
+    chunks = _chunks(rrd_file)
+    probe = [r.step for r in records if r.phase == "probe"]
+    assert probe == [1, 2, 3]
+    steps, t1 = _column(chunks["/control/probing/T1"], "Scalars:scalars")
+    assert steps == probe and [v[0] for v in t1] == [records[k].T1 for k in probe]
+    # The rod is drawn in another colour while probing.
+    steps, colors = _column(chunks["/world/rod"], "LineStrips2D:colors")
+    by_step = dict(zip(steps, (c[0] for c in colors), strict=True))
+    assert len({by_step[k] for k in probe}) == 1
+    assert by_step[1] != by_step[0] and by_step[1] != by_step[5] and by_step[0] == by_step[5]

@@ -1,0 +1,121 @@
+"""`feature.checkpoint: auto`, `train-encoder --quick` and the checkpoint mismatch message that
+names the user's config keys (issue #15)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from paths import REPO
+from typer.testing import CliRunner
+
+from rodctl.cli import app
+from rodctl.config import ExperimentConfig, load_config
+from rodctl.errors import UserError
+from rodctl.features import make_feature_map, training
+from rodctl.features.auto import cache_dir, cache_path
+
+runner = CliRunner()
+
+
+@pytest.fixture
+def tiny_quick(monkeypatch, tmp_path):
+    """Quick training shrunk to seconds, the cache in a temporary XDG_CACHE_HOME, and a count
+    of the trainings."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.setattr(training, "QUICK_SAMPLES", 24)
+    monkeypatch.setattr(training, "QUICK_EPOCHS", 3)
+    calls = []
+    real = training.train_checkpoint
+
+    def counting(cfg, **kw):
+        calls.append(cfg)
+        return real(cfg, **kw)
+
+    monkeypatch.setattr(training, "train_checkpoint", counting)
+    return calls
+
+
+def _cfg(**camera) -> ExperimentConfig:
+    return ExperimentConfig.model_validate(
+        {
+            "seed": 4,
+            "camera": {"tilt_deg": 30.0, **camera},
+            "feature": {
+                "checkpoint": "auto",
+                "hidden": [16, 8],
+                "data": {"workers": 1},
+                "training": {"batch_size": 8, "threads": 1},
+            },
+        }
+    )
+
+
+def test_auto_trains_once_caches_by_fingerprint_and_says_so(tiny_quick, tmp_path, capsys):
+    cfg = _cfg()
+    first = make_feature_map(cfg.feature, points=100, experiment=cfg)
+    err = capsys.readouterr().err
+    assert "training a quick one once" in err and "cached" in err
+    path = cache_path(cfg)
+    assert path.is_file() and path.parent == tmp_path / "xdg" / "rodctl" / "encoders"
+    assert cache_dir() == path.parent
+    assert len(tiny_quick) == 1 and tiny_quick[0].seed == 0  # seed fixed, not the run's 4
+    assert tiny_quick[0].feature.data.samples == 24 and tiny_quick[0].feature.training.epochs == 3
+
+    # a second run with the same rod and camera (another seed, noise) reuses the file
+    again = _cfg(render={"noise_std": 2.0}).model_copy(update={"seed": 9})
+    second = make_feature_map(again.feature, points=100, experiment=again)
+    assert "using the quick encoder cached" in capsys.readouterr().err
+    assert len(tiny_quick) == 1
+    x = np.column_stack([np.linspace(300, 500, 100), np.full(100, 240.0)])
+    assert np.array_equal(first.encode(x), second.encode(x))
+
+    # another camera pose: another fingerprint, another training
+    other = _cfg(tilt_deg=20.0)
+    make_feature_map(other.feature, points=100, experiment=other)
+    assert len(tiny_quick) == 2 and cache_path(other) != path
+
+
+def test_auto_needs_the_experiment():
+    cfg = _cfg()
+    with pytest.raises(UserError, match="auto"):
+        make_feature_map(cfg.feature, points=100)
+
+
+def test_mismatch_names_the_users_keys_and_the_quick_command():
+    cfg = load_config(REPO / "configs/default.yaml", ["camera.tilt_deg=35", "rod.length=0.4"])
+    with pytest.raises(UserError) as err:
+        make_feature_map(cfg.feature, points=100, experiment=cfg)
+    msg = str(err.value)
+    assert "camera.tilt_deg: the encoder's 25.0, this config's 35.0" in msg
+    assert "rod.length: the encoder's 0.5, this config's 0.4" in msg
+    assert "homography" not in msg
+    assert "rodctl train-encoder CONFIG --quick" in msg and "feature.checkpoint=auto" in msg
+
+
+def test_train_encoder_quick_uses_the_quick_sizes(tiny_quick, tmp_path):
+    res = runner.invoke(
+        app,
+        [
+            "train-encoder",
+            str(REPO / "configs/default.yaml"),
+            "--quick",
+            "-q",
+            "--out",
+            str(tmp_path),
+            "--set",
+            "feature.hidden=[16, 8]",
+            "--set",
+            "feature.data.workers=1",
+            "--set",
+            "feature.training.batch_size=8",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    import json
+    from pathlib import Path
+
+    run = Path(res.stdout.strip().splitlines()[-1])
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["epochs"] == 3
+    assert metrics["train_samples"] + metrics["validation_samples"] == 24
+    assert (run / "encoder.npz").is_file() and (run / "encoder.pt").is_file()

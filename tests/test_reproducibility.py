@@ -1,0 +1,214 @@
+"""Issue #18: a run made under one BLAS kernel verifies under another; the verdict is three-way.
+
+The cross-kernel tests run rodctl in subprocesses with `OPENBLAS_CORETYPE` set (OpenBLAS reads
+it once, when the library loads), so they need numpy's BLAS to be OpenBLAS on x86-64.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from paths import REPO
+
+from rodctl.numenv import environment_differences, flatten, numeric_environment
+from rodctl.records import StepRecord
+from rodctl.replay import compare_runs
+
+
+def _openblas_kernel() -> str | None:
+    """The kernel numpy's OpenBLAS uses here, or None when numpy's BLAS is not OpenBLAS."""
+    from threadpoolctl import threadpool_info
+
+    for lib in threadpool_info():
+        if lib.get("internal_api") == "openblas" and "openblas64" in lib.get("filepath", ""):
+            return lib.get("architecture")
+    for lib in threadpool_info():
+        if lib.get("internal_api") == "openblas":
+            return lib.get("architecture")
+    return None
+
+
+def _other_kernel() -> tuple[str, str]:
+    """(this CPU's kernel, another kernel every x86-64 CPU runs); skips where impossible."""
+    import platform
+
+    if platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip(f"OpenBLAS kernels are named per x86-64 CPU; this is {platform.machine()}")
+    kernel = _openblas_kernel()
+    if kernel is None:
+        pytest.skip("numpy's BLAS is not OpenBLAS: OPENBLAS_CORETYPE has no effect")
+    return kernel, ("Nehalem" if kernel.lower() == "prescott" else "Prescott")
+
+
+def _rodctl(args: list[str], kernel: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OPENBLAS_CORETYPE": kernel}
+    return subprocess.run(
+        [sys.executable, "-m", "rodctl", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        cwd=REPO,
+    )
+
+
+def _simulate(tmp_path: Path, config: str, kernel: str, *sets: str) -> Path:
+    res = _rodctl(
+        ["simulate", str(REPO / "configs" / config), "--out", str(tmp_path), "-q", *sets], kernel
+    )
+    assert res.returncode == 0, res.stderr
+    return Path(res.stdout.strip().splitlines()[-1])
+
+
+def test_numeric_environment_names_the_blas_kernel():
+    env = numeric_environment()
+    json.dumps(env)  # goes into meta.json and the MCAP header as is
+    assert env["numpy"]["version"] == np.__version__
+    assert env["cpu"]["logical_cores"] >= 1 and env["cpu"]["machine"]
+    blas = [lib for lib in env["blas"] if lib.get("user_api") == "blas"]
+    assert blas and all("num_threads" in lib and "internal_api" in lib for lib in blas)
+    kernel = _openblas_kernel()
+    if kernel is not None:
+        assert kernel in {lib.get("architecture") for lib in blas}
+    assert "torch" not in sys.modules or env["torch"]["threads"] >= 1
+
+
+def test_environment_differences_side_by_side():
+    a = numeric_environment()
+    b = copy.deepcopy(a)
+    assert environment_differences(a, b) == []
+    b["blas"][0]["architecture"] = "SomeOtherKernel"
+    b["env"]["OPENBLAS_CORETYPE"] = "SomeOtherKernel"
+    diffs = {k: (x, y) for k, x, y in environment_differences(a, b)}
+    assert diffs["blas.0.architecture"][1] == "SomeOtherKernel"
+    assert diffs["env.OPENBLAS_CORETYPE"] == (None, "SomeOtherKernel")
+    assert "numpy.version" in flatten(a) and len(diffs) == 2
+    # an old log without an environment: everything of the other one is unknown
+    assert len(environment_differences(None, a)) == len(flatten(a))
+
+
+def _records(n: int = 4) -> list[StepRecord]:
+    rng = np.random.default_rng(0)
+    out = []
+    for k in range(n):
+        out.append(
+            StepRecord(
+                step=k,
+                sim_time=0.1 * k,
+                phase="control",
+                gripper=rng.normal(size=3),
+                centerline=rng.normal(size=(5, 2)),
+                extracted=300 * rng.random((4, 2)),
+                projected_truth=300 * rng.random((4, 2)),
+                u=rng.normal(size=3),
+                u_raw=rng.normal(size=3),
+                s=rng.normal(size=6),
+                s_target=np.ones(6),
+                T1=float(rng.random()),
+                J=rng.normal(size=(6, 3)),
+                J_singular_values=np.array([3.0, 2.0, 1.0]),
+                pixel_error=float(rng.random()),
+                estimator_info={"alpha": 1.0, "trace_P": 12.5},
+            )
+        )
+    return out
+
+
+def test_verdicts_identical_within_tolerance_and_mismatch():
+    logged = _records()
+    assert compare_runs(logged, copy.deepcopy(logged)).verdict == "identical"
+
+    fresh = copy.deepcopy(logged)
+    fresh[2].extracted[1, 0] += 3e-11  # ~300 px: relative 1e-13
+    fresh[3].estimator_info["trace_P"] *= 1 + 1e-12
+    strict = compare_runs(logged, fresh)
+    assert strict.verdict == "mismatch" and strict.exit_code == 1
+    assert strict.mismatch == "step 2: extracted differs (by 3e-11 px)"
+    assert any("--tolerance" in line for line in strict.report())
+
+    env_a = numeric_environment()
+    env_b = copy.deepcopy(env_a)
+    env_b["env"]["OPENBLAS_CORETYPE"] = "Prescott"
+    ok = compare_runs(logged, fresh, tolerance=1e-9, logged_env=env_a, fresh_env=env_b)
+    assert ok.verdict == "within_tolerance" and ok.exit_code == 0
+    devs = {d.field: d for d in ok.deviations}
+    assert set(devs) == {"extracted", "estimator_info.trace_P"}
+    assert devs["extracted"].unit == "px" and devs["extracted"].step == 2
+    assert 2.9e-11 < devs["extracted"].max_abs < 3.1e-11
+    text = "\n".join(ok.report())
+    assert text.startswith("verify: OK within tolerance 1e-09")
+    assert "env.OPENBLAS_CORETYPE" in text and "None | Prescott" in text
+
+    # beyond the tolerance: the first step and field that exceed it
+    fresh[1].pixel_error += 1e-6
+    bad = compare_runs(logged, fresh, tolerance=1e-9)
+    assert bad.verdict == "mismatch" and bad.mismatch.startswith("step 1: pixel_error differs")
+
+
+def test_flags_steps_and_texts_must_agree_at_any_tolerance():
+    logged = _records()
+    fresh = copy.deepcopy(logged)
+    fresh[2].extraction_ok = False
+    res = compare_runs(logged, fresh, tolerance=1.0)
+    assert res.verdict == "mismatch" and res.mismatch == "step 2: extraction_ok differs"
+    assert not res.numbers_only
+    res = compare_runs(logged, copy.deepcopy(logged)[:3], tolerance=1.0)
+    assert res.verdict == "mismatch" and "step count differs" in res.mismatch
+    fresh = copy.deepcopy(logged)
+    fresh[0].saturated = np.array([True, False, False])
+    assert compare_runs(logged, fresh, tolerance=1.0).mismatch == "step 0: saturated differs"
+    fresh = copy.deepcopy(logged)
+    fresh[3].s = np.full(6, np.nan)
+    assert compare_runs(logged, fresh, tolerance=1.0).mismatch == "step 3: s differs"
+
+
+#: Fields computed in rodctl/experiment.py with numpy.linalg (norm, svd), which the loop's owner
+#: is switching to rodctl.fixedla.norm / singular_values; until then their last bits may differ.
+_LOOP_FIELDS = {"T1", "J_singular_values"}
+
+
+def test_a_run_verifies_bit_for_bit_under_another_kernel(tmp_path):
+    """The Ma et al. baseline (Bezier, Broyden, pinv) makes no BLAS/LAPACK call in its stages:
+    every stage output is bit-identical under another kernel."""
+    from rodctl.replay import read_run, verify
+
+    mine, other = _other_kernel()
+    run = _simulate(tmp_path, "ma2022.yaml", other)
+    result = verify(read_run(run))  # in this process: this CPU's own kernel
+    assert result.numbers_only, result.report()
+    assert {d.field for d in result.deviations} <= _LOOP_FIELDS, result.report()
+    assert result.steps == len(read_run(run).records) > 5
+
+
+def test_the_paper_method_verifies_within_tolerance_under_another_kernel(tmp_path):
+    """The AKF's eigenvalue clip still calls LAPACK: the last bits may differ and 1e-9 holds;
+    a value altered by more than the tolerance is still caught."""
+    mine, other = _other_kernel()
+    run = _simulate(tmp_path, "default.yaml", other)
+    res = _rodctl(["replay", str(run), "--verify", "--no-figures", "--tolerance", "1e-9"], mine)
+    assert res.returncode == 0, res.stderr
+    assert "verify: OK" in res.stderr
+
+    from rodctl.config.logging import LoggingConfig
+    from rodctl.logs.mcap import McapSink
+    from rodctl.replay import read_run, summary_object, verify
+
+    logged = read_run(run)
+    logged.records[5].pixel_error += 1e-6
+    altered = tmp_path / "altered"
+    altered.mkdir()
+    sink = McapSink(altered / "run.mcap", LoggingConfig())
+    sink.open(logged.header)
+    for rec in logged.records:
+        sink.write(rec)
+    sink.close(summary_object(logged.summary), "completed")
+    result = verify(read_run(altered), tolerance=1e-9)
+    assert result.verdict == "mismatch" and result.exit_code == 1
+    assert result.mismatch == "step 5: pixel_error differs (by 1e-06 px)"
