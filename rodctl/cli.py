@@ -401,6 +401,45 @@ def train_encoder(
     typer.echo(str(run.path))
 
 
+ExecutorOpt = Annotated[
+    str,
+    typer.Option(
+        "--executor",
+        help="Where episodes run: 'local' (this machine: in-process for 1 worker, else a "
+        "process pool) or 'ray' (a local Ray started for the run, or --address).",
+    ),
+]
+AddressOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--address",
+        help="An existing Ray cluster (HOST:PORT or 'auto'); needs --executor ray.",
+    ),
+]
+ResumeOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--resume",
+        help="Finish an interrupted run in its folder: its finished episodes are kept (the "
+        "config must be the same; workers and executor may differ).",
+        metavar="RUN_DIR",
+    ),
+]
+
+
+def _finish_batch(run: Callable[[], Any]) -> None:
+    """Run compare/sweep; an interrupted run prints its folder and exits 1 (results kept)."""
+    from rodctl.compare import RunInterrupted
+
+    try:
+        folder = run()
+    except RunInterrupted as exc:
+        typer.echo(f"interrupted: {exc}; partial results kept, resume with --resume", err=True)
+        typer.echo(str(exc.folder))
+        raise typer.Exit(code=1) from None
+    typer.echo(str(folder))
+
+
 @app.command()
 @user_errors
 def compare(
@@ -409,20 +448,83 @@ def compare(
     out: OutOpt = "runs",
     workers: Annotated[
         int | None,
-        typer.Option("--workers", min=1, help="Worker processes (default: the config's)."),
+        typer.Option(
+            "--workers",
+            min=1,
+            help="Worker processes, or CPUs of a Ray started for the run (default: the config's).",
+        ),
     ] = None,
+    executor: ExecutorOpt = "local",
+    address: AddressOpt = None,
+    resume: ResumeOpt = None,
     quiet: QuietOpt = False,
 ) -> None:
     """Benchmark several methods on one shared set of reachable targets.
 
     Every method gets the same start, targets, speed limits, step and probing budgets and
-    success criterion. Writes results.csv/json, summary.md and figures/ into a new folder and
-    prints it as the last line.
+    success criterion. Writes results.jsonl (as episodes finish), results.csv/json, summary.md
+    and figures/ into a new folder and prints it as the last line. SIGINT/SIGTERM stop it
+    within seconds, keeping every finished episode (exit 1).
     """
     from rodctl.compare import run_compare
+    from rodctl.config import read_yaml
+    from rodctl.suite import run_suite
 
-    folder = run_compare(config, set_ or [], out, progress=not quiet, workers=workers)
-    typer.echo(str(folder))
+    # A config with `scenarios` is a benchmark suite: every scenario is a compare of its own.
+    runner = run_suite if "scenarios" in read_yaml(config) else run_compare
+    _finish_batch(
+        lambda: runner(
+            config,
+            set_ or [],
+            out,
+            progress=not quiet,
+            workers=workers,
+            executor=executor,
+            address=address,
+            resume=resume,
+        )
+    )
+
+
+@app.command()
+@user_errors
+def sweep(
+    config: Annotated[str, typer.Argument(help="Sweep config, e.g. configs/sweep-tuning.yaml.")],
+    set_: SetOpt = None,
+    out: OutOpt = "runs",
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            "--workers",
+            min=1,
+            help="Worker processes, or CPUs of a Ray started for the run (default: the config's).",
+        ),
+    ] = None,
+    executor: ExecutorOpt = "local",
+    address: AddressOpt = None,
+    resume: ResumeOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Sweep config values (a grid or a seeded random search) over seeds, targets and methods.
+
+    Writes results.jsonl (as episodes finish), results.csv (a column per swept key),
+    summary.md / summary.json ranked by the config's metric, and a figure of the metric
+    against each swept key; prints the folder as the last line.
+    """
+    from rodctl.sweep import run_sweep
+
+    _finish_batch(
+        lambda: run_sweep(
+            config,
+            set_ or [],
+            out,
+            progress=not quiet,
+            workers=workers,
+            executor=executor,
+            address=address,
+            resume=resume,
+        )
+    )
 
 
 def main() -> None:

@@ -22,14 +22,15 @@ and steps against target difficulty) and, if asked, every episode's logs under e
 from __future__ import annotations
 
 import csv
+import hashlib
+import json
 import math
 import os
+import sys
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -45,14 +46,25 @@ from rodctl.config.loading import (
     format_validation_error,
     load_config,
 )
+from rodctl.episode import Outcome
 from rodctl.errors import UserError
-from rodctl.runs import RunDir, seed_sequence, write_json_atomic
+from rodctl.executors.base import (
+    Executor,
+    clear_stop,
+    make_executor,
+    request_stop,
+    stop_handlers,
+    stop_reason,
+)
+from rodctl.executors.local import CANCELLED
+from rodctl.runs import RunDir, jsonable, seed_sequence, write_json_atomic
 
 #: Episode outcomes, in the order the summary lists them ("error": the episode raised).
 OUTCOMES = ("converged", "stalled", "pinned", "step_limit", "diverged", "lost_tracking", "error")
 
 #: Columns of results.csv, in order.
 CSV_COLUMNS = (
+    "scenario",
     "method",
     "target",
     "band",
@@ -72,8 +84,22 @@ CSV_COLUMNS = (
     "saturated_steps",
     "clipped_steps",
     "probe_steps",
+    "step_bound",
+    "excess_steps",
+    "smoothness_translation",
+    "smoothness_rotation",
+    "near_origin_steps",
     "wall_time_s",
     "error",
+)
+
+#: The per-episode comparison metrics of `rodctl.metrics`, copied from the summary into a row.
+METRIC_COLUMNS = (
+    "step_bound",
+    "excess_steps",
+    "smoothness_translation",
+    "smoothness_rotation",
+    "near_origin_steps",
 )
 
 #: Candidate poses tried per sampled target before giving up (a candidate can fail to settle).
@@ -290,8 +316,8 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
     # The episode's own config says everything (seed, target), so its log replays alone.
     cfg.seed = task["seed"]
     cfg.run.target.pose = tuple(task["pose"])
-    run_id = f"{task['method']}_t{task['target']:03d}"
-    row: dict[str, Any] = {"method": task["method"], "target": task["target"]}
+    run_id = task.get("run_id") or f"{task['method']}_t{task['target']:03d}"
+    row: dict[str, Any] = _task_tags(task)
     log_dir = Path(task["log_dir"]) if task.get("log_dir") else None
     result = None
     try:
@@ -307,6 +333,8 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
             Method.from_config(cfg),
             sinks=sinks,
             run_id=run_id,
+            # SIGINT/SIGTERM of this process (or Ray's cancel) end it whole, between two steps.
+            stop_requested=stop_reason,
         )
     except Exception as exc:  # noqa: BLE001 - one bad episode must not end the benchmark
         failed = exc.result if isinstance(exc, EpisodeFailed) else None
@@ -331,8 +359,11 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
             saturated_steps=extra.get("saturated_steps"),
             clipped_steps=extra.get("clipped_steps"),
             probe_steps=extra.get("probe_steps"),
+            **{k: extra.get(k) for k in METRIC_COLUMNS},
             wall_time_s=summary.wall_time_s,
-            error="",
+            error=f"interrupted by {stop_reason() or 'SIGINT'}"
+            if summary.outcome == Outcome.INTERRUPTED
+            else "",
         )
         if log_dir is not None:
             write_json_atomic(log_dir / "summary.json", summary.to_json())
@@ -341,72 +372,183 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
-def _init_worker() -> None:
-    """Worker start: plug-ins registered as in the parent; one torch thread (BLAS threads are
-    limited through the environment)."""
-    import torch
-
-    from rodctl.registry import load_plugins
-
-    load_plugins()
-    torch.set_num_threads(1)
+# --- running episodes: executor, results written as they finish, resume, stop -----------------
 
 
-class _Runner:
-    """Runs task lists in-process (1 worker) or in a 'spawn' process pool, with a progress bar."""
+class ResultsLog:
+    """results.jsonl: one JSON line per finished episode, appended and fsync'ed at once.
 
-    _ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+    The crash-safe record of a run: whatever stops it (SIGKILL, power loss), every episode that
+    finished is on disk, and `--resume` reads them back. A line cut by a crash is ignored.
+    """
 
-    def __init__(self, workers: int, progress: bool) -> None:
-        self.workers = workers
-        self.progress = progress
-        self.pool: ProcessPoolExecutor | None = None
-        self._saved_env: dict[str, str | None] = {}
+    def __init__(self, path: Path) -> None:
+        self.path = path
 
-    def __enter__(self) -> _Runner:
-        if self.workers > 1:
-            # Children inherit the environment at spawn: one BLAS thread per worker process.
-            self._saved_env = {k: os.environ.get(k) for k in self._ENV}
-            os.environ.update({k: "1" for k in self._ENV})
-            self.pool = ProcessPoolExecutor(
-                self.workers, mp_context=get_context("spawn"), initializer=_init_worker
-            )
-        return self
+    def append(self, row: dict[str, Any]) -> None:
+        line = json.dumps(jsonable({k: v for k, v in row.items() if not k.startswith("_")}))
+        with self.path.open("a", encoding="utf-8") as fh:
+            fh.write(line + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
 
-    def __exit__(self, *exc: object) -> None:
-        if self.pool is not None:
-            self.pool.shutdown(wait=exc[0] is None, cancel_futures=True)
-            for k, v in self._saved_env.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
+    def read(self) -> list[dict[str, Any]]:
+        """Every whole row written so far (a torn last line is skipped)."""
+        if not self.path.is_file():
+            return []
+        rows = []
+        for line in self.path.read_text(encoding="utf-8").splitlines():
+            try:
+                rows.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+        return rows
 
-    def run(
-        self,
-        tasks: list[dict],
-        fn: Callable[[dict], Any],
-        label: str = "",
-        describe: Callable[[Any], str] | None = None,
-    ) -> list[Any]:
-        """fn(task) for every task, results in task order."""
-        from rodctl.display import task_progress
 
-        results: list[Any] = [None] * len(tasks)
-        with task_progress(label, len(tasks), self.progress) as advance:
-            if self.pool is None:
-                for i, task in enumerate(tasks):
-                    results[i] = fn(task)
-                    advance(describe(results[i]) if describe else "")
-                return results
-            futures: dict[Future, int] = {self.pool.submit(fn, t): i for i, t in enumerate(tasks)}
-            pending = set(futures)
-            while pending:
-                done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    results[futures[fut]] = fut.result()
-                    advance(describe(results[futures[fut]]) if describe else "")
-        return results
+class RunInterrupted(Exception):
+    """SIGINT/SIGTERM stopped a run; its folder holds every finished episode, marked partial."""
+
+    def __init__(self, folder: Path, reason: str, done: int, total: int) -> None:
+        super().__init__(f"interrupted by {reason}: {done} of {total} episodes finished")
+        self.folder = folder
+        self.reason = reason
+
+
+def config_hash(data: Any) -> str:
+    """sha256 of a resolved config (canonical JSON): what `--resume` requires unchanged."""
+    text = json.dumps(jsonable(data), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _dotted_diff(old: Any, new: Any, prefix: str = "") -> list[str]:
+    """The dotted keys whose values differ between two plain-data configs."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = []
+        for k in sorted(set(old) | set(new), key=str):
+            out += _dotted_diff(old.get(k), new.get(k), f"{prefix}{k}.")
+        return out
+    return [] if old == new else [prefix.rstrip(".") or "(whole config)"]
+
+
+def open_resumed_run(folder: str | Path, command: str, hashed: dict[str, Any]) -> RunDir:
+    """Reopen `folder` (a run of `command`) to finish it; its config must hash the same.
+
+    Raises:
+        UserError: not a run folder of that command, or the config changed (names the keys).
+    """
+    path = Path(folder)
+    meta_path = path / "meta.json"
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise UserError(f"--resume {path}: not a run folder ({meta_path}: {exc})") from None
+    if meta.get("command") != command:
+        raise UserError(
+            f"--resume {path}: a run of `rodctl {meta.get('command')}`, not `rodctl {command}`"
+        )
+    old = meta.get("resume", {}).get("hashed")
+    if old is None:
+        raise UserError(f"--resume {path}: meta.json has no config hash to check against")
+    if config_hash(old) != config_hash(hashed):
+        changed = [
+            c.removeprefix("config.") if c != "targets" else "the targets file's poses"
+            for c in _dotted_diff(jsonable(old), jsonable(hashed))
+        ]
+        raise UserError(
+            f"--resume {path}: the config changed since that run (resume needs the same "
+            f"config; workers and executor may differ): {', '.join(changed[:10])}"
+            + (f" and {len(changed) - 10} more" if len(changed) > 10 else "")
+        )
+    run = RunDir(path=path, meta=meta)
+    run.meta.update(status="running", ended_at=None)
+    run.meta.pop("error", None)
+    run.meta.setdefault("resumed", []).append({"argv": list(sys.argv)})
+    run.write_meta()
+    return run
+
+
+def start_run(
+    out: str,
+    cfg: Any,
+    command: str,
+    hashed: dict[str, Any],
+    resume: str | None,
+) -> RunDir:
+    """A new run folder (config hash in meta.json), or the `--resume` one reopened."""
+    if resume is not None:
+        return open_resumed_run(resume, command, hashed)
+    run = RunDir.create(out, cfg, command=command)
+    run.meta["resume"] = {"config_hash": config_hash(hashed), "hashed": jsonable(hashed)}
+    run.write_meta()
+    return run
+
+
+def run_tasks(
+    executor: Executor, tasks: list[dict], fn: Callable[[dict], Any], label: str, progress: bool
+) -> list[Any]:
+    """fn(task) for every task on the executor, results in task order.
+
+    Raises:
+        KeyboardInterrupt: a stop was requested before every task finished.
+        UserError: a task could not be run (its worker was lost every time).
+    """
+    from rodctl.display import task_progress
+
+    with task_progress(label, len(tasks), progress) as advance:
+        done = executor.map(fn, tasks, on_done=lambda _d: advance())
+    if stop_reason() is not None:
+        raise KeyboardInterrupt(stop_reason())
+    for d in done:
+        if d.error is not None:
+            raise UserError(f"{label} task {d.key}: {d.error}")
+    return [d.value for d in done]
+
+
+def stream_episodes(
+    executor: Executor,
+    tasks: list[dict[str, Any]],
+    log: ResultsLog,
+    *,
+    progress: bool,
+    done_before: int = 0,
+    label: str = "episodes",
+) -> list[dict[str, Any] | None]:
+    """Run the episode tasks; every row is appended to `log` the moment it arrives.
+
+    Returns the rows in task order, None for the tasks a stop left unrun. An episode that comes
+    back `interrupted` (its worker got SIGINT/SIGTERM) stops the whole run, as a signal to the
+    parent does. A task whose worker was lost every time is an `error` row.
+    """
+    from rodctl.display import task_progress
+
+    rows: list[dict[str, Any] | None] = [None] * len(tasks)
+
+    def describe(row: dict[str, Any]) -> str:
+        return f"{row.get('method', '')}: {row['outcome']}"
+
+    for i, task in enumerate(tasks):
+        executor.submit(_episode, task, i)
+    total = len(tasks) + done_before
+    with task_progress(label, total, progress, rate="episodes", completed=done_before) as advance:
+        for done in executor.results():
+            task = tasks[done.key]
+            if done.error == CANCELLED:
+                continue
+            if done.error is not None:
+                row = {**_task_tags(task), "outcome": "error", "error": done.error}
+            else:
+                row = done.value
+            if row["outcome"] == Outcome.INTERRUPTED:
+                request_stop(row.get("error") or "a worker was stopped")
+            log.append(row)
+            rows[done.key] = row
+            advance(describe(row))
+    return rows
+
+
+def _task_tags(task: dict[str, Any]) -> dict[str, Any]:
+    """The identifying columns of a task's row (method, target, and a sweep's tags)."""
+    return {"method": task["method"], "target": task["target"], **task.get("tags", {})}
 
 
 # --- statistics -------------------------------------------------------------------------------
@@ -579,6 +721,9 @@ def run_compare(
     *,
     progress: bool,
     workers: int | None,
+    executor: str = "local",
+    address: str | None = None,
+    resume: str | None = None,
 ) -> Path:
     """Run the benchmark of `config_path` into a new folder under `out`; return that folder.
 
@@ -588,13 +733,21 @@ def run_compare(
             `methods.ours.controller.weights=[...]`, `targets.count=10`, `base.run.max_steps=100`).
         out: parent folder of the output folder.
         progress: show progress bars and print the summary table (stderr).
-        workers: worker processes; None: the config's `workers`, else one per CPU core.
+        workers: worker processes (Ray: CPUs of a Ray started for the run); None: the config's
+            `workers`, else one per CPU core.
+        executor: "local" (this process or a spawn pool) or "ray".
+        address: an existing Ray cluster to run on (executor "ray").
+        resume: an earlier run folder of the same config: its finished episodes are kept and
+            only the others run, into that folder.
 
     Returns:
-        The output folder (holding results.csv/json, summary.md, targets.yaml, figures/).
+        The output folder (holding results.jsonl/csv/json, summary.md, targets.yaml, figures/).
 
     Raises:
-        UserError: bad config, target file or target; a method that cannot be built.
+        UserError: bad config, target file or target; a method that cannot be built; a
+            `resume` folder whose config differs.
+        RunInterrupted: SIGINT/SIGTERM stopped the run; every finished episode is written
+            (results marked partial) and meta.json says `interrupted`.
     """
     wall0 = time.perf_counter()
     cfg = load_compare_config(config_path, overrides)
@@ -603,29 +756,65 @@ def run_compare(
     n_workers = workers or cfg.workers or os.cpu_count() or 1
     if n_workers < 1:
         raise UserError(f"--workers must be >= 1, got {n_workers}")
-    run = RunDir.create(out, cfg, command="compare")
-    status = "failed"
+    pool = make_executor(executor, n_workers, address)
+    hashed = {"config": cfg.model_dump(mode="json", exclude={"workers"}), "targets": given}
+    run = start_run(out, cfg, "compare", hashed, resume)
+    log = ResultsLog(run.path / "results.jsonl")
+    status, reason, rows, total = "failed", None, [], 0
     try:
-        with _Runner(n_workers, progress) as runner:
+        with pool, stop_handlers():  # after the executor: ray.init replaces SIGTERM's handler
             targets = make_targets(
-                cfg,
-                given,
-                lambda tasks, fn: runner.run(tasks, fn, "targets"),
+                cfg, given, lambda tasks, fn: run_tasks(pool, tasks, fn, "targets", progress)
             )
             write_targets(targets, run.path / "targets.yaml")
             fig_target = _figure_target(cfg, targets)
             tasks = _episode_tasks(cfg, configs, targets, fig_target, run.path)
-            rows = runner.run(
-                tasks, _episode, "episodes", describe=lambda r: f"{r['method']}: {r['outcome']}"
-            )
-        _report(cfg, run.path, targets, rows, fig_target, wall0, n_workers, progress)
-        status = "completed"
+            total = len(tasks)
+            kept = finished_rows(log, tasks, rerun=lambda t: t["want_records"])
+            todo = [t for t in tasks if _row_key(t) not in kept]
+            new = stream_episodes(pool, todo, log, progress=progress, done_before=len(kept))
+            reason = stop_reason()
+        got = {_row_key(r): r for r in new if r is not None and r["outcome"] != "interrupted"}
+        rows = [kept.get(_row_key(t)) or got.get(_row_key(t)) for t in tasks]
+        rows = [r for r in rows if r is not None]
+        partial = len(rows) < total
+        _report(cfg, run.path, targets, rows, fig_target, wall0, pool, progress, partial)
+        status = "interrupted" if reason else "completed"
+        if reason:
+            raise RunInterrupted(run.path, reason, len(rows), total)
         return run.path
-    except KeyboardInterrupt:
-        status = "interrupted"
-        raise
+    except KeyboardInterrupt as exc:
+        status, reason = "interrupted", str(exc) or "SIGINT"
+        raise RunInterrupted(run.path, reason, len(rows), total) from None
     finally:
-        run.finish(status)
+        extra = {"episodes": {"finished": len(rows), "total": total}}
+        run.finish(status, **({"error": f"interrupted by {reason}"} if reason else {}), **extra)
+        clear_stop()
+
+
+def _row_key(item: dict[str, Any]) -> tuple:
+    """What identifies an episode (a task or its row) across runs: method, target and, in a
+    sweep, its point and seed (a task carries them in `tags`, a row as columns)."""
+    tags = item.get("tags", item)
+    sweep = (tags["point"], tags["seed"]) if "point" in tags else (None, None)
+    return (item["method"], item["target"], *sweep)
+
+
+def finished_rows(
+    log: ResultsLog, tasks: Sequence[dict[str, Any]], rerun: Callable[[dict], bool]
+) -> dict[tuple, dict[str, Any]]:
+    """The rows of `log` (an earlier, interrupted run) that `--resume` keeps, by episode key.
+
+    An episode counts as finished whatever its outcome except `interrupted`. Tasks for which
+    `rerun` is true run again anyway (the figure target: its records are not in the log).
+    """
+    wanted = {_row_key(t) for t in tasks if not rerun(t)}
+    out = {}
+    for row in log.read():
+        key = _row_key(row)
+        if key in wanted and row.get("outcome") != "interrupted":
+            out[key] = row
+    return out
 
 
 def _episode_tasks(
@@ -661,16 +850,21 @@ def _report(
     rows: list[dict[str, Any]],
     fig_target: int,
     wall0: float,
-    n_workers: int,
+    pool: Executor,
     progress: bool,
+    partial: bool = False,
 ) -> None:
-    """results.csv/json, summary.md, figures, and the table on the terminal."""
+    """results.csv/json, summary.md, figures, and the table on the terminal.
+
+    `partial`: the run was stopped; the tables hold the episodes that finished and say so.
+    """
     bands = _band_names(cfg)
     records = {r["method"]: r.pop("_records") for r in rows if "_records" in r}
     by_index = {t.index: t for t in targets}
     for r in rows:
         t = by_index[r["target"]]
         r.update(
+            scenario=cfg.scenario,
             band=t.band(cfg.targets.bands),
             difficulty=round(t.difficulty, 6),
             target_x=float(t.pose[0]),
@@ -680,14 +874,27 @@ def _report(
         )
     summary = summarize(rows, list(cfg.methods), bands)
     wall = time.perf_counter() - wall0
-    write_results(folder, cfg, targets, rows, summary, wall, n_workers)
+    n_workers = pool.workers
+    write_results(
+        folder, cfg, targets, rows, summary, wall, n_workers, partial=partial, executor=pool.name
+    )
     header, lines = summary_rows(summary, bands)
     write_summary_md(
         folder / "summary.md", cfg, header, lines, summary, wall, n_workers, fig_target
     )
-    _write_figures(folder / "figures", records, rows, list(cfg.methods))
+    if partial:
+        md = folder / "summary.md"
+        expected = len(targets) * len(cfg.methods)
+        note = (
+            f"**PARTIAL**: the run was interrupted; {len(rows)} of {expected} episodes finished "
+            "and are counted here. `rodctl compare CONFIG --resume FOLDER` finishes it.\n\n"
+        )
+        md.write_text(note + md.read_text(encoding="utf-8"), encoding="utf-8")
+    if rows:
+        _write_figures(folder / "figures", records, rows, list(cfg.methods))
     if progress:
-        _print_table(summary, f"{cfg.name}: {len(targets)} targets, {wall:.0f} s")
+        title = f"{cfg.name}: {len(targets)} targets, {wall:.0f} s"
+        _print_table(summary, title + (" (PARTIAL)" if partial else ""))
 
 
 def _band_names(cfg: CompareConfig) -> list[str]:
@@ -724,8 +931,14 @@ def write_results(
     summary: dict,
     wall: float,
     workers: int,
+    *,
+    partial: bool = False,
+    executor: str = "local",
 ) -> None:
-    """results.csv (one row per episode) and results.json (rows, summary, targets, config)."""
+    """results.csv (one row per episode) and results.json (rows, summary, targets, config).
+
+    `partial`: an interrupted run; results.json says so (`"partial": true`).
+    """
     with (folder / "results.csv").open("w", newline="", encoding="utf-8") as fh:
         writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS, extrasaction="ignore")
         writer.writeheader()
@@ -736,6 +949,8 @@ def write_results(
         "seed": cfg.seed,
         "wall_time_s": round(wall, 2),
         "workers": workers,
+        "executor": executor,
+        "partial": partial,
         "targets": [
             {
                 "index": t.index,

@@ -14,11 +14,13 @@ from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
     Progress,
+    ProgressColumn,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
 from rich.table import Table
+from rich.text import Text
 
 from rodctl.records import RunSummary, StepRecord
 
@@ -51,16 +53,37 @@ def step_progress(total: int, enabled: bool = True) -> Iterator[Callable[[StepRe
         yield on_step
 
 
+class RateColumn(ProgressColumn):
+    """Units of work per second (rich's own speed estimate), e.g. "3.2 episodes/s"."""
+
+    def __init__(self, unit: str) -> None:
+        super().__init__()
+        self.unit = unit
+
+    def render(self, task) -> Text:  # noqa: ANN001 - rich's Task
+        speed = task.finished_speed or task.speed
+        return Text("-" if speed is None else f"{speed:.2f} {self.unit}/s")
+
+
 @contextmanager
-def task_progress(label: str, total: int, enabled: bool = True) -> Iterator[Callable[..., None]]:
+def task_progress(
+    label: str,
+    total: int,
+    enabled: bool = True,
+    rate: str | None = None,
+    completed: int = 0,
+) -> Iterator[Callable[..., None]]:
     """A progress bar over `total` units of work (samples, epochs, episodes) on stderr.
 
     Yields ``advance(note="", n=1)``: move the bar by n and show a short note beside it.
+    `rate` names the unit to show a rate of (e.g. "episodes"); `completed` starts the bar
+    part-way (a resumed run).
     """
     progress = Progress(
         TextColumn(f"[bold]{label}"),
         BarColumn(),
         MofNCompleteColumn(),
+        *([RateColumn(rate)] if rate else []),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
         TextColumn("{task.fields[note]}"),
@@ -68,7 +91,7 @@ def task_progress(label: str, total: int, enabled: bool = True) -> Iterator[Call
         disable=not enabled,
     )
     with progress:
-        task = progress.add_task(label, total=total, note="")
+        task = progress.add_task(label, total=total, note="", completed=completed)
 
         def advance(note: str = "", n: int = 1) -> None:
             progress.update(task, advance=n, note=note)

@@ -112,6 +112,9 @@ class Task:
         probe_size: (3,) size of the probing moves the run allows.
         camera: the calibrated camera model (project / unproject / projection_jacobian).
         points: N, the centerline points.
+        true_jacobian: the simulator's Jacobian of a feature at the current shape
+            (`ShapeServoEnv.true_jacobian`): only the `oracle` reference method uses it, and
+            it is labelled as not realisable on a real robot.
     """
 
     target_pixels: np.ndarray
@@ -121,6 +124,7 @@ class Task:
     probe_size: np.ndarray
     camera: Any
     points: int
+    true_jacobian: Any = None
 
 
 @dataclass
@@ -263,6 +267,7 @@ class ShapeServoEnv(gym.Env):
             probe_size=np.asarray(cfg.run.probe_size, dtype=float),
             camera=self.camera,
             points=cfg.camera.points,
+            true_jacobian=self.true_jacobian,
         )
         self._last_info = self._info(None)
         return self._observation(np.zeros(Q)), dict(self._last_info)
@@ -298,6 +303,39 @@ class ShapeServoEnv(gym.Env):
         if self.render_mode != "rgb_array" or self.frame is None:
             return None
         return self.frame.image
+
+    def true_jacobian(
+        self, encode: Any, steps: tuple[float, float, float] = (1e-3, 1e-3, 5e-3)
+    ) -> np.ndarray:
+        """The Jacobian d s / d r of a feature at the rod's current shape, by central finite
+        differences of the simulator: each axis moved by ± its step, the rod settled, its
+        ground truth projected by the camera (no rendering noise), encoded, and the simulator
+        put back (`RodSim.snapshot` / `restore`). Six settles a call.
+
+        This is what no method on a real robot can know: the `oracle` reference uses it to
+        show the best any Jacobian-based law can do on a scenario.
+
+        Args:
+            encode: the feature map, (N, 2) pixels -> (p,).
+            steps: the finite-difference step per axis [m, m, rad].
+
+        Returns:
+            (p, 3) Jacobian in feature units per [m, m, rad].
+        """
+        n = self.cfg.camera.points
+        snap = self.sim.snapshot()
+        cols = []
+        for axis, h in enumerate(steps):
+            values = []
+            for sign in (1.0, -1.0):
+                du = np.zeros(Q)
+                du[axis] = sign * h
+                self.sim.apply(du)
+                pixels = self.camera.project(resample_polyline(self.sim.centerline(), n))
+                values.append(np.asarray(encode(pixels), dtype=float))
+                self.sim.restore(snap)
+            cols.append((values[0] - values[1]) / (2.0 * h))
+        return np.stack(cols, axis=1)
 
     def make_target(self, pose: Any = None, *, seed: int | None = None) -> Target:
         """Check that a gripper pose gives a usable target, without starting an episode.

@@ -94,6 +94,11 @@ class Method:
             home_pose=task.home_pose,
             max_step=task.max_step,
             camera=task.camera,
+            oracle=(
+                (lambda: task.true_jacobian(self.feature.encode))
+                if task.true_jacobian is not None
+                else None
+            ),
         )
         self.estimator = ESTIMATORS.build(self.configs["estimator"], ctx)
         self.controller = CONTROLLERS.build(self.configs["controller"], ctx)

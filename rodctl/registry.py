@@ -52,6 +52,8 @@ class BuildContext:
         max_step: (3,) per-axis speed limit of one control step [m, m, rad].
         camera: the calibrated camera model (`project`, `unproject`, `projection_jacobian`),
             for methods that use the calibration (e.g. the offline ASAP model).
+        oracle: () -> (p, q) the simulator's true Jacobian of this method's feature at the
+            current shape (only the labelled `oracle` reference uses it).
         experiment: the whole experiment config (e.g. an encoder checks the rod and camera).
     """
 
@@ -61,6 +63,7 @@ class BuildContext:
     home_pose: np.ndarray | None = None
     max_step: np.ndarray | None = None
     camera: Any = None
+    oracle: Any = None
     experiment: Any = None
 
 
@@ -196,6 +199,7 @@ _BUILTIN_MODULES = (
     "rodctl.estimation.broyden",
     "rodctl.estimation.windowed_ls",
     "rodctl.estimation.asap",
+    "rodctl.estimation.oracle",
     "rodctl.control.mfac",
     "rodctl.control.pinv",
     "rodctl.control.qp",

@@ -28,7 +28,16 @@ from rodctl.errors import RunFailed, UserError, describe_os_error
 
 #: Every consumer of randomness, in a fixed order. Each gets its own independent stream derived
 #: from the config's one seed; append new names at the end so existing streams stay unchanged.
-SEED_CONSUMERS = ("targets", "camera", "data", "torch", "sim", "probing", "compare")
+SEED_CONSUMERS = (
+    "targets",
+    "camera",
+    "data",
+    "torch",
+    "sim",
+    "probing",
+    "compare",
+    "sweep",
+)
 
 #: Distributions whose versions meta.json records.
 _VERSIONED = (

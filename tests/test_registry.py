@@ -75,6 +75,7 @@ def test_factory_builds_an_object_honouring_the_protocol(kind, reg):
             q=3,
             home_pose=np.array([0.4, 0.2, 0.0]),
             max_step=np.array([0.01, 0.01, 0.05]),
+            oracle=lambda: np.ones((6, 3)),  # what the simulator would say (oracle estimator)
         )
     obj = reg.factory(cfg, ctx)
     rng = np.random.default_rng(0)

@@ -10,6 +10,8 @@ seed (easy to hard) or read from a file of gripper poses that labs can exchange.
 
 from __future__ import annotations
 
+from typing import Any
+
 from pydantic import ConfigDict, Field, PositiveInt, field_validator, model_validator
 
 from rodctl.config.base import Pose, StrictModel
@@ -83,6 +85,23 @@ class CompareTargetsConfig(StrictModel):
         return self
 
 
+class ScenarioConfig(StrictModel):
+    """One scenario of a benchmark suite: the shared experiment with some keys changed.
+
+    Every method runs every scenario, each scenario on its own shared target set. Keys are
+    dotted paths into `base`, as with `--set` (e.g. `rod.max_step: [0.05, 0.05, 0.25]`).
+    """
+
+    description: str = Field("", description="One line shown in the suite's summary.")
+    set: dict[str, Any] = Field(
+        default_factory=dict,
+        description="Dotted keys of `base` and their values for this scenario (like --set).",
+    )
+    targets: CompareTargetsConfig | None = Field(
+        None, description="This scenario's target set (None: the suite's `targets`)."
+    )
+
+
 @depends_on_stages
 class CompareConfig(StrictModel):
     """`rodctl compare`: the benchmark of several methods on one shared set of targets."""
@@ -91,6 +110,21 @@ class CompareConfig(StrictModel):
 
     name: str = Field(
         "compare", pattern=_NAME, max_length=64, description="Used in the output folder's name."
+    )
+    scenario: str = Field(
+        "nominal",
+        pattern=_NAME,
+        max_length=64,
+        description="The scenario this comparison is (the `scenario` column of results.csv).",
+    )
+    scenarios: dict[str, ScenarioConfig] | None = Field(
+        None,
+        description="A benchmark suite: every method on every scenario (`base` with some keys "
+        "changed), each with its own shared targets. None: one comparison on `base`.",
+    )
+    reference: str | None = Field(
+        None,
+        description="The method others are compared with, paired by target (None: the first).",
     )
     seed: int = Field(
         0,
@@ -131,6 +165,24 @@ class CompareConfig(StrictModel):
         if bad:
             raise ValueError(f"method names must be letters, digits, . _ - ; got {bad}")
         return value
+
+    @model_validator(mode="after")
+    def _suite_names(self) -> CompareConfig:
+        import re
+
+        bad = [k for k in self.scenarios or {} if not re.match(_NAME, k) or len(k) > 64]
+        if bad:
+            raise ValueError(f"scenario names must be letters, digits, . _ - ; got {bad}")
+        if self.reference is not None and self.reference not in self.methods:
+            raise ValueError(
+                f"reference {self.reference!r} is not one of the methods {list(self.methods)}"
+            )
+        return self
+
+    @property
+    def reference_method(self) -> str:
+        """The method the others are compared with (`reference`, else the first)."""
+        return self.reference or next(iter(self.methods))
 
     @model_validator(mode="after")
     def _base_samples_no_target(self) -> CompareConfig:

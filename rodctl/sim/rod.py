@@ -242,6 +242,32 @@ class RodSim:
         )
 
     # ------------------------------------------------------------------ workspace
+    def snapshot(self) -> dict:
+        """The simulator's dynamic state (every body's pose and velocity, the clock), for
+        `restore`. The chain itself (its bodies and joints) must be the same at restore: no
+        grasp slip or clamp move in between."""
+        bodies = [*self.chain.bodies] + ([self.chain.gripper] if self.chain.gripper else [])
+        return {
+            "bodies": bodies,
+            "state": [
+                (tuple(b.position), b.angle, tuple(b.velocity), b.angular_velocity) for b in bodies
+            ],
+            "steps": self.chain.steps,
+            "diverged": self._diverged,
+        }
+
+    def restore(self, snap: dict) -> None:
+        """Put the simulator back into a `snapshot` (the oracle's finite differences use it)."""
+        if snap["bodies"][0] is not self.chain.bodies[0]:
+            raise RuntimeError("restore: the chain was rebuilt since the snapshot")
+        for body, (pos, angle, vel, omega) in zip(snap["bodies"], snap["state"], strict=True):
+            body.position = pos
+            body.angle = angle
+            body.velocity = vel
+            body.angular_velocity = omega
+        self.chain.steps = snap["steps"]
+        self._diverged = snap["diverged"]
+
     def clip_pose(self, pose: np.ndarray) -> tuple[np.ndarray, bool]:
         """The nearest allowed gripper pose, and whether `pose` had to change.
 

@@ -1,0 +1,168 @@
+"""Config of `rodctl sweep`: config values searched over seeds, targets and methods.
+
+Owned by `rodctl/sweep.py`. A sweep is a compare (`rodctl/config/compare.py`) with one more
+axis: *parameters*, dotted keys of the experiment each method runs (as `--set` writes them:
+`controller.weights`, `estimator.p0`, `rod.EI`), each given a list of values (a grid, or a
+choice in random search) or a range (random search). Every point of the search runs every
+method on the same targets, for every seed of `seeds` (each seed its own target set and camera
+noise), so points differ only by the swept values.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any, Literal
+
+from pydantic import ConfigDict, Field, PositiveInt, field_validator, model_validator
+
+from rodctl.config.base import StrictModel
+from rodctl.config.compare import CompareTargetsConfig, MethodConfig
+from rodctl.config.experiment import ExperimentConfig
+from rodctl.registry import depends_on_stages
+
+_NAME = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
+_KEY = r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*$"
+
+#: Ranking metrics of a (point, method) group, and whether larger is better.
+METRICS: dict[str, bool] = {
+    "success_rate": True,
+    "steps_median": False,
+    "final_pixel_error_median": False,
+    "smoothness_median": False,
+    "path_length_median": False,
+    "wall_time_median": False,
+}
+
+#: Largest number of points a sweep may have (a typo in a grid must not mean a week of work).
+MAX_POINTS = 10_000
+
+
+class ParameterConfig(StrictModel):
+    """One swept key: a list of values, or (random search only) a numeric range."""
+
+    values: list[Any] | None = Field(
+        None,
+        min_length=1,
+        description="The values to try (any YAML value the key accepts, e.g. a list of "
+        "weights). Grid: every one; random: one drawn uniformly per sample.",
+    )
+    low: float | None = Field(None, description="Random search: lower end of the range.")
+    high: float | None = Field(None, description="Random search: upper end of the range.")
+    log: bool = Field(False, description="Random search: draw uniformly in log(value).")
+    integer: bool = Field(False, description="Random search: round the draw to an integer.")
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> ParameterConfig:
+        ranged = self.low is not None or self.high is not None
+        if (self.values is None) == (not ranged):
+            raise ValueError("give either `values` or a range `low`/`high`, not both or neither")
+        if ranged:
+            if self.low is None or self.high is None:
+                raise ValueError("a range needs both `low` and `high`")
+            if not self.low < self.high:
+                raise ValueError(f"low ({self.low}) must be below high ({self.high})")
+            if self.log and self.low <= 0:
+                raise ValueError(f"a log range needs low > 0, got {self.low}")
+        elif self.log or self.integer:
+            raise ValueError("`log` and `integer` apply to a range (`low`/`high`) only")
+        return self
+
+
+@depends_on_stages
+class SweepConfig(StrictModel):
+    """`rodctl sweep`: a grid or seeded random search over experiment keys."""
+
+    model_config = ConfigDict(defer_build=True)
+
+    name: str = Field(
+        "sweep", pattern=_NAME, max_length=64, description="Used in the output folder's name."
+    )
+    seed: int = Field(0, ge=0, description="Seeds the random search's draws.")
+    base: ExperimentConfig = Field(
+        default_factory=ExperimentConfig,
+        description="The experiment every point shares before its swept values are applied. "
+        "Without `methods`, its own feature/estimator/controller are the one method `base`.",
+    )
+    methods: dict[str, MethodConfig] | None = Field(
+        None,
+        description="Methods (as in compare configs) each point runs; None: the base's stages.",
+    )
+    parameters: dict[str, ParameterConfig] = Field(
+        ...,
+        min_length=1,
+        description="Swept keys: dotted paths into each method's experiment config (as "
+        "`--set` writes them), e.g. `controller.weights`, `estimator.p0`, `rod.EI`.",
+    )
+    search: Literal["grid", "random"] = Field(
+        "grid", description="grid: every combination of `values`; random: `samples` draws."
+    )
+    samples: PositiveInt | None = Field(None, description="Random search: number of points.")
+    seeds: list[int] = Field(
+        [0],
+        min_length=1,
+        description="Compare seeds: each gives its own target set (sampled as `targets` says) "
+        "and camera noise; every point runs on every seed.",
+    )
+    targets: CompareTargetsConfig = CompareTargetsConfig(count=10)
+    rank_by: list[str] = Field(
+        ["success_rate", "steps_median"],
+        min_length=1,
+        description=f"Ranking of (point, method) groups, first key first; one of "
+        f"{sorted(METRICS)} (success rate: higher is better; the others: lower).",
+    )
+    workers: PositiveInt | None = Field(
+        None, description="Worker processes (None: one per CPU core; 1: run in this process)."
+    )
+    keep_logs: bool = Field(
+        False, description="Keep every episode's logs under episodes/ (as base.logging asks)."
+    )
+
+    @field_validator("parameters")
+    @classmethod
+    def _keys(cls, value: dict[str, ParameterConfig]) -> dict[str, ParameterConfig]:
+        bad = [k for k in value if not re.match(_KEY, k)]
+        if bad:
+            raise ValueError(f"swept keys must be dotted paths like estimator.p0; got {bad}")
+        clash = [k for k in value if k in ("name", "seed")]
+        if clash:
+            raise ValueError(f"{clash}: the episode's name and seed are set by the sweep")
+        return value
+
+    @field_validator("rank_by")
+    @classmethod
+    def _metrics(cls, value: list[str]) -> list[str]:
+        bad = [m for m in value if m not in METRICS]
+        if bad:
+            raise ValueError(f"unknown metric(s) {bad}; expected some of {sorted(METRICS)}")
+        return value
+
+    @field_validator("methods")
+    @classmethod
+    def _method_names(cls, value: dict[str, MethodConfig] | None) -> Any:
+        if value is not None:
+            if not value:
+                raise ValueError("`methods` is empty; leave it out to sweep the base's stages")
+            bad = [k for k in value if not re.match(_NAME, k) or len(k) > 64]
+            if bad:
+                raise ValueError(f"method names must be letters, digits, . _ - ; got {bad}")
+        return value
+
+    @model_validator(mode="after")
+    def _search(self) -> SweepConfig:
+        if self.search == "grid":
+            ranged = [k for k, p in self.parameters.items() if p.values is None]
+            if ranged:
+                raise ValueError(
+                    f"grid search needs `values` for every key; {ranged} give a range "
+                    "(use search: random, or list values)"
+                )
+            if self.samples is not None:
+                raise ValueError("`samples` is for search: random; a grid runs every point")
+        elif self.samples is None:
+            raise ValueError("search: random needs `samples` (the number of points to draw)")
+        if self.base.run.target.pose is not None:
+            raise ValueError(
+                "base.run.target.pose is set, but the sweep chooses the targets: use "
+                "targets.poses or targets.file"
+            )
+        return self

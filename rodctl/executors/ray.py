@@ -1,0 +1,201 @@
+"""Ray: the same tasks on a Ray started for the run (loopback only) or on an existing cluster.
+
+Optional: `pip install 'rodctl[ray]'`; Ray is imported only when this executor starts. Without
+`address`, a private local Ray is started with `num_cpus=workers`, no dashboard, a small object
+store, every service bound to 127.0.0.1, and it is shut down with the run. With `address`
+(`--address HOST:PORT`, or `auto`), the run connects to that cluster as a driver and only
+disconnects at the end; the cluster's nodes need rodctl (and any plug-in) installed.
+
+Faults: a task whose worker process or node dies is retried by Ray itself (`max_retries`,
+bounded by `MAX_RETRIES`) and then comes back as `Done.error`; an exception inside the task
+function is the function's own result. Stopping: `cancel()` is `ray.cancel` on every pending
+task; Ray delivers it to a running task as a SIGINT in its worker, which the task's
+`stop_handlers()` turn into the stop flag, so the episode ends whole as `interrupted`.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from rodctl.errors import UserError
+from rodctl.executors.base import (
+    MAX_RETRIES,
+    THREAD_ENV,
+    Done,
+    Executor,
+    clear_stop,
+    stop_handlers,
+    stop_reason,
+)
+from rodctl.executors.local import CANCELLED
+
+#: Object store of a Ray started for the run: results are small rows, not arrays.
+_OBJECT_STORE_BYTES = 128 * 2**20
+
+_worker_ready = False
+
+
+def run_task(fn: Callable[[Any], Any], task: Any) -> Any:
+    """Body of the Ray task: set the worker up once, then fn(task) under the stop handlers.
+
+    A Ray worker process is reused across tasks, so the stop flag of a previous (cancelled)
+    task is cleared first.
+    """
+    global _worker_ready
+    if not _worker_ready:
+        import torch
+
+        from rodctl.registry import load_plugins
+
+        load_plugins()
+        torch.set_num_threads(1)
+        _worker_ready = True
+    clear_stop()
+    with stop_handlers():
+        return fn(task)
+
+
+def _import_ray(local: bool) -> Any:
+    if local:
+        # Ray otherwise advertises the machine's network address even for a one-node Ray;
+        # with this its node address (and so every service) is the loopback one.
+        os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+    try:
+        import ray
+    except ImportError:
+        raise UserError(
+            "--executor ray needs Ray, which is an optional extra: pip install 'rodctl[ray]'"
+        ) from None
+    return ray
+
+
+class RayExecutor(Executor):
+    """Tasks as Ray tasks (one CPU each) on a local Ray started for the run, or on `address`."""
+
+    name = "ray"
+
+    def __init__(
+        self, workers: int, address: str | None = None, shutdown_timeout: float = 10.0
+    ) -> None:
+        super().__init__(workers, shutdown_timeout)
+        self.address = address
+        self.ray: Any = None
+        self._remote: Any = None
+        self._owns_ray = False
+        self._pending: dict[Any, tuple[Any, Any]] = {}  # ObjectRef -> (key, attempts)
+        self._queue: list[tuple[Callable[[Any], Any], Any, Any]] = []
+        self._cancelled = False
+
+    def start(self) -> None:
+        ray = _import_ray(local=self.address is None)
+        self.ray = ray
+        env = {k: "1" for k in THREAD_ENV}
+        if ray.is_initialized():
+            pass  # a Ray the caller started (a notebook, a test): use it, leave it running
+        elif self.address is None:
+            ray.init(
+                num_cpus=self.workers,
+                include_dashboard=False,
+                _node_ip_address="127.0.0.1",
+                object_store_memory=_OBJECT_STORE_BYTES,
+                log_to_driver=False,
+                configure_logging=True,
+                logging_level="warning",
+                runtime_env={"env_vars": env},
+            )
+            self._owns_ray = True
+        else:
+            try:
+                ray.init(
+                    address=self.address,
+                    log_to_driver=False,
+                    logging_level="warning",
+                    runtime_env={"env_vars": env},
+                )
+            except (ConnectionError, ValueError, RuntimeError) as exc:
+                raise UserError(f"--address {self.address}: cannot connect to Ray: {exc}") from None
+            self._owns_ray = True  # our driver connection: disconnect at the end
+        self._remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)(
+            run_task
+        )
+
+    def submit(self, fn: Callable[[Any], Any], task: Any, key: Any) -> None:
+        if self._remote is None:
+            raise RuntimeError("RayExecutor.submit before start()")
+        if self._cancelled:
+            return
+        self._pending[self._remote.remote(fn, task)] = (key, 1)
+
+    def cancel(self) -> None:
+        if self._cancelled or self.ray is None:
+            return
+        self._cancelled = True
+        for ref in list(self._pending):
+            try:
+                self.ray.cancel(ref, force=False)
+            except Exception:  # noqa: BLE001 - already finished or gone: nothing to cancel
+                pass
+
+    def results(self, poll: float = 0.5) -> Iterator[Done]:
+        ray = self.ray
+        exceptions = ray.exceptions
+        stop_deadline: float | None = None
+        while self._pending:
+            if stop_reason() is not None and not self._cancelled:
+                self.cancel()
+            if self._cancelled and stop_deadline is None:
+                stop_deadline = time.monotonic() + self.shutdown_timeout
+            if stop_deadline is not None and time.monotonic() > stop_deadline:
+                for ref in list(self._pending):
+                    try:
+                        ray.cancel(ref, force=True)
+                    except Exception:  # noqa: BLE001
+                        pass
+                self._pending.clear()
+                return
+            ready, _ = ray.wait(list(self._pending), num_returns=1, timeout=poll)
+            for ref in ready:
+                key, attempts = self._pending.pop(ref)
+                try:
+                    value = ray.get(ref)
+                except exceptions.TaskCancelledError:
+                    yield Done(key, error=CANCELLED, attempts=attempts)
+                    continue
+                except exceptions.RayTaskError as exc:
+                    cause = exc.cause if getattr(exc, "cause", None) is not None else exc
+                    if isinstance(cause, KeyboardInterrupt):
+                        yield Done(key, error=CANCELLED, attempts=attempts)
+                        continue
+                    raise cause from None
+                except exceptions.RayError as exc:
+                    # Worker or node lost, after Ray's own bounded retries.
+                    yield Done(
+                        key,
+                        error=f"worker lost {MAX_RETRIES + 1} time(s): {type(exc).__name__}: "
+                        f"{str(exc).splitlines()[0] if str(exc) else ''}",
+                        attempts=MAX_RETRIES + 1,
+                    )
+                    continue
+                yield Done(key, value=value, attempts=attempts)
+
+    def shutdown(self, timeout: float) -> None:
+        if self.ray is None:
+            return
+        if self._pending:
+            self.cancel()
+            for ref in list(self._pending):
+                try:
+                    self.ray.cancel(ref, force=True)
+                except Exception:  # noqa: BLE001
+                    pass
+            self._pending.clear()
+        if self._owns_ray and self.ray.is_initialized():
+            # ray.shutdown has no timeout of its own; never let it hang the command.
+            t = threading.Thread(target=self.ray.shutdown, daemon=True)
+            t.start()
+            t.join(timeout)
+        self._owns_ray = False

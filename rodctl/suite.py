@@ -1,0 +1,371 @@
+"""Benchmark suites: every method on every scenario, compared paired by target, with a report.
+
+Why a suite: one scenario cannot tell methods apart. Under the nominal speed limit every working
+adaptive method converges at the speed limit's bound, so "fastest" is decided by the limit, not
+the method. A suite runs the same methods on scenarios that stress different parts of a method
+(a loose speed limit, hard targets, a noisy camera, heavy and soft rods, friction, mid-run
+changes) and compares each method with a reference *paired by target* (`rodctl.statistics`), so a
+difference is reported with its confidence interval and p-value, or not at all.
+
+A suite is a compare config with `scenarios`: each scenario is `base` with some dotted keys set
+(as with `--set`) and optionally its own target set. Each scenario runs as an ordinary
+`rodctl compare` into `scenarios/<name>/` (its own results, figures, resume), from a config file
+written beside it (`scenarios/<name>.yaml`), so any one of them can be rerun alone. The suite
+then writes `results.csv` (every episode, with a `scenario` column), `summary.md` (per-scenario
+tables and paired statistics) and `report.html` (self-contained: figures embedded).
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import json
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from rodctl.config.compare import CompareConfig
+from rodctl.config.loading import apply_override, validate_config
+from rodctl.errors import UserError
+from rodctl.runs import RunDir, write_json_atomic
+from rodctl.statistics import PairedDifference, paired_difference
+
+#: Metrics compared paired by target: (column, label, unit, which episodes count).
+PAIRED_METRICS = (
+    ("steps_to_converge", "steps to converge", "steps"),
+    ("excess_steps", "steps over the speed-limit bound", "steps"),
+    ("near_origin_steps", "final approach (below 2x tolerance to converged)", "steps"),
+    ("smoothness_translation", "smoothness, translation", "speed limits"),
+    ("smoothness_rotation", "smoothness, rotation", "speed limits"),
+)
+
+
+def scenario_configs(cfg: CompareConfig, config_dir: Path, source: str) -> dict[str, dict]:
+    """Each scenario as a complete compare config (a mapping), validated.
+
+    Raises:
+        UserError: a scenario key that does not exist or a value out of range, named as
+            `scenarios.<name>.set.<key>`.
+    """
+    from rodctl.compare import method_config
+
+    out: dict[str, dict] = {}
+    common = cfg.model_dump(mode="json", exclude={"scenarios"})
+    for name, sc in (cfg.scenarios or {}).items():
+        data = json.loads(json.dumps(common))
+        data.update(name=f"{cfg.name}-{name}"[:64], scenario=name)
+        for key, value in sc.set.items():
+            apply_override(data["base"], key.split("."), value, f"scenarios.{name}.set.{key}")
+        if sc.targets is not None:
+            data["targets"] = sc.targets.model_dump(mode="json")
+        tfile = data["targets"].get("file")
+        if tfile and not Path(tfile).is_absolute():
+            data["targets"]["file"] = str((config_dir / tfile).resolve())
+        where = f"{source}: scenarios.{name}"
+        scfg = validate_config(data, where, CompareConfig)
+        for method in scfg.methods:
+            method_config(scfg, method, source=where)
+        out[name] = data
+    return out
+
+
+def run_suite(
+    config_path: str,
+    overrides: list[str],
+    out: str,
+    *,
+    progress: bool,
+    workers: int | None,
+    executor: str = "local",
+    address: str | None = None,
+    resume: str | None = None,
+) -> Path:
+    """Run every scenario of a suite config, then aggregate; return the suite's folder.
+
+    `resume`: an earlier suite folder; scenarios that completed are kept, the others resumed.
+    """
+    from rodctl.compare import load_compare_config, run_compare
+
+    wall0 = time.perf_counter()
+    cfg = load_compare_config(config_path, overrides)
+    source = config_path + (" with --set " + " ".join(overrides) if overrides else "")
+    scenarios = scenario_configs(cfg, Path(config_path).resolve().parent, source)
+    if resume is not None:
+        run = _reopen(resume)
+    else:
+        run = RunDir.create(out, cfg, command="compare (suite)")
+    folders: dict[str, str] = dict(run.meta.get("scenarios", {}))
+    status = "failed"
+    try:
+        (run.path / "scenarios").mkdir(exist_ok=True)
+        for name, data in scenarios.items():
+            path = run.path / "scenarios" / f"{name}.yaml"
+            path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+            earlier = folders.get(name)
+            if earlier and _completed(Path(earlier)):
+                continue
+            folder = run_compare(
+                str(path),
+                [],
+                str(run.path / "scenarios"),
+                progress=progress,
+                workers=workers,
+                executor=executor,
+                address=address,
+                resume=earlier,
+            )
+            folders[name] = str(folder)
+            run.meta["scenarios"] = folders
+            run.write_meta()
+        report = write_suite_outputs(cfg, run.path, folders, time.perf_counter() - wall0)
+        if progress:
+            from rodctl.display import stderr
+
+            stderr.print(report)
+        status = "completed"
+        return run.path
+    except KeyboardInterrupt:
+        status = "interrupted"
+        raise
+    finally:
+        run.finish(status)
+
+
+def _completed(folder: Path) -> bool:
+    try:
+        return json.loads((folder / "meta.json").read_text())["status"] == "completed"
+    except (OSError, ValueError, KeyError):
+        return False
+
+
+def _reopen(folder: str) -> RunDir:
+    path = Path(folder)
+    try:
+        meta = json.loads((path / "meta.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise UserError(f"--resume {folder}: not a suite run folder ({exc})") from None
+    if meta.get("command") != "compare (suite)":
+        raise UserError(
+            f"--resume {folder}: not a suite run folder (command {meta.get('command')})"
+        )
+    run = RunDir(path=path, meta=meta)
+    run.meta.update(status="running", ended_at=None)
+    run.write_meta()
+    return run
+
+
+# --- aggregation -------------------------------------------------------------------------------
+
+
+def read_rows(folders: dict[str, str]) -> list[dict[str, Any]]:
+    """Every episode of every scenario (results.json of each scenario's compare)."""
+    rows: list[dict[str, Any]] = []
+    for name, folder in folders.items():
+        data = json.loads((Path(folder) / "results.json").read_text(encoding="utf-8"))
+        for r in data["episodes"]:
+            r["scenario"] = name
+            rows.append(r)
+    return rows
+
+
+def paired_table(
+    rows: Sequence[dict[str, Any]], methods: Sequence[str], reference: str
+) -> dict[str, dict[str, PairedDifference]]:
+    """For each method but the reference and each paired metric: method - reference over the
+    targets both converged on (smoothness and steps only mean something for a converged run)."""
+    by = {(r["method"], r["target"]): r for r in rows}
+    targets = sorted({r["target"] for r in rows})
+
+    def value(method: str, t: int, col: str) -> float | None:
+        r = by.get((method, t))
+        if r is None or r.get("outcome") != "converged":
+            return None
+        v = r.get(col)
+        return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
+
+    out: dict[str, dict[str, PairedDifference]] = {}
+    for m in methods:
+        if m == reference:
+            continue
+        out[m] = {
+            col: paired_difference(
+                [value(m, t, col) for t in targets], [value(reference, t, col) for t in targets]
+            )
+            for col, _, _ in PAIRED_METRICS
+        }
+    return out
+
+
+def success_pairs(
+    rows: Sequence[dict[str, Any]], method: str, reference: str
+) -> tuple[int, int, int]:
+    """(targets only the method converged on, both, only the reference)."""
+    conv = {(r["method"], r["target"]) for r in rows if r.get("outcome") == "converged"}
+    targets = {r["target"] for r in rows}
+    only_m = sum((method, t) in conv and (reference, t) not in conv for t in targets)
+    both = sum((method, t) in conv and (reference, t) in conv for t in targets)
+    only_r = sum((method, t) not in conv and (reference, t) in conv for t in targets)
+    return only_m, both, only_r
+
+
+def write_suite_outputs(
+    cfg: CompareConfig, folder: Path, folders: dict[str, str], wall: float
+) -> Any:
+    """results.csv, summary.md and report.html of the suite; returns the terminal table."""
+    from rodctl.compare import (
+        CSV_COLUMNS,
+        _band_names,
+        markdown_table,
+        summarize,
+        summary_rows,
+        terminal_table,
+    )
+
+    rows = read_rows(folders)
+    with (folder / "results.csv").open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in CSV_COLUMNS})
+    methods = list(cfg.methods)
+    ref = cfg.reference_method
+    bands = _band_names(cfg)
+    md = [
+        f"# rodctl benchmark suite: {cfg.name}",
+        "",
+        f"{len(folders)} scenarios x {len(methods)} methods; reference method **{ref}**; "
+        f"wall time {wall:.0f} s. Every scenario is an ordinary compare run under "
+        "`scenarios/<name>/` (its own results, figures and summary).",
+        "",
+        "Paired differences are *method minus reference* over the targets both converged on: "
+        "the mean, its bootstrap 95 % confidence interval, the Wilcoxon signed-rank p-value and "
+        "wins/ties/losses (lower is better for every metric). **bold**: significant (p < 0.05 and "
+        "the interval excludes 0).",
+        "",
+    ]
+    stats: dict[str, Any] = {}
+    tables = []
+    for name in folders:
+        mine = [r for r in rows if r["scenario"] == name]
+        summary = summarize(mine, methods, bands)
+        header, lines = summary_rows(summary, bands)
+        paired = paired_table(mine, methods, ref)
+        sc = (cfg.scenarios or {}).get(name)
+        md += [f"## {name}", ""]
+        if sc is not None and sc.description:
+            md += [sc.description, ""]
+        if sc is not None and sc.set:
+            md += ["Changed: " + ", ".join(f"`{k}` = `{v}`" for k, v in sc.set.items()), ""]
+        md += [markdown_table(header, lines), ""]
+        md += _paired_markdown(mine, methods, ref, paired)
+        stats[name] = {
+            m: {col: vars(d) for col, d in per.items()} | {"success": success_pairs(mine, m, ref)}
+            for m, per in paired.items()
+        }
+        tables.append(
+            (name, terminal_table(summary, f"{name}: {summary['common_targets']} paired"))
+        )
+    (folder / "summary.md").write_text("\n".join(md) + "\n", encoding="utf-8")
+    write_json_atomic(folder / "statistics.json", stats)
+    write_report_html(folder / "report.html", cfg, "\n".join(md), folders)
+    from rich.console import Group
+
+    return Group(*(t for _, t in tables))
+
+
+def _paired_markdown(
+    rows: Sequence[dict[str, Any]],
+    methods: Sequence[str],
+    ref: str,
+    paired: dict[str, dict[str, PairedDifference]],
+) -> list[str]:
+    header = ["method", "converged only / both / only ref"] + [lbl for _, lbl, _ in PAIRED_METRICS]
+    lines = []
+    for m, per in paired.items():
+        om, both, orf = success_pairs(rows, m, ref)
+        cells = [m, f"{om} / {both} / {orf}"]
+        for col, _, unit in PAIRED_METRICS:
+            d = per[col]
+            text = d.describe(unit)
+            cells.append(f"**{text}**" if d.significant() else text)
+        lines.append(cells)
+    from rodctl.compare import markdown_table
+
+    return [f"Paired against **{ref}**:", "", markdown_table(header, lines), ""]
+
+
+# --- the self-contained report -----------------------------------------------------------------
+
+
+def write_report_html(path: Path, cfg: CompareConfig, markdown: str, folders: dict[str, str]):
+    """One HTML file that opens from disk with no network: the summary and every figure inline."""
+    body = [_markdown_to_html(markdown)]
+    for name, folder in folders.items():
+        figs = sorted((Path(folder) / "figures").glob("*.png"))
+        if not figs:
+            continue
+        body.append(f"<h2>Figures: {html.escape(name)}</h2>")
+        for fig in figs:
+            data = base64.b64encode(fig.read_bytes()).decode("ascii")
+            body.append(
+                f'<figure><img alt="{html.escape(fig.stem)}" src="data:image/png;base64,{data}">'
+                f"<figcaption>{html.escape(name)}: {html.escape(fig.stem)}</figcaption></figure>"
+            )
+    page = f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>rodctl suite {html.escape(cfg.name)}</title>
+<style>
+body {{ font-family: system-ui, sans-serif; max-width: 1200px; margin: 2em auto; color: #222; }}
+table {{ border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }}
+th, td {{ border: 1px solid #ccc; padding: 0.25em 0.5em; text-align: right; }}
+th:first-child, td:first-child {{ text-align: left; }}
+figure {{ display: inline-block; margin: 0.5em; }} img {{ max-width: 560px; }}
+code {{ background: #f3f3f3; padding: 0 0.2em; }}
+</style></head><body>
+{"".join(body)}
+</body></html>
+"""
+    path.write_text(page, encoding="utf-8")
+    return path
+
+
+def _inline(text: str) -> str:
+    import re
+
+    out = html.escape(text)
+    out = re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", out)
+    return re.sub(r"`(.+?)`", r"<code>\1</code>", out)
+
+
+def _markdown_to_html(markdown: str) -> str:
+    """The subset of markdown summary.md uses: headings, paragraphs, pipe tables."""
+    out: list[str] = []
+    table: list[list[str]] = []
+
+    def flush() -> None:
+        if table:
+            head, *rest = table
+            out.append("<table><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in head) + "</tr>")
+            for row in rest:
+                out.append("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in row) + "</tr>")
+            out.append("</table>")
+            table.clear()
+
+    for line in markdown.splitlines():
+        if line.startswith("|"):
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            if not all(set(c) <= {"-", ":"} for c in cells):
+                table.append(cells)
+            continue
+        flush()
+        if line.startswith("#"):
+            level = len(line) - len(line.lstrip("#"))
+            out.append(f"<h{level}>{_inline(line.lstrip('#').strip())}</h{level}>")
+        elif line.strip():
+            out.append(f"<p>{_inline(line)}</p>")
+    flush()
+    return "\n".join(out)

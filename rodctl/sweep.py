@@ -1,0 +1,515 @@
+"""`rodctl sweep`: a grid or seeded random search over config values, ranked by a metric.
+
+A sweep is a compare with one more axis. Each *point* sets some dotted keys of the experiment
+(`controller.weights`, `estimator.p0`, `rod.EI`, …: the keys `--set` takes) and runs every
+method on the shared targets of every seed; so two points differ only by their swept values.
+Every (point, method, seed, target) combination is validated before any work starts (a value a
+key does not accept is exit 2 naming the key, the value and the method), and each episode runs
+through the same function and executors as `rodctl compare` (local pool or Ray), with its row
+appended to results.jsonl the moment it finishes and `--resume` to finish an interrupted sweep.
+
+Outputs, in one new folder: results.jsonl (the journal), results.csv (one row per episode, a
+column per swept key), summary.json / summary.md (one line per point and method, ranked by
+`rank_by`), figures/<metric>_vs_<key>.png (the first ranking metric against each swept key),
+targets_seed<S>.yaml.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+import os
+import time
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+from pydantic import ValidationError
+
+from rodctl.compare import (
+    CompareTarget,
+    ResultsLog,
+    RunInterrupted,
+    _quantiles,
+    _row_key,
+    finished_rows,
+    given_target_poses,
+    make_targets,
+    markdown_table,
+    method_config,
+    run_tasks,
+    start_run,
+    stream_episodes,
+    write_targets,
+)
+from rodctl.config import ExperimentConfig
+from rodctl.config.loading import (
+    ConfigError,
+    apply_override,
+    config_source,
+    format_validation_error,
+    load_config,
+)
+from rodctl.config.sweep import MAX_POINTS, METRICS, SweepConfig
+from rodctl.errors import UserError
+from rodctl.executors.base import clear_stop, make_executor, stop_handlers, stop_reason
+from rodctl.runs import jsonable, write_json_atomic
+
+#: Per-episode columns of results.csv after the swept keys.
+EPISODE_COLUMNS = (
+    "method",
+    "target",
+    "difficulty",
+    "outcome",
+    "converged",
+    "steps",
+    "steps_to_converge",
+    "final_pixel_error",
+    "final_T1",
+    "smoothness",
+    "path_length",
+    "saturated_steps",
+    "probe_steps",
+    "wall_time_s",
+    "error",
+)
+
+
+# --- config and points ------------------------------------------------------------------------
+
+
+def sweep_points(cfg: SweepConfig) -> list[dict[str, Any]]:
+    """The points of the search, in order: each maps every swept key to its value.
+
+    Grid: the product of every key's `values`, first key slowest. Random: `samples` draws from
+    the 'sweep' stream of the seed, each key independently (a choice among `values`, or uniform
+    / log-uniform in [low, high], rounded when `integer`).
+    """
+    keys = list(cfg.parameters)
+    if cfg.search == "grid":
+        combos = itertools.product(*(cfg.parameters[k].values for k in keys))
+        return [dict(zip(keys, c, strict=True)) for c in combos]
+    from rodctl.runs import rng
+
+    gen = rng(cfg.seed, "sweep")
+    points = []
+    for _ in range(cfg.samples or 0):
+        point = {}
+        for k in keys:
+            p = cfg.parameters[k]
+            if p.values is not None:
+                point[k] = p.values[int(gen.integers(len(p.values)))]
+                continue
+            if p.log:
+                v = float(math.exp(gen.uniform(math.log(p.low), math.log(p.high))))
+            else:
+                v = float(gen.uniform(p.low, p.high))
+            point[k] = int(round(v)) if p.integer else v
+        points.append(point)
+    return points
+
+
+def _method_data(cfg: SweepConfig) -> dict[str, dict[str, Any]]:
+    """Each method's experiment (as plain data) before the swept values: base + its stages."""
+    if cfg.methods is None:
+        return {"base": cfg.base.model_dump(mode="json")}
+    return {name: method_config(cfg, name).model_dump(mode="json") for name in cfg.methods}
+
+
+def point_config(
+    data: dict[str, Any], point: dict[str, Any], method: str, source: str
+) -> ExperimentConfig:
+    """One method's experiment at one point, validated.
+
+    Raises:
+        ConfigError: a key the experiment does not have, or a value it refuses (named with the
+            point's values and the method).
+    """
+    data = json.loads(json.dumps(data))  # a deep copy of plain data
+    for key, value in point.items():
+        apply_override(data, key.split("."), value, f"{key}={value!r}")
+    try:
+        return ExperimentConfig.model_validate(data)
+    except ValidationError as exc:
+        where = ", ".join(f"{k}={v!r}" for k, v in point.items())
+        raise ConfigError(
+            format_validation_error(exc, data, f"{source}: parameters ({where}), method {method}")
+        ) from None
+
+
+def load_sweep_config(path: str | Path, overrides: list[str] | None = None) -> SweepConfig:
+    """Load and validate a sweep config, and every (point, method) experiment it makes.
+
+    Raises:
+        ConfigError: naming the file and the dotted key (`parameters.<key>`, `methods.<name>`).
+    """
+    cfg = load_config(path, overrides, model=SweepConfig)
+    source = config_source(path, overrides)
+    points = sweep_points(cfg)
+    if len(points) > MAX_POINTS:
+        raise ConfigError(f"{source}: {len(points)} points; at most {MAX_POINTS} (split it)")
+    methods = _method_data(cfg)
+    for point in points:
+        for name, data in methods.items():
+            point_config(data, point, name, source)
+    return cfg
+
+
+# --- statistics -------------------------------------------------------------------------------
+
+
+def group_stats(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The ranking metrics of one (point, method) group over its episodes (seeds x targets).
+
+    Steps, smoothness and path length are over converged episodes (a run wandering to the
+    step limit accumulates them without bound); the final pixel error over all episodes.
+    """
+    conv = [r for r in rows if r.get("outcome") == "converged"]
+
+    def med(values: list[Any]) -> float | None:
+        return _quantiles([float(v) for v in values if v is not None])[1]
+
+    return {
+        "episodes": len(rows),
+        "converged": len(conv),
+        "errors": sum(r.get("outcome") == "error" for r in rows),
+        "success_rate": len(conv) / len(rows) if rows else None,
+        "steps_median": med([r.get("steps_to_converge") for r in conv]),
+        "final_pixel_error_median": med([r.get("final_pixel_error") for r in rows]),
+        "smoothness_median": med([r.get("smoothness") for r in conv]),
+        "path_length_median": med([r.get("path_length") for r in conv]),
+        "wall_time_median": med([r.get("wall_time_s") for r in rows]),
+    }
+
+
+def rank_groups(groups: list[dict[str, Any]], rank_by: list[str]) -> list[dict[str, Any]]:
+    """Groups sorted best first by `rank_by` (success rate descending, the others ascending);
+    a metric with no value (nothing converged) ranks last. Adds `rank` (1 = best)."""
+
+    def key(g: dict[str, Any]) -> tuple:
+        out = []
+        for m in rank_by:
+            v = g.get(m)
+            missing = v is None or (isinstance(v, float) and math.isnan(v))
+            out.append((missing, 0.0 if missing else (-v if METRICS[m] else v)))
+        return tuple(out)
+
+    ranked = sorted(groups, key=key)
+    for i, g in enumerate(ranked, 1):
+        g["rank"] = i
+    return ranked
+
+
+# --- the command ------------------------------------------------------------------------------
+
+
+def run_sweep(
+    config_path: str,
+    overrides: list[str],
+    out: str,
+    *,
+    progress: bool,
+    workers: int | None,
+    executor: str = "local",
+    address: str | None = None,
+    resume: str | None = None,
+) -> Path:
+    """Run the sweep of `config_path` into a new folder under `out` (or `resume`); return it.
+
+    Raises:
+        UserError: a bad config (any point or method), target or `resume` folder.
+        RunInterrupted: SIGINT/SIGTERM stopped it; finished episodes are written, partial.
+    """
+    wall0 = time.perf_counter()
+    cfg = load_sweep_config(config_path, overrides)
+    source = config_source(config_path, overrides)
+    points = sweep_points(cfg)
+    methods = _method_data(cfg)
+    _preflight(methods)
+    given = given_target_poses(cfg, Path(config_path).resolve().parent)
+    n_workers = workers or cfg.workers or os.cpu_count() or 1
+    pool = make_executor(executor, n_workers, address)
+    hashed = {"config": cfg.model_dump(mode="json", exclude={"workers"}), "targets": given}
+    run = start_run(out, cfg, "sweep", hashed, resume)
+    log = ResultsLog(run.path / "results.jsonl")
+    status, reason, rows, total = "failed", None, [], 0
+    try:
+        with pool, stop_handlers():
+            targets = {}
+            for s in cfg.seeds:
+                spec = SimpleNamespace(seed=s, targets=cfg.targets, base=cfg.base)
+                targets[s] = make_targets(
+                    spec,
+                    given,
+                    lambda ts, fn, s=s: run_tasks(pool, ts, fn, f"targets s{s}", progress),
+                )
+                write_targets(targets[s], run.path / f"targets_seed{s}.yaml")
+            tasks = _tasks(cfg, points, methods, targets, run.path, source)
+            total = len(tasks)
+            kept = finished_rows(log, tasks, rerun=lambda _t: False)
+            todo = [t for t in tasks if _row_key(t) not in kept]
+            new = stream_episodes(pool, todo, log, progress=progress, done_before=len(kept))
+            reason = stop_reason()
+        got = {_row_key(r): r for r in new if r is not None and r["outcome"] != "interrupted"}
+        rows = [kept.get(_row_key(t)) or got.get(_row_key(t)) for t in tasks]
+        rows = [r for r in rows if r is not None]
+        _report(
+            cfg, run.path, points, targets, rows, total, time.perf_counter() - wall0, pool, progress
+        )
+        status = "interrupted" if reason else "completed"
+        if reason:
+            raise RunInterrupted(run.path, reason, len(rows), total)
+        return run.path
+    except KeyboardInterrupt as exc:
+        status, reason = "interrupted", str(exc) or "SIGINT"
+        raise RunInterrupted(run.path, reason, len(rows), total) from None
+    finally:
+        extra = {"episodes": {"finished": len(rows), "total": total}}
+        run.finish(status, **({"error": f"interrupted by {reason}"} if reason else {}), **extra)
+        clear_stop()
+
+
+def _preflight(methods: dict[str, dict[str, Any]]) -> None:
+    """Build each method's feature once here, so a missing checkpoint fails before any work."""
+    from rodctl.features import make_feature_map
+
+    for data in methods.values():
+        ecfg = ExperimentConfig.model_validate(data)
+        make_feature_map(ecfg.feature, points=ecfg.camera.points)
+
+
+def _tasks(
+    cfg: SweepConfig,
+    points: list[dict[str, Any]],
+    methods: dict[str, dict[str, Any]],
+    targets: dict[int, list[CompareTarget]],
+    folder: Path,
+    source: str,
+) -> list[dict[str, Any]]:
+    """One task per (seed, target, point, method), target-major: a partial sweep has every
+    point on its first targets, so its ranking already means something."""
+    configs = {
+        (i, name): point_config(data, point, name, source).model_dump(mode="json")
+        for i, point in enumerate(points)
+        for name, data in methods.items()
+    }
+    tasks = []
+    for s in cfg.seeds:
+        for t in targets[s]:
+            for i, point in enumerate(points):
+                for name in methods:
+                    run_id = f"{name}_p{i:04d}_s{s}_t{t.index:03d}"
+                    log_dir = folder / "episodes" / run_id if cfg.keep_logs else None
+                    tasks.append(
+                        {
+                            "config": configs[(i, name)],
+                            "method": name,
+                            "target": t.index,
+                            "pose": [float(v) for v in t.pose],
+                            "seed": t.seed,
+                            "want_records": False,
+                            "log_dir": str(log_dir) if log_dir else None,
+                            "run_id": run_id,
+                            "tags": {
+                                "point": i,
+                                "seed": s,
+                                "difficulty": round(t.difficulty, 6),
+                                **point,
+                            },
+                        }
+                    )
+    return tasks
+
+
+def _cell(v: Any) -> Any:
+    """A CSV cell: lists and mappings as JSON, None as empty."""
+    if v is None:
+        return ""
+    if isinstance(v, list | tuple | dict):
+        return json.dumps(jsonable(v))
+    return v
+
+
+def _report(
+    cfg: SweepConfig,
+    folder: Path,
+    points: list[dict[str, Any]],
+    targets: dict[int, list[CompareTarget]],
+    rows: list[dict[str, Any]],
+    total: int,
+    wall: float,
+    pool: Any,
+    progress: bool,
+) -> None:
+    """results.csv, summary.json/md (ranked), figures; the ranked table on the terminal."""
+    keys = list(cfg.parameters)
+    partial = len(rows) < total
+    for r in rows:
+        r["converged"] = r.get("outcome") == "converged"
+    columns = ["point", "seed", *keys, *EPISODE_COLUMNS]
+    with (folder / "results.csv").open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: _cell(r.get(k)) for k in columns})
+    groups = []
+    method_names = list(cfg.methods) if cfg.methods is not None else ["base"]
+    for i, point in enumerate(points):
+        for m in method_names:
+            mine = [r for r in rows if r.get("point") == i and r["method"] == m]
+            groups.append({"point": i, "method": m, **point, **group_stats(mine)})
+    ranked = rank_groups(groups, cfg.rank_by)
+    summary = {
+        "name": cfg.name,
+        "search": cfg.search,
+        "rank_by": cfg.rank_by,
+        "parameters": keys,
+        "points": len(points),
+        "seeds": cfg.seeds,
+        "targets_per_seed": {str(s): len(t) for s, t in targets.items()},
+        "episodes": {"finished": len(rows), "total": total},
+        "partial": partial,
+        "executor": pool.name,
+        "workers": pool.workers,
+        "wall_time_s": round(wall, 2),
+        "ranking": ranked,
+    }
+    write_json_atomic(folder / "summary.json", summary)
+    header, lines = _summary_table(ranked, keys, cfg.rank_by)
+    text = [f"# rodctl sweep: {cfg.name}", ""]
+    if partial:
+        text += [
+            f"**PARTIAL**: interrupted; {len(rows)} of {total} episodes finished and are "
+            "counted here. `rodctl sweep CONFIG --resume FOLDER` finishes it.",
+            "",
+        ]
+    text += [
+        f"{cfg.search} search, {len(points)} points x {len(method_names)} method(s) x seeds "
+        f"{cfg.seeds} x {sum(len(t) for t in targets.values())} targets; ranked by "
+        f"{', '.join(cfg.rank_by)} (success rate: higher is better; others lower). Steps: "
+        f"median steps to converge over converged episodes. Wall time {wall:.0f} s on "
+        f"{pool.workers} {pool.name} worker(s).",
+        "",
+        markdown_table(header, lines),
+        "",
+    ]
+    (folder / "summary.md").write_text("\n".join(text), encoding="utf-8")
+    if rows:
+        for key in keys:
+            metric_figure(
+                rows, key, cfg.rank_by[0], method_names, folder / "figures" / _fig_name(cfg, key)
+            )
+    if progress:
+        from rich.table import Table
+
+        from rodctl.display import stderr
+
+        table = Table(title=f"{cfg.name}: {len(rows)}/{total} episodes, {wall:.0f} s")
+        for h in header:
+            table.add_column(h)
+        for line in lines[:20]:
+            table.add_row(*line)
+        stderr.print(table)
+
+
+def _fig_name(cfg: SweepConfig, key: str) -> str:
+    return f"{cfg.rank_by[0]}_vs_{key.replace('.', '_')}.png"
+
+
+def _fmt(v: Any, spec: str) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "–"
+    return format(v, spec)
+
+
+def _summary_table(
+    ranked: list[dict[str, Any]], keys: list[str], rank_by: list[str]
+) -> tuple[list[str], list[list[str]]]:
+    header = ["rank", "point", "method", *keys, "success", "steps", "final px", "smooth.", "errors"]
+    lines = []
+    for g in ranked:
+        rate = g["success_rate"]
+        pct = _fmt(None if rate is None else 100 * rate, ".0f")
+        lines.append(
+            [
+                str(g["rank"]),
+                str(g["point"]),
+                g["method"],
+                *[json.dumps(jsonable(g[k])) for k in keys],
+                f"{g['converged']}/{g['episodes']} ({pct}%)",
+                _fmt(g["steps_median"], ".1f"),
+                _fmt(g["final_pixel_error_median"], ".2f"),
+                _fmt(g["smoothness_median"], ".3f"),
+                str(g["errors"]),
+            ]
+        )
+    return header, lines
+
+
+def metric_figure(
+    rows: list[dict[str, Any]], key: str, metric: str, methods: list[str], path: Path
+) -> Path:
+    """`metric` against the values of one swept key (pooled over the other keys), per method.
+
+    Numeric values get a numeric axis (log when they span more than two decades); any other
+    value (a list of weights) is a category labelled by its value.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    values = []
+    for r in rows:
+        v = r.get(key)
+        if v not in values:
+            values.append(v)
+    numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in values)
+    if numeric:
+        values = sorted(values)
+    fig = Figure(figsize=(6.4, 4.2), layout="constrained")
+    ax = fig.subplots()
+    for m in methods:
+        ys = [
+            group_stats([r for r in rows if r["method"] == m and r.get(key) == v])[metric]
+            for v in values
+        ]
+        xs = values if numeric else list(range(len(values)))
+        ax.plot(xs, [np.nan if y is None else y for y in ys], marker="o", label=m)
+    if numeric:
+        positive = [v for v in values if v > 0]
+        if len(positive) == len(values) and max(values) / min(values) > 100:
+            ax.set_xscale("log")
+    else:
+        ax.set_xticks(range(len(values)))
+        ax.set_xticklabels([json.dumps(jsonable(v)) for v in values], rotation=20, fontsize=7)
+    ax.set_xlabel(key)
+    ax.set_ylabel(metric.replace("_", " "))
+    if metric == "success_rate":
+        ax.set_ylim(-0.05, 1.05)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(f"{metric} against {key}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def read_results(folder: str | Path) -> list[dict[str, Any]]:
+    """The rows of a sweep's results.csv (strings, as written)."""
+    with (Path(folder) / "results.csv").open(encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+__all__ = [
+    "RunInterrupted",
+    "UserError",
+    "load_sweep_config",
+    "metric_figure",
+    "rank_groups",
+    "read_results",
+    "run_sweep",
+    "sweep_points",
+]
