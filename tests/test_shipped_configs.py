@@ -15,7 +15,7 @@ from rodctl.env import ShapeServoEnv
 from rodctl.episode import run_episode
 from rodctl.method import Method
 
-EXPERIMENTS = [p for p in CONFIGS if not p.name.startswith("compare")]
+EXPERIMENTS = [p for p in CONFIGS if not p.name.startswith(("compare", "sweep"))]
 if plugin_installed():
     EXPERIMENTS += [p for p in PLUGIN_CONFIGS if not p.name.startswith("compare")]
 SHORT = ["logging.mcap=false", "logging.rerun=false", "logging.figures=false"]
@@ -47,7 +47,7 @@ def test_replay_verify_reproduces_every_shipped_config(path, tmp_path):
     from rodctl.cli import app
 
     runner = CliRunner()
-    short = ["--set", "run.max_steps=10", "--set", "logging.rerun=false"]
+    short = ["--set", "run.max_steps=14", "--set", "logging.rerun=false"]
     short += ["--set", "logging.figures=false"]
     res = runner.invoke(app, ["simulate", str(path), "-q", "-o", str(tmp_path), *short])
     assert res.exit_code in (0, 1), res.output
