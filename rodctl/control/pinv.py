@@ -12,7 +12,7 @@ so that is the same law. Assumptions we made:
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field, PositiveFloat
@@ -25,13 +25,11 @@ from rodctl.registry import CONTROLLERS, BuildContext
 class PinvController:
     """Saturated pseudo-inverse shape servo, stateless."""
 
-    def __init__(self, gain: float = 0.5, error_limit: float = 0.5, rcond: float = 1e-4) -> None:
-        """Args: gain: lambda in (0, 1]; error_limit: sat bound per feature; rcond: pinv cutoff."""
-        if not 0.0 < gain <= 1.0:
-            raise ValueError(f"gain must be in (0, 1], got {gain}")
-        if not error_limit > 0.0:
-            raise ValueError(f"error_limit must be positive, got {error_limit}")
-        self._gain, self._limit, self._rcond = float(gain), float(error_limit), float(rcond)
+    def __init__(self, **settings: Any) -> None:
+        """Args: **settings: fields of `PinvControllerConfig` (gain lambda, error_limit of sat,
+        rcond of the pseudo-inverse): its defaults and checks are the only ones."""
+        cfg = PinvControllerConfig(**settings)
+        self._gain, self._limit, self._rcond = cfg.gain, cfg.error_limit, cfg.rcond
 
     def reset(self) -> None:
         """Nothing to forget: the law is memoryless."""
@@ -74,4 +72,4 @@ class PinvControllerConfig(StrictModel):
 
 @CONTROLLERS.register(PinvControllerConfig)
 def _build(cfg: PinvControllerConfig, ctx: BuildContext) -> PinvController:
-    return PinvController(gain=cfg.gain, error_limit=cfg.error_limit, rcond=cfg.rcond)
+    return PinvController(**cfg.model_dump(exclude={"type"}))

@@ -19,7 +19,7 @@ tolerance to tune, at most 27 solves of at most 3 x 3.
 from __future__ import annotations
 
 import itertools
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field
@@ -87,19 +87,17 @@ def solve_box_qp(H: np.ndarray, g: np.ndarray, lower: np.ndarray, upper: np.ndar
 class QpController:
     """Box-bounded regularised least-squares step towards the target, stateless."""
 
-    def __init__(
-        self, max_step: np.ndarray, gain: float = 0.3, r_weights: np.ndarray = (1.0, 1.0, 1.0)
-    ) -> None:
-        """Args: max_step: (q,) per-axis bound; gain: lambda in (0, 1]; r_weights: (q,) diag R."""
+    def __init__(self, max_step: np.ndarray, **settings: Any) -> None:
+        """Args: max_step: (q,) per-axis bound; **settings: fields of `QpControllerConfig`
+        (gain lambda, r_weights the diagonal of R): its defaults and checks are the only ones."""
+        if "r_weights" in settings:
+            settings["r_weights"] = tuple(np.asarray(settings["r_weights"], dtype=float).tolist())
+        cfg = QpControllerConfig(**settings)
         self._max = np.asarray(max_step, dtype=float)
-        self._R = np.diag(np.asarray(r_weights, dtype=float))
+        self._R = np.diag(np.asarray(cfg.r_weights, dtype=float))
         if not np.all(self._max > 0.0):
             raise ValueError(f"max_step must be positive, got {self._max.tolist()}")
-        if self._R.shape != (self._max.size, self._max.size) or not np.all(np.diag(self._R) > 0):
-            raise ValueError("r_weights must be q positive numbers")
-        if not 0.0 < gain <= 1.0:
-            raise ValueError(f"gain must be in (0, 1], got {gain}")
-        self._gain = float(gain)
+        self._gain = float(cfg.gain)
 
     def reset(self) -> None:
         """Nothing to forget: the law is memoryless."""
@@ -144,4 +142,4 @@ class QpControllerConfig(StrictModel):
 
 @CONTROLLERS.register(QpControllerConfig)
 def _build(cfg: QpControllerConfig, ctx: BuildContext) -> QpController:
-    return QpController(ctx.max_step, gain=cfg.gain, r_weights=cfg.r_weights)
+    return QpController(ctx.max_step, **cfg.model_dump(exclude={"type"}))

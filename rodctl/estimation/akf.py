@@ -20,7 +20,7 @@ Why it is written the way it is:
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field, PositiveFloat, model_validator
@@ -123,56 +123,25 @@ class AdaptiveKalmanJacobian:
         q: command dimension.
     """
 
-    def __init__(
-        self,
-        p: int,
-        q: int,
-        *,
-        p0: float = 10.0,
-        q0: float = 1e-2,
-        r0: float = 1e-4,
-        c0: float = 1.5,
-        c1: float = 6.0,
-        alpha_floor: float = 1e-3,
-        forgetting: float = 0.95,
-        r_update: Literal["eq33", "eq32"] = "eq33",
-        q_min: float = 1e-8,
-        r_min: float = 1e-8,
-        dead_zone: float = 1e-4,
-    ) -> None:
+    def __init__(self, p: int, q: int, **settings: Any) -> None:
         """Build the filter; it starts at J = 0 until `reset` gives it J_0.
 
         Args:
             p: feature dimension.
             q: command dimension.
-            p0: P_0 = p0 I (pq, pq).
-            q0: Q_0 = q0 I (pq, pq).
-            r0: R_0 = r0 I (p, p).
-            c0: IGG-III lower threshold (eq. 29).
-            c1: IGG-III upper threshold (eq. 29), > c0.
-            alpha_floor: clamp for alpha in (0, 1].
-            forgetting: fading-memory factor b in (0, 1).
-            r_update: "eq33" (biased, the paper's recommendation) or "eq32" (unbiased).
-            q_min: eigenvalue floor of Q.
-            r_min: eigenvalue floor of R.
-            dead_zone: skip updates with ||u|| below this.
+            **settings: fields of `AkfEstimatorConfig` (p0, q0, r0, c0, c1, alpha_floor,
+                forgetting, r_update, q_min, r_min, dead_zone); its defaults and checks are the
+                only ones (an unknown or out-of-range setting is a `ValueError`).
         """
-        if not 0.0 < c0 < c1:
-            raise ValueError(f"need 0 < c0 < c1, got c0={c0}, c1={c1}")
-        if not 0.0 < alpha_floor <= 1.0:
-            raise ValueError(f"alpha_floor must be in (0, 1], got {alpha_floor}")
-        if not 0.0 < forgetting < 1.0:
-            raise ValueError(f"forgetting factor b must be in (0, 1), got {forgetting}")
-        if r_update not in ("eq33", "eq32"):
-            raise ValueError(f"r_update must be 'eq33' or 'eq32', got {r_update!r}")
+        cfg = AkfEstimatorConfig(**settings)
         self.p, self.q = int(p), int(q)
         self._n = self.p * self.q
-        self._p0, self._q0, self._r0 = float(p0), float(q0), float(r0)
-        self._c0, self._c1, self._floor = float(c0), float(c1), float(alpha_floor)
-        self._b = float(forgetting)
-        self._eq32 = r_update == "eq32"
-        self._q_min, self._r_min = float(q_min), float(r_min)
-        self._dead_zone = float(dead_zone)
+        self._p0, self._q0, self._r0 = cfg.p0, cfg.q0, cfg.r0
+        self._c0, self._c1, self._floor = cfg.c0, cfg.c1, cfg.alpha_floor
+        self._b = cfg.forgetting
+        self._eq32 = cfg.r_update == "eq32"
+        self._q_min, self._r_min = cfg.q_min, cfg.r_min
+        self._dead_zone = cfg.dead_zone
         self._q_eye = self._q_min * np.eye(self._n)
         self._r_eye = self._r_min * np.eye(self.p)
         self.reset(np.zeros((self.p, self.q)))
@@ -332,18 +301,4 @@ class AkfEstimatorConfig(StrictModel):
 
 @ESTIMATORS.register(AkfEstimatorConfig)
 def _build(cfg: AkfEstimatorConfig, ctx: BuildContext) -> AdaptiveKalmanJacobian:
-    return AdaptiveKalmanJacobian(
-        ctx.p,
-        ctx.q,
-        p0=cfg.p0,
-        q0=cfg.q0,
-        r0=cfg.r0,
-        c0=cfg.c0,
-        c1=cfg.c1,
-        alpha_floor=cfg.alpha_floor,
-        forgetting=cfg.forgetting,
-        r_update=cfg.r_update,
-        q_min=cfg.q_min,
-        r_min=cfg.r_min,
-        dead_zone=cfg.dead_zone,
-    )
+    return AdaptiveKalmanJacobian(ctx.p, ctx.q, **cfg.model_dump(exclude={"type"}))

@@ -10,7 +10,7 @@ section 6.2), not the authors' code. Assumptions we made, since the sources do n
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field
@@ -28,20 +28,19 @@ class BroydenJacobian:
     is unchanged on directions orthogonal to dr, so q independent moves recover a constant J.
     """
 
-    def __init__(self, p: int, q: int, *, gamma: float = 1.0, dead_zone: float = 1e-4) -> None:
+    def __init__(self, p: int, q: int, **settings: Any) -> None:
         """Build the estimator at J = 0 until `reset`.
 
         Args:
             p: feature dimension.
             q: command dimension.
-            gamma: step size in (0, 1] (method-notes: gamma).
-            dead_zone: skip updates with ||dr|| below this.
+            **settings: fields of `BroydenEstimatorConfig` (gamma, dead_zone): its defaults
+                and checks are the only ones.
         """
-        if not 0.0 < gamma <= 1.0:
-            raise ValueError(f"gamma must be in (0, 1], got {gamma}")
+        cfg = BroydenEstimatorConfig(**settings)
         self.p, self.q = int(p), int(q)
-        self._gamma = float(gamma)
-        self._dead_zone = float(dead_zone)
+        self._gamma = float(cfg.gamma)
+        self._dead_zone = float(cfg.dead_zone)
         self.reset(np.zeros((self.p, self.q)))
 
     @property
@@ -93,4 +92,4 @@ class BroydenEstimatorConfig(StrictModel):
 
 @ESTIMATORS.register(BroydenEstimatorConfig)
 def _build(cfg: BroydenEstimatorConfig, ctx: BuildContext) -> BroydenJacobian:
-    return BroydenJacobian(ctx.p, ctx.q, gamma=cfg.gamma, dead_zone=cfg.dead_zone)
+    return BroydenJacobian(ctx.p, ctx.q, **cfg.model_dump(exclude={"type"}))

@@ -13,7 +13,7 @@ code. Assumptions we made:
 from __future__ import annotations
 
 from collections import deque
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field
@@ -27,27 +27,21 @@ from rodctl.registry import ESTIMATORS, BuildContext
 class WindowedLsJacobian:
     """Least squares over the most recent `window` (dr, ds) pairs, ridge towards J_prev."""
 
-    def __init__(
-        self, p: int, q: int, *, window: int = 10, ridge: float = 1e-6, dead_zone: float = 1e-4
-    ) -> None:
+    def __init__(self, p: int, q: int, **settings: Any) -> None:
         """Build the estimator at J = 0 until `reset`.
 
         Args:
             p: feature dimension.
             q: command dimension.
-            window: number of most recent informative pairs fitted.
-            ridge: mu >= 0 (command units squared); 0 falls back to plain least squares once
-                the window spans all axes and keeps J_prev until then.
-            dead_zone: skip updates with ||dr|| below this.
+            **settings: fields of `WindowedLsEstimatorConfig` (window, ridge, dead_zone): its
+                defaults and checks are the only ones. ridge = 0 falls back to plain least
+                squares once the window spans all axes and keeps J_prev until then.
         """
-        if window < 1:
-            raise ValueError(f"window must be >= 1, got {window}")
-        if ridge < 0.0:
-            raise ValueError(f"ridge must be >= 0, got {ridge}")
+        cfg = WindowedLsEstimatorConfig(**settings)
         self.p, self.q = int(p), int(q)
-        self._window = int(window)
-        self._ridge = float(ridge)
-        self._dead_zone = float(dead_zone)
+        self._window = int(cfg.window)
+        self._ridge = float(cfg.ridge)
+        self._dead_zone = float(cfg.dead_zone)
         self.reset(np.zeros((self.p, self.q)))
 
     @property
@@ -122,6 +116,4 @@ class WindowedLsEstimatorConfig(StrictModel):
 
 @ESTIMATORS.register(WindowedLsEstimatorConfig)
 def _build(cfg: WindowedLsEstimatorConfig, ctx: BuildContext) -> WindowedLsJacobian:
-    return WindowedLsJacobian(
-        ctx.p, ctx.q, window=cfg.window, ridge=cfg.ridge, dead_zone=cfg.dead_zone
-    )
+    return WindowedLsJacobian(ctx.p, ctx.q, **cfg.model_dump(exclude={"type"}))

@@ -7,9 +7,14 @@ tolerances and dead zones can be set per feature without knowing which feature i
 
 from __future__ import annotations
 
-from typing import Protocol
+from collections.abc import Callable
+from typing import Protocol, TypeVar
 
 import numpy as np
+
+from rodctl.errors import UserError
+
+T = TypeVar("T")
 
 
 class FeatureMap(Protocol):
@@ -38,3 +43,12 @@ class FeatureMap(Protocol):
     def encode_batch(self, centerlines_px: np.ndarray) -> np.ndarray:
         """(B, N, 2) -> (B, p)."""
         ...
+
+
+def build_checked(kind: str, points: int, make: Callable[[], T]) -> T:
+    """`make()`, with a ValueError (a combination one config model alone cannot check, such as
+    a degree too high for N points) turned into a `UserError` naming the feature and N."""
+    try:
+        return make()
+    except ValueError as exc:
+        raise UserError(f"feature ({kind}) with camera.points={points}: {exc}") from None

@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import Field
 
 from rodctl.config.base import StrictModel
-from rodctl.errors import UserError
+from rodctl.features.base import build_checked
 from rodctl.features.linear import LinearBasisFeatureMap
 from rodctl.registry import FEATURES, BuildContext
 
@@ -75,7 +75,4 @@ class BezierFeatureConfig(StrictModel):
 
 @FEATURES.register(BezierFeatureConfig)
 def _build(cfg: BezierFeatureConfig, ctx: BuildContext) -> BezierFeatureMap:
-    try:
-        return BezierFeatureMap(cfg.degree, ctx.points)
-    except ValueError as exc:  # a combination one model alone cannot check (e.g. with N)
-        raise UserError(f"feature ({cfg.type}) with camera.points={ctx.points}: {exc}") from None
+    return build_checked(cfg.type, ctx.points, lambda: BezierFeatureMap(cfg.degree, ctx.points))

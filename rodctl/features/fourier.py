@@ -28,7 +28,7 @@ import numpy as np
 from pydantic import Field
 
 from rodctl.config.base import StrictModel
-from rodctl.errors import UserError
+from rodctl.features.base import build_checked
 from rodctl.features.linear import LinearBasisFeatureMap
 from rodctl.registry import FEATURES, BuildContext
 
@@ -78,7 +78,4 @@ class FourierFeatureConfig(StrictModel):
 
 @FEATURES.register(FourierFeatureConfig)
 def _build(cfg: FourierFeatureConfig, ctx: BuildContext) -> FourierFeatureMap:
-    try:
-        return FourierFeatureMap(cfg.harmonics, ctx.points)
-    except ValueError as exc:  # a combination one model alone cannot check (e.g. with N)
-        raise UserError(f"feature ({cfg.type}) with camera.points={ctx.points}: {exc}") from None
+    return build_checked(cfg.type, ctx.points, lambda: FourierFeatureMap(cfg.harmonics, ctx.points))

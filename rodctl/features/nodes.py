@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from rodctl.config.base import StrictModel
-from rodctl.errors import UserError
+from rodctl.features.base import build_checked
 from rodctl.features.geometry import check_centerlines, resample_uniform
 from rodctl.registry import FEATURES, BuildContext
 
@@ -85,7 +85,4 @@ class NodesFeatureConfig(StrictModel):
 
 @FEATURES.register(NodesFeatureConfig)
 def _build(cfg: NodesFeatureConfig, ctx: BuildContext) -> NodesFeatureMap:
-    try:
-        return NodesFeatureMap(cfg.positions, ctx.points)
-    except ValueError as exc:  # a combination one model alone cannot check (e.g. with N)
-        raise UserError(f"feature ({cfg.type}) with camera.points={ctx.points}: {exc}") from None
+    return build_checked(cfg.type, ctx.points, lambda: NodesFeatureMap(cfg.positions, ctx.points))

@@ -154,7 +154,7 @@ def test_reset_restores_the_initial_covariances():
 
 
 def test_invalid_thresholds_are_rejected():
-    with pytest.raises(ValueError, match="c0 < c1"):
+    with pytest.raises(ValueError, match="c0 must be smaller than c1"):
         AdaptiveKalmanJacobian(P, Q, c0=5.0, c1=3.0)
     with pytest.raises(ValueError, match="forgetting"):
         AdaptiveKalmanJacobian(P, Q, forgetting=1.0)
