@@ -105,6 +105,20 @@ def first_mode_rate(
     return wavenumber * math.sqrt(bending_stiffness / j_per_length)
 
 
+def _table_joints(space: pymunk.Space, bodies: list) -> list[pymunk.Constraint]:
+    """pymunk's top-down friction: per segment a pivot (sliding) and a gear (turning) joint to
+    the static body, with no position correction; their max forces are set from mu."""
+    joints: list[pymunk.Constraint] = []
+    for body in bodies:
+        slide = pymunk.PivotJoint(space.static_body, body, (0, 0), (0, 0))
+        spin = pymunk.GearJoint(space.static_body, body, 0.0, 1.0)
+        for joint in (slide, spin):
+            joint.max_bias = 0.0  # friction resists velocity only, no position pull-back
+            joint.collide_bodies = False
+        joints += [slide, spin]
+    return joints
+
+
 class RodChain:
     """A planar elastic rod as a pymunk chain, clamped at one end, gripped or free at the other.
 
@@ -176,7 +190,7 @@ class RodChain:
         self.tip_force = None if tip_force is None else (float(tip_force[0]), float(tip_force[1]))
         self.steps = 0
 
-        n, seg = self.segments, self.seg_length
+        seg = self.seg_length
         mass = mass_per_length * seg
         inertia = segment_rotary_inertia(length, mass_per_length, segments, inertia_radius)
         if segment_inertia is not None:
@@ -193,21 +207,56 @@ class RodChain:
             space.gravity = self.gravity
         # Velocities are multiplied by damping**dt each step: damping = e^(-c) per second.
         space.damping = math.exp(-damping_rate)
-        # Undo the spring softening by damping**dt (pitfall 2 of rod-validation.md).
+        # Undo the spring softening by damping**dt: pymunk multiplies every velocity, the springs'
+        # included, by damping**dt each step, which would soften the settled stiffness.
         soften = math.exp(-damping_rate * self.dt)  # = damping**dt, without the underflow
         k_in = bending_stiffness / seg / soften
         k_end = 2.0 * bending_stiffness / seg / soften
 
+        bodies = self._add_segments(space, mass, inertia)
+        constraints = self._joints(space, bodies, k_in, k_end, movable_clamp, gripped)
+        self.table_friction = None if table_friction is None else float(table_friction)
+        self.table_gravity = float(table_gravity)
+        self.friction_joints: list[pymunk.Constraint] = []
+        if self.table_friction is not None:
+            self.friction_joints = _table_joints(space, bodies)
+            self.set_table_friction(self.table_friction)
+            constraints.extend(self.friction_joints)
+        space.add(*constraints)
+        self.space = space
+        self.bodies = bodies
+        self._pivots = [c for c in constraints if isinstance(c, pymunk.PivotJoint)]
+        self._index_readout()
+
+    def _add_segments(self, space: pymunk.Space, mass: float, inertia: float) -> list:
+        """The N segments, straight along the clamp direction."""
         x0, y0, th0 = self.clamp_pose
         ux, uy = math.cos(th0), math.sin(th0)
         bodies = []
-        for i in range(n):
+        for i in range(self.segments):
             body = pymunk.Body(mass, inertia)
-            body.position = (x0 + (i + 0.5) * seg * ux, y0 + (i + 0.5) * seg * uy)
+            body.position = (
+                x0 + (i + 0.5) * self.seg_length * ux,
+                y0 + (i + 0.5) * self.seg_length * uy,
+            )
             body.angle = th0
             bodies.append(body)
         space.add(*bodies)
+        return bodies
 
+    def _joints(
+        self,
+        space: pymunk.Space,
+        bodies: list,
+        k_in: float,
+        k_end: float,
+        movable_clamp: bool,
+        gripped: bool,
+    ) -> list[pymunk.Constraint]:
+        """Pivots and bending springs: clamp, between segments, and the gripper."""
+        n, seg = self.segments, self.seg_length
+        x0, y0, th0 = self.clamp_pose
+        ux, uy = math.cos(th0), math.sin(th0)
         half = seg / 2.0
         constraints: list[pymunk.Constraint] = []
         # Clamp: pivot at the clamp point + spring of 2EI/l; torque = (a.angle - b.angle - rest)k
@@ -243,31 +292,17 @@ class RodChain:
             constraints.append(pymunk.PivotJoint(grip, bodies[-1], (0, 0), (half, 0)))
             constraints.append(pymunk.DampedRotarySpring(bodies[-1], grip, 0, k_end, 0))
             self.gripper = grip
-        self.friction_joints: list[pymunk.Constraint] = []
-        self.table_friction = None if table_friction is None else float(table_friction)
-        self.table_gravity = float(table_gravity)
-        if self.table_friction is not None:
-            for body in bodies:
-                slide = pymunk.PivotJoint(space.static_body, body, (0, 0), (0, 0))
-                spin = pymunk.GearJoint(space.static_body, body, 0.0, 1.0)
-                for joint in (slide, spin):
-                    joint.max_bias = 0.0  # friction resists velocity only, no position pull-back
-                    joint.collide_bodies = False
-                self.friction_joints += [slide, spin]
-            self.set_table_friction(self.table_friction)
-            constraints.extend(self.friction_joints)
-        space.add(*constraints)
-        self.space = space
-        self.bodies = bodies
-        self._pivots = [c for c in constraints if isinstance(c, pymunk.PivotJoint)]
+        return constraints
 
-        # Batch readout: the buffer also holds the static body (a constraint is attached to it)
-        # and the gripper; find the segment rows by body id once (research/simulation.md §1.1).
+    def _index_readout(self) -> None:
+        """Batch readout: the buffer also holds the static body (a constraint is attached to
+        it) and the gripper; find the segment rows by body id once."""
+        n = self.segments
         self._buf = pbatch.Buffer()
-        pbatch.get_space_bodies(space, pbatch.BodyFields.BODY_ID, self._buf)
+        pbatch.get_space_bodies(self.space, pbatch.BodyFields.BODY_ID, self._buf)
         ids = np.frombuffer(self._buf.int_buf(), dtype=np.uintp).copy()
         row_of = {int(v): r for r, v in enumerate(ids)}
-        self._rows = np.array([row_of[b.id] for b in bodies], dtype=np.intp)
+        self._rows = np.array([row_of[b.id] for b in self.bodies], dtype=np.intp)
         self._nrows = len(ids)
         first = int(self._rows[0])
         self._contiguous = bool(np.array_equal(self._rows, np.arange(first, first + n)))
