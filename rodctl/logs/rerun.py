@@ -249,6 +249,15 @@ class RerunSink:
                 numeric_env=json.dumps(codec.sanitize(header.numeric_env), sort_keys=True),
             ),
         )
+        self._log_static_scene(rec, header)
+        rec.set_time("step", sequence=0)
+        rec.set_time("sim_time", duration=np.timedelta64(0, "ns"))
+        level, text = codec.open_log_line(header)
+        rec.log("/log", rr.TextLog(text, level=level))
+
+    def _log_static_scene(self, rec: rr.RecordingStream, header: RunHeader) -> None:
+        """What does not change during the run: the target, the clamp, and each entity's style
+        (colours, radii, draw order, series names), so the per-step batches carry data only."""
         target = flip_y(header.target_centerline)
         clamp = flip_y(header.clamp_pose[:2])
         self._extend(target)
@@ -315,10 +324,6 @@ class RerunSink:
             rec.log(
                 f"/control/u/{axis}", rr.SeriesLines(names=f"u_{axis}", colors=[color]), static=True
             )
-        rec.set_time("step", sequence=0)
-        rec.set_time("sim_time", duration=np.timedelta64(0, "ns"))
-        level, text = codec.open_log_line(header)
-        rec.log("/log", rr.TextLog(text, level=level))
 
     def write(self, record: StepRecord) -> None:
         """Buffer one step; every `flush_every_steps` steps the buffer is sent as columns.
