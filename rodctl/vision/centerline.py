@@ -555,19 +555,29 @@ class CenterlineExtractor:
                 f"image is {img.shape[1]}x{img.shape[0]}, camera is "
                 f"{self.camera.width}x{self.camera.height}"
             )
-        n_out = self.points
-        fail = np.full((n_out, 2), np.nan)
+        fail = np.full((self.points, 2), np.nan)
         grip_px = grip_dir = None
         if gripper_pose is not None:
             grip_px, grip_dir = self.camera.project_pose_direction(np.asarray(gripper_pose))
-        on_gap = self.cfg.extract.on_gap
+        line, widths, gaps, why = self._trace(img, grip_px, grip_dir)
+        if line is None:
+            return Extraction(fail, False, why)
+        # Refine every point across the band, on a resampled curve (one vectorised call).
+        return self._finish(img, line, widths, gaps, fail)
 
+    def _trace(
+        self, img: np.ndarray, grip_px: np.ndarray | None, grip_dir: np.ndarray | None
+    ) -> tuple[np.ndarray | None, list[float], list[float], str]:
+        """Walk from the clamp, bridging gaps while the rod keeps reappearing.
+
+        Returns:
+            (the traced polyline or None, cross-section widths, gap lengths, why it failed).
+        """
         # --- walk from the clamp, bridging gaps while the rod keeps reappearing
         p, d, turn = self._start.copy(), self._start_dir.copy(), 0.0
         path = [p]
         widths: list[float] = []
         gaps: list[float] = []
-        note = ""
         # Is the rod visible right at the clamp? If not, the start itself is hidden.
         first = self._cross_sections(
             img,
@@ -583,7 +593,7 @@ class CenterlineExtractor:
                 first = _OK
                 found = self._reappear(img, p, d, turn, self._band_prior)
                 if found is None:
-                    return Extraction(fail, False, "the rod is not visible at the clamp")
+                    return None, widths, gaps, "the rod is not visible at the clamp"
                 gaps.append(float(np.hypot(*(found[0] - p))))
                 p, d = found
                 path.append(p)
@@ -591,7 +601,7 @@ class CenterlineExtractor:
             path.extend(pts)
             widths.extend(w)
             if why:
-                return Extraction(fail, False, why)
+                return None, widths, gaps, why
             p = path[-1]
             band = float(np.median(widths)) if widths else self._band_prior
             end, end_dir = self._find_end(img, p, d, turn, 0.5 * band)
@@ -612,9 +622,7 @@ class CenterlineExtractor:
                 # the hidden stretch runs to the gripper: bridge onto its pose, if short enough
                 gap = float(np.hypot(*(grip_px - end)))
                 if gap > self.cfg.extract.max_gap_px:
-                    return Extraction(
-                        fail, False, f"the rod is lost {gap:.0f} px before the gripper"
-                    )
+                    return None, widths, gaps, f"the rod is lost {gap:.0f} px before the gripper"
                 path = self._trim_after(path, end, end_dir)
                 path.append(end)
                 path.extend(_hermite(end, end_dir, grip_px, grip_dir, 12)[1:])
@@ -625,22 +633,33 @@ class CenterlineExtractor:
             p, d = found
             path.append(p)
         else:
-            return Extraction(fail, False, "too many gaps along the rod")
+            return None, widths, gaps, "too many gaps along the rod"
         if not closed:
             path = self._trim_after(path, end, end_dir)
             path.append(end)
         line = np.array(path)
         if len(line) < 3 or polyline_length(line) < 2 * self._step:
-            return Extraction(fail, False, "no rod found next to the clamp")
+            return None, widths, gaps, "no rod found next to the clamp"
 
-        # --- refine every point across the band, on a resampled curve (one vectorised call)
+        return line, widths, gaps, ""
+
+    def _finish(
+        self,
+        img: np.ndarray,
+        line: np.ndarray,
+        widths: list[float],
+        gaps: list[float],
+        fail: np.ndarray,
+    ) -> Extraction:
+        """Refine and resample the traced line to N points, then judge it: bridged gaps and a
+        traced length unlike the rod's make the frame not ok."""
         line = self._refine(img, line, float(np.median(widths)) if widths else self._band_prior)
-        out = self._resample_out(line, n_out)
+        out = self._resample_out(line, self.points)
         if not np.isfinite(out).all():
             return Extraction(fail, False, "the traced rod leaves the plane's visible side")
         if gaps:
             note = f"occluded: bridged {len(gaps)} gap(s), {sum(gaps):.0f} px in all"
-            if on_gap == "fail":
+            if self.cfg.extract.on_gap == "fail":
                 return Extraction(fail, False, note)
             return Extraction(out, False, note, bridged=True)
         if self.rod_length is not None:
@@ -653,7 +672,7 @@ class CenterlineExtractor:
                     f"traced length {length:.3f} m differs from the rod's {self.rod_length:.3f} m "
                     f"by {100 * rel:+.0f} %: occluded or confused",
                 )
-        return Extraction(out, True, note)
+        return Extraction(out, True)
 
     @staticmethod
     def _trim_after(path: list[np.ndarray], end: np.ndarray, d: np.ndarray) -> list[np.ndarray]:
