@@ -11,7 +11,7 @@ method, the baselines and a scripted path happens here, through what each stage 
   an episode goes to the estimator's `prepare` hook instead: the offline ASAP model builds its
   Jacobian from the first image there (and then needs no probing).
 
-Probing (method-notes "how J_0 starts"; docs/method.md): q + 1 small moves and a least-squares
+Probing (docs/method.md §4): q + 1 small moves and a least-squares
 fit give J_0 for the online estimators. A frame whose centerline was not extracted gives no
 feature: the moves made since the last good frame are summed, so each Δs is paired with the Δr
 that caused it.

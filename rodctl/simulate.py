@@ -25,7 +25,7 @@ from rodctl.method import Method
 from rodctl.records import RunSummary, StepRecord
 from rodctl.runs import RunDir, write_json_best_effort
 
-#: Exit codes of `rodctl simulate` (architecture.md, CLI contract).
+#: Exit codes of `rodctl simulate` (README, "Exit codes and failure behaviour").
 EXIT_OK, EXIT_RUN_FAILED = 0, 1
 
 

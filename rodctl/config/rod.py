@@ -1,7 +1,7 @@
 """Config of the simulated rod (pymunk chain) and the robot gripper that holds it.
 
 Owned by `rodctl/sim/`. Defaults describe a 0.5 m elastic rod (EI = 5e-3 N m^2, rho*A =
-0.0785 kg/m, the cable measured in shared/reference/research/simulation.md).
+0.0785 kg/m, a typical power cable).
 
 The integrator keys (`dt`, `iterations`, `damping`, `inertia_radius`) are tuned for the quasi-static
 use the experiment makes of the rod: only the settled shape matters, and it does not depend on the

@@ -1,4 +1,4 @@
-"""The paper's MFAC velocity law with performance regulation (eqs. 19-24, method-notes section 2).
+"""The paper's MFAC velocity law with performance regulation (eqs. 19-24, docs/method.md §5).
 
 The law is the exact minimiser of a quadratic cost in the next command u_k,
 
@@ -10,7 +10,7 @@ so it is written as the closed form of eq. 24 (`mfac_step`) beside the cost (`mf
 tests compare it with. The controller keeps what the law needs from the previous step: J_{k-1}
 and u_{k-1}. It takes u_{k-1} as the difference of the poses it was given (r_{k-1} - r_{k-2}),
 not as its own last output, because the loop saturates and may clip the command: the ω4 and ω7
-terms concern the increment the gripper really made (method-notes: u_k = Delta r_k).
+terms concern the increment the gripper really made (docs/method.md §5: u_k = Delta r_k).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def mfac_cost(
     u_prev: np.ndarray,
     weights: Sequence[float],
 ) -> float:
-    """The cost Q(u) of paper eq. 22 (method-notes section 2).
+    """The cost Q(u) of paper eq. 22 (docs/method.md §5).
 
     Args:
         u: (q,) candidate command u_k.
@@ -113,7 +113,7 @@ class MfacController:
     """MFAC shape servo: u_k = argmin Q(u) (eq. 24), before the loop's saturation.
 
     At rest (u_k = u_{k-1} = 0) the law satisfies w1 J^T e = w2 J^T s + w5 r: w2 and w5 pull
-    towards s = 0 and towards home and so leave a steady-state error (method-notes section 2).
+    towards s = 0 and towards home and so leave a steady-state error (docs/method.md §5).
     """
 
     def __init__(self, weights: Sequence[float]) -> None:
@@ -166,7 +166,7 @@ Omega = Annotated[float, Field(le=1.0)]
 
 
 class MfacControllerConfig(StrictModel):
-    """MFAC velocity law with seven performance weights (paper eq. 24, method-notes section 2).
+    """MFAC velocity law with seven performance weights (paper eq. 24, docs/method.md §5).
 
     Weights omega_1..omega_7 weigh: error, feature amplitude, feature rate, feature acceleration,
     distance from home, speed, acceleration. They must be positive and sum to 1.
@@ -174,7 +174,7 @@ class MfacControllerConfig(StrictModel):
     Default (0.55, 1e-4, 0.2, 0.05, 1e-4, 0.0998, 0.1): one step removes about
     omega_1 / (omega_1 + ... + omega_4) ~ 0.69 of the linearised error (fast), omega_3 and
     omega_7 smooth it. omega_2 and omega_5 are tiny because at rest omega_1 J^T e =
-    omega_2 J^T s + omega_5 r (method-notes section 2): they leave a steady-state error of order
+    omega_2 J^T s + omega_5 r (docs/method.md §5): they leave a steady-state error of order
     (omega_2/omega_1) ||s|| ~ 2e-4 for order-1 features. omega_6 and omega_7 act in command
     units (m^2) against J^T J ~ 1e2-1e4 in feature units, so at ~0.1 they damp only directions
     J barely observes (singular values below ~1), which is where a noisy estimate would

@@ -1,8 +1,8 @@
 """The Ma et al. 2022 baseline law: u = lambda J^+ sat(s* - s).
 
-A re-implementation from published descriptions (method-notes section 4; research/baselines.md
-section 3), not the authors' code. method-notes writes u = -lambda J^+ sat(s - s*); sat is odd,
-so that is the same law. Assumptions we made:
+A re-implementation from published descriptions (docs/baselines.md), not the authors' code.
+The description writes u = -lambda J^+ sat(s - s*); sat is odd, so that is the same law.
+Assumptions we made:
 - sat clips each feature-error component to +-`error_limit` (per component, not by norm);
 - J^+ is the pseudo-inverse with singular values below rcond * sigma_max dropped (as numpy's
   SVD pinv does; computed in fixed-order arithmetic, `rodctl.fixedla.pinv`), so a direction J
@@ -50,7 +50,7 @@ class PinvController:
 class PinvControllerConfig(StrictModel):
     """u = lambda J^+ sat(s* - s), the Ma et al. 2022 law (our re-implementation).
 
-    method-notes writes -lambda J^+ sat(s - s*): the same thing, since sat is odd.
+    docs/baselines.md writes -lambda J^+ sat(s - s*): the same thing, since sat is odd.
     """
 
     type: Literal["pinv"] = "pinv"

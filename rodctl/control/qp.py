@@ -1,6 +1,6 @@
 """The Aghajanzadeh et al. 2022 baseline law: a box-constrained least-squares step (a small QP).
 
-A re-implementation from published descriptions (method-notes section 4; research/baselines.md
+A re-implementation from published descriptions (docs/baselines.md
 section 2.3), not the authors' code: the "optimal deformation control" paper was not available,
 so the step is our reconstruction
 
@@ -125,7 +125,7 @@ class QpControllerConfig(StrictModel):
     """min 1/2 ||J u - lambda e||^2 + 1/2 u^T R u s.t. |u_i| <= max_step_i (our re-implementation).
 
     The Aghajanzadeh et al. 2022 "optimal deformation control" step as reconstructed from the
-    group's published descriptions (method-notes section 4); the bounds are the loop's
+    group's published descriptions (docs/baselines.md); the bounds are the loop's
     per-axis speed limits. R = diag(r_weights) in feature^2 per command^2: small against
     J^T J (~1e2-1e4 for latents, ~1e6 for pixel node features), so it only regularises
     directions J barely observes.

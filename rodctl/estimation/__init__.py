@@ -1,4 +1,6 @@
-"""Estimates of the deformation Jacobian J in Delta s ~ J Delta r (method-notes sections 1, 4).
+"""Estimates of the deformation Jacobian J in Delta s ~ J Delta r.
+
+docs/method.md §3 (the paper's AKF) and docs/baselines.md (the baselines' estimates).
 
 The paper's adaptive Kalman filter, the baselines' Broyden / windowed least-squares updates and
 the offline ASAP model all honour one protocol (`base.JacobianEstimator`), so the loop swaps

@@ -1,6 +1,6 @@
 """The paper's adaptive Kalman filter (AKF) estimate of the deformation Jacobian.
 
-Implements method-notes section 1 (paper eqs. 3-5, 28-33 with their typos corrected): the state
+Implements docs/method.md §3 (paper eqs. 8-18 as printed, with their typos corrected): the state
 is J stacked by rows, x = vec_rows(J) in R^{pq}, under a random walk (A = I), observed through
 y_k = Delta s_k = M_k x with M_k = I_p kron u_k^T.
 
@@ -9,11 +9,11 @@ Why it is written the way it is:
   MFAC law together (p = 6, q = 3: an 18-dimensional state). M_k is never formed: with the
   Kronecker structure, P M^T is `P.reshape(pq, p, q) @ u` and M (P M^T) is `u @ (.).reshape(p,
   q, p)`, so every product is a small dense numpy call; no scipy.
-- Robustness. The noise estimates Q and R (eqs. 32-33) are fading-memory sums that can lose
-  definiteness (eq. 32 subtracts a matrix, Q's increment contains P_k - P_{k|k-1}), so after each
+- Robustness. The noise estimates Q and R (eqs. 17-18) are fading-memory sums that can lose
+  definiteness (eq. 17 subtracts a matrix, Q's increment contains P_k - P_{k|k-1}), so after each
   update they are symmetrised and their eigenvalues clipped to a floor. The clip costs an `eigh`
   only when a Cholesky test says some eigenvalue is below the floor.
-- The adaptive factor alpha of eq. 29 reaches 0 for gross outliers, and the filter divides by
+- The adaptive factor alpha of eq. 14 reaches 0 for gross outliers, and the filter divides by
   it; it is clamped to `alpha_floor` instead (a config value).
 """
 
@@ -41,15 +41,15 @@ _LinAlgError = np.linalg.LinAlgError
 
 
 def igg3_factor(stat: float, c0: float, c1: float, floor: float) -> float:
-    """The IGG-III adaptive factor alpha of paper eq. 29, with the c1 typo fixed.
+    """The IGG-III adaptive factor alpha of paper eq. 14, with the c1 typo fixed.
 
     alpha = 1 if |stat| <= c0; (c0/|stat|) ((c1 - |stat|)/(c1 - c0))^2 if c0 < |stat| <= c1;
     0 beyond. The paper prints (c0 - |stat|) in the middle branch, which jumps at c1; the
-    intended (c1 - |stat|) makes alpha continuous and monotone (method-notes section 1). Since
+    intended (c1 - |stat|) makes alpha continuous and monotone (docs/method.md §3). Since
     alpha divides P, the result is clamped below at `floor` (alpha = 0 becomes `floor`).
 
     Args:
-        stat: the innovation statistic Delta epsilon_k (eq. 30).
+        stat: the innovation statistic Delta epsilon_k (eq. 15).
         c0: threshold below which the measurement is fully trusted (paper: c0 in [1, 1.5]).
         c1: threshold beyond which it is treated as an outlier (paper: c1 in [3, 8]).
         floor: smallest value returned, > 0.
@@ -97,15 +97,15 @@ def clip_psd(a: np.ndarray, floor: float, shifted_eye: np.ndarray | None = None)
 class AdaptiveKalmanJacobian:
     """Adaptive Kalman filter estimate of J (p, q) from (Delta s, Delta r) pairs.
 
-    Per informative step (method-notes section 1; paper eqs. 28-33):
+    Per informative step (docs/method.md §3; paper eqs. 13-18):
 
         P- = P + Q                          (random walk, A = I)
-        eps = ds - J u,  G = M P- M^T,  d_eps = sqrt(eps^T eps / tr G)       (eqs. 30-31)
-        alpha = IGG-III(d_eps; c0, c1), clamped to >= alpha_floor            (eq. 29)
-        K = (1/alpha) P- M^T ((1/alpha) G + R)^-1                             (eq. 28)
+        eps = ds - J u,  G = M P- M^T,  d_eps = sqrt(eps^T eps / tr G)       (eqs. 15-16)
+        alpha = IGG-III(d_eps; c0, c1), clamped to >= alpha_floor            (eq. 14)
+        K = (1/alpha) P- M^T ((1/alpha) G + R)^-1                             (eq. 13)
         x += K eps,  P = (1/alpha) (I - K M) P-
         d = (1 - b)/(1 - b^(k+1))
-        R = (1 - d) R + d eps eps^T          (eq. 33; eq. 32 also subtracts d G)
+        R = (1 - d) R + d eps eps^T          (eq. 18; eq. 17 also subtracts d G)
         Q = (1 - d) Q + d (K eps eps^T K^T + P - P-)
 
     Q and R are then symmetrised and eigenvalue-clipped to `q_min` / `r_min`. alpha = 0 (a gross
@@ -184,16 +184,16 @@ class AdaptiveKalmanJacobian:
             return self._J.copy()
         p, q, n = self.p, self.q, self._n
 
-        P_pred = self._P + self._Q  # A = I (eq. 4)
-        eps = y - self._J @ u  # eq. 31: z_k - C_k x_{k|k-1}
-        PMt = P_pred.reshape(n, p, q) @ u  # (n, p) = P- M^T, M = I_p kron u^T (eq. 5)
-        G = u @ PMt.reshape(p, q, p)  # (p, p) = M P- M^T (eq. 31)
+        P_pred = self._P + self._Q  # A = I (eq. 11)
+        eps = y - self._J @ u  # eq. 16: z_k - C_k x_{k|k-1}
+        PMt = P_pred.reshape(n, p, q) @ u  # (n, p) = P- M^T, M = I_p kron u^T (eq. 12)
+        G = u @ PMt.reshape(p, q, p)  # (p, p) = M P- M^T (eq. 16)
         trG = float(G.trace())
-        stat = math.sqrt(float(eps @ eps) / trG) if trG > 0.0 else 0.0  # eq. 30
-        alpha = igg3_factor(stat, self._c0, self._c1, self._floor)  # eq. 29
+        stat = math.sqrt(float(eps @ eps) / trG) if trG > 0.0 else 0.0  # eq. 15
+        alpha = igg3_factor(stat, self._c0, self._c1, self._floor)  # eq. 14
         inv_a = 1.0 / alpha
 
-        S = inv_a * G + self._R  # eq. 28; symmetric positive definite (R is clipped to r_min)
+        S = inv_a * G + self._R  # eq. 13; symmetric positive definite (R is clipped to r_min)
         SiMP = _solve(S, PMt.T)  # S^-1 M P-
         K = inv_a * SiMP.T  # (n, p)
         Keps = K @ eps
@@ -204,11 +204,11 @@ class AdaptiveKalmanJacobian:
         self._k += 1
         b = self._b
         d = (1.0 - b) / (1.0 - b ** (self._k + 1))
-        R = (1.0 - d) * self._R + d * (eps[:, None] * eps)  # eq. 33
+        R = (1.0 - d) * self._R + d * (eps[:, None] * eps)  # eq. 18
         if self._eq32:
-            R -= d * G  # eq. 32: the unbiased form
+            R -= d * G  # eq. 17: the unbiased form
         self._R = clip_psd(R, self._r_min, self._r_eye)
-        Q = (1.0 - d) * self._Q + d * (Keps[:, None] * Keps + self._P - P_pred)  # eq. 32 (Q)
+        Q = (1.0 - d) * self._Q + d * (Keps[:, None] * Keps + self._P - P_pred)  # eq. 17 (Q)
         self._Q = clip_psd(Q, self._q_min, self._q_eye)
 
         self._info = {"alpha": alpha, "innovation": stat, "skipped": 0.0}
@@ -218,7 +218,7 @@ class AdaptiveKalmanJacobian:
         """Diagnostics of the last update.
 
         Returns:
-            alpha (adaptive factor), innovation (Delta epsilon_k, eq. 30), skipped (1.0 if the
+            alpha (adaptive factor), innovation (Delta epsilon_k, eq. 15), skipped (1.0 if the
             last move was in the dead zone), trace_P, trace_Q, trace_R.
         """
         return {
@@ -233,7 +233,7 @@ class AdaptiveKalmanJacobian:
 
 
 class AkfEstimatorConfig(StrictModel):
-    """Adaptive Kalman filter on vec_rows(J) (paper eqs. 25-33, method-notes section 1).
+    """Adaptive Kalman filter on vec_rows(J) (paper eqs. 8-18, docs/method.md §3).
 
     P_0 = p0 I, Q_0 = q0 I (pq x pq) and R_0 = r0 I (p x p). With features of order 1 and J
     entries O(10-100), p0 = 10 says "J_0 from probing is good to ~3 per entry", r0 = 1e-4 says
@@ -254,26 +254,26 @@ class AkfEstimatorConfig(StrictModel):
         1.5,
         le=100.0,
         gt=0.0,
-        description="IGG-III threshold c0 (eq. 29): alpha = 1 while |d_eps| <= c0.",
+        description="IGG-III threshold c0 (eq. 14): alpha = 1 while |d_eps| <= c0.",
     )
     c1: float = Field(
         6.0,
         le=100.0,
         gt=0.0,
-        description="IGG-III threshold c1 (eq. 29): alpha reaches 0 at |d_eps| = c1.",
+        description="IGG-III threshold c1 (eq. 14): alpha reaches 0 at |d_eps| = c1.",
     )
     alpha_floor: float = Field(
         1e-3,
         gt=0.0,
         le=1.0,
-        description="Smallest adaptive factor alpha; eq. 29's alpha = 0 is clamped to it, since "
-        "alpha divides P (eq. 28).",
+        description="Smallest adaptive factor alpha; eq. 14's alpha = 0 is clamped to it, since "
+        "alpha divides P (eq. 13).",
     )
     forgetting: float = Field(
         0.95,
         gt=0.0,
         lt=1.0,
-        description="Fading-memory factor b of d_k = (1 - b)/(1 - b^(k+1)) (eqs. 32-33); larger "
+        description="Fading-memory factor b of d_k = (1 - b)/(1 - b^(k+1)) (eqs. 17-18); larger "
         "remembers longer (about 1/(1 - b) steps).",
     )
     r_update: Literal["eq33", "eq32"] = Field(

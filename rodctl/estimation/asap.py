@@ -1,6 +1,6 @@
 """Offline as-similar-as-possible (ASAP) Jacobian: the estimator of our Aghajanzadeh baseline.
 
-A re-implementation from published descriptions (method-notes section 4; research/baselines.md
+A re-implementation from published descriptions (docs/baselines.md
 section 2.1, Aghajanzadeh et al., IROS 2022), not the authors' code. The rod's rest shape is a
 chain of M nodes c (world frame, clamp first); chained triads T_k = {k, k+1, k+2} each resist any
 deformation that is not a similarity (rotation + uniform scale) of their rest shape, with energy
@@ -19,7 +19,7 @@ Assumptions we made for our single-gripper setup:
 - the clamp holds the first `clamp_nodes` nodes (2 by default, zero velocity), the gripper the
   last two; every other node is free or servoed;
 - the gripper pose [x, y, theta] is the pose of the rod's last node with theta the tangent
-  from node M-2 to node M-1 (architecture.md's pose convention), so the 3-DoF block maps
+  from node M-2 to node M-1 (the README's pose convention), so the 3-DoF block maps
   (xdot, ydot, thetadot) onto node M-1 as (xdot, ydot) and onto node M-2, l behind it, as
   (xdot + l sin(theta) thetadot, ydot - l cos(theta) thetadot). The paper's block uses the
   grip centre instead; ours follows the pose the loop commands;
@@ -142,7 +142,7 @@ def gripper_block(rest: np.ndarray) -> np.ndarray:
 
 
 def asap_jacobian(rest: np.ndarray, servoed: Sequence[int], *, clamp_nodes: int = 2) -> np.ndarray:
-    """ASAP Jacobian of servoed node positions w.r.t. the gripper pose (method-notes section 4).
+    """ASAP Jacobian of servoed node positions w.r.t. the gripper pose (docs/baselines.md).
 
     The first `clamp_nodes` nodes are clamped (zero velocity), the last two are held by the
     gripper, whose pose [x, y, theta] is that of the last node (see the module docstring).
@@ -290,7 +290,7 @@ class OfflineJacobian:
 class OfflineEstimatorConfig(StrictModel):
     """A fixed Jacobian from the rest shape's as-similar-as-possible (ASAP) model.
 
-    The Aghajanzadeh et al. 2022 baseline (our re-implementation, method-notes section 4). No
+    The Aghajanzadeh et al. 2022 baseline (our re-implementation, docs/baselines.md). No
     probing: `OfflineJacobian.prepare` builds J once from the first image (the ASAP model composed
     with the camera's projection Jacobian). The servoed nodes must be the points the feature
     observes.

@@ -1,6 +1,6 @@
 """Broyden rank-1 Jacobian update: the online estimator of our Ma et al. 2022 baseline.
 
-A re-implementation from published descriptions (method-notes section 4; research/baselines.md
+A re-implementation from published descriptions (docs/baselines.md
 section 6.2), not the authors' code. Assumptions we made, since the sources do not pin them:
 - the plain ("good") Broyden secant update J += gamma (ds - J dr) dr^T / (dr^T dr), no
   forgetting-factor RLS variant and no reset rules;
@@ -75,7 +75,7 @@ class BroydenJacobian:
 
 
 class BroydenEstimatorConfig(StrictModel):
-    """Rank-1 Broyden update J += gamma (ds - J dr) dr^T / (dr^T dr) (method-notes section 4).
+    """Rank-1 Broyden update J += gamma (ds - J dr) dr^T / (dr^T dr) (docs/baselines.md).
 
     Part of our re-implementation of the Ma et al. 2022 baseline from its published description.
     """

@@ -1,6 +1,6 @@
 """Probing moves and the least-squares fit that give every online estimator its J_0.
 
-The paper does not say how J_0 starts (method-notes section 1). Ours: q + 1 small moves at the
+The paper does not say how J_0 starts (docs/method.md §3). Ours: q + 1 small moves at the
 start of a run, one along each axis and then one combined return, so the gripper ends where it
 started and the q + 1 pairs (Delta r, Delta s) over-determine J by one equation per feature.
 """

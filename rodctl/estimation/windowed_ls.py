@@ -1,6 +1,6 @@
 """Sliding-window least-squares Jacobian: the alternative online estimator of the Ma baseline.
 
-A re-implementation from published descriptions (method-notes section 4), not the authors'
+A re-implementation from published descriptions (docs/baselines.md), not the authors'
 code. Assumptions we made:
 - the window holds the last `window` informative pairs (moves outside the dead zone), all
   weighted equally;
@@ -95,7 +95,7 @@ def _full_rank(a: np.ndarray) -> bool:
 
 
 class WindowedLsEstimatorConfig(StrictModel):
-    """Least squares over the last `window` (dr, ds) pairs (method-notes section 4).
+    """Least squares over the last `window` (dr, ds) pairs (docs/baselines.md).
 
     The alternative online estimator of the Ma et al. 2022 baseline (our re-implementation).
     """

@@ -2,7 +2,7 @@
 
 Architecture: an MLP encoder 2N -> hidden... -> p with ReLU after every hidden layer and a linear
 latent, and a mirrored decoder (the paper: "RELU function is adopted in the Encoder and Decoder";
-layer widths are not printed, research/baselines.md section 4 proposes 128/64, which we use).
+layer widths are not printed; we use 128/64, docs/baselines.md).
 
 Input normalisation is stored with the weights: a per-coordinate mean (2N,) and ONE scalar scale
 (the pooled standard deviation). A single scale, rather than one per coordinate, keeps the

@@ -20,7 +20,7 @@ from rodctl.registry import FEATURES, BuildContext
 
 
 class EncoderDataConfig(StrictModel):
-    """How `rodctl train-encoder` collects training centerlines (method-notes section 3).
+    """How `rodctl train-encoder` collects training centerlines (docs/method.md §7).
 
     The gripper walks, one control step (at most `rod.max_step` per axis) at a time, towards
     gripper poses drawn uniformly from the workspace (`rod.workspace`, reach and angle limits

@@ -18,7 +18,7 @@ T = TypeVar("T")
 
 
 class FeatureMap(Protocol):
-    """Maps an N-point pixel centerline to a feature s in R^p (method-notes: s = f_s(c)).
+    """Maps an N-point pixel centerline to a feature s in R^p (docs/method.md §1: s = f_s(c)).
 
     Attributes:
         dim: the feature dimension p.

@@ -1,4 +1,4 @@
-"""Bézier-curve feature for the Ma et al. 2022 baseline (method-notes section 4).
+"""Bézier-curve feature for the Ma et al. 2022 baseline (docs/baselines.md).
 
 Ma et al. describe their shape feature as the coefficients of a parametric curve fitted to the
 visual points by regression ("optimization-based shape perception"); the full text is not at hand,

@@ -1,6 +1,6 @@
 """Truncated Fourier feature of an open centerline: chord line plus a sine series.
 
-Fourier-based shape servoing (Navarro-Alarcon & Liu, T-RO 2018; research/baselines.md 6.1) fits a
+Fourier-based shape servoing (Navarro-Alarcon & Liu, T-RO 2018) fits a
 full sine/cosine series to a *closed* contour. A rod's centerline is open: its periodic extension
 jumps from the gripper end back to the clamp, and a full series rings there (Gibbs) and converges
 like 1/k. Ours expands x(rho) and y(rho), rho in [0, 1] the normalised arc length, as

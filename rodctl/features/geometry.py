@@ -1,8 +1,8 @@
 """Centerline checks and arc-length resampling shared by the geometric feature maps.
 
 The extractor hands over N ordered pixel points, clamp end first. The Bézier, Fourier and node
-features are defined as functions of the *normalised arc length* rho in [0, 1] (method-notes
-section 4, Ma et al.: "a parametric curve in normalised arc length"), so every map first resamples
+features are defined as functions of the *normalised arc length* rho in [0, 1] (docs/baselines.md,
+Ma et al.: "a parametric curve in normalised arc length"), so every map first resamples
 the polyline to N points equally spaced in arc length. After that the least-squares fit is one
 fixed (K, N) matrix product: the fit's pseudo-inverse is computed once, which keeps `encode` to a
 few microseconds and makes it exactly linear in the resampled points.

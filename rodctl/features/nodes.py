@@ -1,9 +1,9 @@
 """Node feature for the Aghajanzadeh et al. 2022 baseline: the pixels of a few rod points.
 
-That method servos the positions of chosen nodes of a discretised rod (method-notes section 4).
+That method servos the positions of chosen nodes of a discretised rod (docs/baselines.md).
 Nodes are placed by normalised arc length rather than by index, so the feature means the same
 rod points whatever N the extractor uses. Interior points barely see the gripper angle
-(method-notes section 3 records a stall caused by exactly this), so the default includes the tip.
+(docs/method.md §6 records a stall caused by exactly this), so the default includes the tip.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ of the inextensible planar elastica) and is also what the validation tests build
 free end and a dead tip load for the cantilever; `RodSim` adds the gripper policy on top
 (workspace, speed limits, settling, divergence).
 
-Discretisation (see shared/reference/rod-validation.md and research/simulation.md §1.3):
+Discretisation (README, "The simulated rod"):
 
 * segment i (i = 0..N-1) is a rigid body of length l = L/N, centre at (i + 1/2) l along the rod;
 * joint i between segments i-1 and i is a `PivotJoint` plus a `DampedRotarySpring` of stiffness
@@ -28,8 +28,8 @@ shapes are those of *a* slowly driven frictional rod, see the README):
 * global velocity damping (`space.damping`) is set to critically damp the first bending mode, so
   every mode decays at least as fast as e^(-ω1 t). Chipmunk applies the spring impulse before it
   scales velocities by damping**dt, which softens every spring by that factor; each stiffness is
-  divided by damping**dt to undo it (rod-validation.md, pitfall 2). Without a tip force the
-  settled shape would not even notice, with one it would.
+  divided by damping**dt to undo it. Without a tip force the settled shape would not even
+  notice, with one it would.
 
 The gripper is a kinematic body driven by velocity, never teleported (pitfall 3). Readouts use
 `pymunk.batch` (one C call instead of a Python loop over bodies).

@@ -6,12 +6,12 @@ the simulator they judge. Everything here is the continuum rod (no discretisatio
 ~1e-9 with scipy.
 
 * `circular_arc`: exact; a rod under a pure end moment M is an arc of curvature M/EI
-  (rod-validation.md, "Pure end moment").
+  (the elastica's pure-end-moment case).
 * `cantilever_tip_load`: shooting solve of θ'' = −α cos θ, θ(0) = 0, θ'(1) = 0, α = P L²/EI,
   for a dead transverse tip load (reproduces Bisshopp & Drucker / Mattiasson's table).
 * `two_pose_equilibrium`: the rod held at both end poses — Kirchhoff statics
   x' = cos θ, y' = sin θ, EI θ'' = n_x sin θ − n_y cos θ with constant internal force (n_x, n_y)
-  (research/simulation.md §2.4), solved by `scipy.integrate.solve_bvp` from a guess shape.
+  (the Kirchhoff rod equations), solved by `scipy.integrate.solve_bvp` from a guess shape.
   The problem has several equilibria; the one found is the one nearest the guess, so seed it with
   the shape being judged.
 """
@@ -173,7 +173,7 @@ def two_pose_equilibrium(
 
     Unknowns, in units of L and EI: x, y, θ, κ = θ' along s ∈ [0, 1] and the constant internal
     force p = (n_x, n_y) L²/EI; equations x' = cos θ, y' = sin θ, θ' = κ, κ' = p_x sin θ − p_y cos θ
-    (moment balance m' + r' × n = 0, research/simulation.md §2.4); six boundary conditions fix
+    (moment balance m' + r' × n = 0); six boundary conditions fix
     (x, y, θ) at both ends.
 
     Args:

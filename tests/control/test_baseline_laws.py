@@ -1,4 +1,4 @@
-"""The baselines' laws (method-notes section 4): saturated pinv, box QP, and the scripted path."""
+"""The baselines' laws (docs/baselines.md): saturated pinv, box QP, and the scripted path."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The MFAC law (paper eq. 24, method-notes section 2): closed form, weights, steady state."""
+"""The MFAC law (paper eq. 24, docs/method.md §5): closed form, weights, steady state."""
 
 from __future__ import annotations
 
@@ -84,7 +84,7 @@ def test_raising_omega6_lowers_the_command_norm():
 
 
 def test_at_rest_the_law_balances_error_against_amplitude_and_home_terms():
-    """At a fixed point u_k = u_{k-1} = 0: w1 J^T e = w2 J^T s + w5 r (method-notes section 2)."""
+    """At a fixed point u_k = u_{k-1} = 0: w1 J^T e = w2 J^T s + w5 r (docs/method.md §5)."""
     rng = np.random.default_rng(2)
     J = rng.normal(0.0, 30.0, (P, Q))
     w = np.array([0.5, 0.02, 0.2, 0.05, 0.03, 0.1, 0.1])

@@ -1,4 +1,4 @@
-"""The AKF Jacobian estimate (method-notes section 1) on synthetic linear systems with known J."""
+"""The AKF Jacobian estimate (docs/method.md §3) on synthetic linear systems with known J."""
 
 from __future__ import annotations
 

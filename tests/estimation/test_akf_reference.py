@@ -1,4 +1,4 @@
-"""The AKF against a plain transcription of method-notes section 1 with the explicit matrices.
+"""The AKF against a plain transcription of docs/method.md §3 with the explicit matrices.
 
 The implementation never forms M = I_p (x) u^T and uses LAPACK on small blocks; this reference
 writes every equation as printed (with numpy.linalg), so the two must agree to rounding over

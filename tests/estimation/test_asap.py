@@ -1,4 +1,4 @@
-"""The offline ASAP Jacobian (method-notes section 4) on geometric cases with known answers."""
+"""The offline ASAP Jacobian (docs/baselines.md) on geometric cases with known answers."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """The reference solutions themselves, checked against published numbers before they judge the sim.
 
-Sources: Bisshopp & Drucker (1945) / Mattiasson (1981) cantilever table (rod-validation.md), the
+Sources: Bisshopp & Drucker (1945) / Mattiasson (1981) cantilever table, the
 closed-form circular arc, and the elliptic-integral clamped-clamped buckled elastica
-(Timoshenko & Gere §2.7, research/simulation.md §2.3).
+(Timoshenko & Gere §2.7).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from scipy.special import ellipe, ellipk
 
 from rodctl.sim.elastica import cantilever_tip_load, circular_arc, two_pose_equilibrium
 
-# alpha: (w/L, u/L, tip angle or None) — Mattiasson 1981, Table 1 (rod-validation.md).
+# alpha: (w/L, u/L, tip angle or None) — Mattiasson 1981, Table 1.
 MATTIASSON = {
     1.0: (0.30172, 0.05643, 0.46135),
     2.0: (0.49346, 0.16064, None),
@@ -69,7 +69,7 @@ def test_two_pose_solver_recovers_an_arc_from_a_perturbed_guess() -> None:
     np.testing.assert_allclose(sol.force, [0.0, 0.0], atol=1e-7)  # a pure moment: no force
 
 
-# e/L: (P L^2/EI, y_mid/L), research/simulation.md §2.3.
+# e/L: (P L^2/EI, y_mid/L), Timoshenko & Gere §2.7.
 BUCKLED = {0.9: (41.570, 0.19492), 0.7: (46.612, 0.31431)}
 
 

@@ -1,4 +1,4 @@
-"""The settled chain against the elastica (rod-validation.md), at the default N = 50.
+"""The settled chain against the elastica, at the default N = 50.
 
 Goals from issue #3: the gripper-held circular arc within 0.1 % of L everywhere, the cantilever
 table within 0.1 % on tip deflection, random reachable gripper poses within 0.5 % of L of the
