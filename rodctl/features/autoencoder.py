@@ -432,9 +432,12 @@ class EncoderCheckpoint:
             weights[k].shape != shape for k, shape in shapes.items()
         ):
             raise bad("weights do not match the recorded architecture")
-        mean = _as_numpy(data["input_mean"]).astype(np.float64)
-        lat = _as_numpy(data["latent_scale"]).astype(np.float64)
-        scale = float(data["input_scale"])
+        try:
+            mean = _as_numpy(data["input_mean"]).astype(np.float64)
+            lat = _as_numpy(data["latent_scale"]).astype(np.float64)
+            scale = float(data["input_scale"])
+        except (TypeError, ValueError) as exc:
+            raise bad(f"unreadable normalisation ({exc})") from None
         if mean.shape != (inputs,) or lat.shape != (latent,) or not scale > 0.0:
             raise bad("normalisation does not match the architecture")
         if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(lat)) and math.isfinite(scale)):
@@ -442,6 +445,9 @@ class EncoderCheckpoint:
         for name, w in weights.items():
             if not np.all(np.isfinite(w)):
                 raise bad(f"weight {name} holds non-finite values")
+        fingerprint, metrics = data["fingerprint"], data.get("metrics", {})
+        if not isinstance(fingerprint, dict) or not isinstance(metrics, dict):
+            raise bad("fingerprint and metrics must be mappings")
         return cls(
             state_dict={k: weights[k].astype(np.float32) for k in shapes},
             architecture={
@@ -453,9 +459,9 @@ class EncoderCheckpoint:
             input_mean=mean,
             input_scale=scale,
             latent_scale=lat,
-            fingerprint=dict(data["fingerprint"]),
+            fingerprint=fingerprint,
             config_yaml=str(data.get("config_yaml", "")),
-            metrics=dict(data.get("metrics", {})),
+            metrics=metrics,
         )
 
     def check_compatible(

@@ -105,6 +105,15 @@ class CenterlineDataset:
             or len(data["chunk"]) != len(cl)
         ):
             raise UserError(f"{path}: inconsistent dataset arrays (centerlines {cl.shape})")
+        if len(cl) < 2:
+            raise UserError(
+                f"{path}: the dataset holds {len(cl)} centerline(s); training needs more"
+            )
+        if expected is not None and cl.shape[1] != expected.get("points", cl.shape[1]):
+            raise UserError(
+                f"{path}: the dataset's centerlines have {cl.shape[1]} points, this config's "
+                f"camera.points is {expected['points']}"
+            )
         if expected is not None:
             diffs = fingerprint_differences(setup, dataset_setup(expected))
             if diffs:
