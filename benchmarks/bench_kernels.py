@@ -29,11 +29,10 @@ TOLERANCE = 1e-9
 _CHILD = """
 import pickle, sys
 from rodctl.config import load_config
-from rodctl.experiment import Experiment
-exp = Experiment(load_config(sys.argv[1], []), run_id="kernels")
-exp.run()
+from rodctl.replay import rerun_records
+records = rerun_records(load_config(sys.argv[1], []), "kernels")
 with open(sys.argv[2], "wb") as f:
-    pickle.dump(exp.records, f)
+    pickle.dump(records, f)
 """
 
 

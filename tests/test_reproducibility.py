@@ -169,9 +169,9 @@ def test_flags_steps_and_texts_must_agree_at_any_tolerance():
     assert compare_runs(logged, fresh, tolerance=1.0).mismatch == "step 3: s differs"
 
 
-#: Fields computed in rodctl/experiment.py with numpy.linalg (norm, svd), which the loop's owner
-#: is switching to rodctl.fixedla.norm / singular_values; until then their last bits may differ.
-_LOOP_FIELDS: set[str] = set()  # the loop's own maths is fixed-order too now
+#: Fields allowed to differ in their last bits under another kernel: none. The loop's own maths
+#: (T1, the singular values of J: rodctl/method.py, rodctl/episode.py) is fixed-order too.
+_LOOP_FIELDS: set[str] = set()
 
 
 def test_a_run_verifies_bit_for_bit_under_another_kernel(tmp_path):
