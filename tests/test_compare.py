@@ -7,7 +7,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-from pathlib import Path
 
 import pytest
 import yaml
@@ -21,19 +20,10 @@ SMOKE = REPO / "configs" / "compare-smoke.yaml"
 COMPARE_CONFIGS = sorted((REPO / "configs").glob("compare*.yaml"))
 
 
-@pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    """The smoke benchmark, run once in 2 spawned worker processes, as a user types it."""
-    from typer.testing import CliRunner
-
-    from rodctl.cli import app
-
-    out = tmp_path_factory.mktemp("compare")
-    result = CliRunner().invoke(app, ["compare", str(SMOKE), "--out", str(out), "-q"])
-    assert result.exit_code == 0, result.output
-    folder = Path(result.stdout.strip().splitlines()[-1])  # the output folder is the last line
-    assert folder.parent == out
-    return folder
+@pytest.fixture
+def smoke_run(compare_smoke_run):
+    """The smoke benchmark, run once in 2 spawned worker processes (conftest.py)."""
+    return compare_smoke_run
 
 
 def _rows(folder):
