@@ -15,7 +15,7 @@ from rodctl.env import ShapeServoEnv
 from rodctl.episode import run_episode
 from rodctl.method import Method
 
-EXPERIMENTS = [p for p in CONFIGS if not p.name.startswith("compare")]
+EXPERIMENTS = [p for p in CONFIGS if not p.name.startswith(("compare", "sweep"))]
 if plugin_installed():
     EXPERIMENTS += [p for p in PLUGIN_CONFIGS if not p.name.startswith("compare")]
 SHORT = ["logging.mcap=false", "logging.rerun=false", "logging.figures=false"]
