@@ -149,6 +149,7 @@ def ray_address():
     else:
         ray = pytest.importorskip("ray")
     os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")  # node address 127.0.0.1
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage report leaves the machine
     ray.init(
         num_cpus=2,
         include_dashboard=False,

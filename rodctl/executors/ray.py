@@ -2,9 +2,10 @@
 
 Optional: `pip install 'rodctl[ray]'`; Ray is imported only when this executor starts. Without
 `address`, a private local Ray is started with `num_cpus=workers`, no dashboard, a small object
-store, every service bound to 127.0.0.1, and it is shut down with the run. With `address`
-(`--address HOST:PORT`, or `auto`), the run connects to that cluster as a driver and only
-disconnects at the end; the cluster's nodes need rodctl (and any plug-in) installed.
+store, every service bound to 127.0.0.1, no usage reporting, and it is shut down with the run.
+With `address` (`--address HOST:PORT`, or `auto`), the run connects to that cluster as a
+driver and only disconnects at the end; the cluster's nodes need rodctl (and any plug-in)
+installed.
 
 Faults: a task whose worker process or node dies is retried by Ray itself (`max_retries`,
 bounded by `MAX_RETRIES`) and then comes back as `Done.error`; an exception inside the task
@@ -64,6 +65,8 @@ def _import_ray(local: bool) -> Any:
         # Ray otherwise advertises the machine's network address even for a one-node Ray;
         # with this its node address (and so every service) is the loopback one.
         os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+        # A Ray started for one run sends nothing anywhere (Ray reports usage by default).
+        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     try:
         import ray
     except ImportError:
