@@ -55,6 +55,27 @@ def warm(_task: int) -> int:
     return os.getpid()
 
 
+def busy(_task: int) -> int:
+    """1 s of pure CPU: what a core gives when nothing else competes for it."""
+    t = time.process_time()
+    while time.process_time() - t < 1.0:
+        pass
+    return os.getpid()
+
+
+def cores_available() -> float:
+    """The local pool's 2-worker speed-up on pure CPU work (6 x 1 s): ~2 on an idle 2-core
+    machine, ~1 when other jobs hold a core. It bounds what the episode speed-up can show."""
+    walls = []
+    for w in (1, 2):
+        with make_executor("local", w) as ex:
+            ex.map(warm, list(range(w)))
+            t = time.perf_counter()
+            ex.map(busy, list(range(6)))
+            walls.append(time.perf_counter() - t)
+    return walls[0] / walls[1]
+
+
 def run(kind: str, workers: int, tasks: list[dict]) -> dict:
     """Wall times of one executor on the tasks, and its rows (timing removed)."""
     t0 = time.perf_counter()
@@ -82,6 +103,8 @@ def main() -> None:
         f"{n} episodes (compare-smoke methods x {args.targets} targets); "
         f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
     )
+    calib = cores_available()
+    print(f"pure-CPU 2-worker speed-up right now: {calib:.2f}x (cores this job really gets)")
     modes = [("local", 1), ("local", 2)] + ([] if args.skip_ray else [("ray", 2)])
     res = {}
     for kind, w in modes:
