@@ -748,7 +748,9 @@ def run_compare(
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
     try:
-        with pool, stop_handlers():  # after the executor: ray.init replaces SIGTERM's handler
+        # Handlers before the executor starts (a signal during start-up counts) and again
+        # after it: ray.init replaces SIGTERM's handler.
+        with stop_handlers(), pool, stop_handlers():
             targets = make_targets(
                 cfg, given, lambda tasks, fn: run_tasks(pool, tasks, fn, "targets", progress)
             )

@@ -237,7 +237,7 @@ def run_sweep(
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
     try:
-        with pool, stop_handlers():
+        with stop_handlers(), pool, stop_handlers():  # as in run_compare
             targets = {}
             for s in cfg.seeds:
                 spec = SimpleNamespace(seed=s, targets=cfg.targets, base=cfg.base)
