@@ -151,8 +151,8 @@ def test_sweep_results_summary_and_figures(smoke_sweep):
     steps = [g["steps_median"] for g in ranking]
     assert steps == sorted(steps)
     assert "| rank | point | method | estimator.p0 |" in (smoke_sweep / "summary.md").read_text()
-    fig = smoke_sweep / "figures" / "success_rate_vs_estimator_p0.png"
-    assert fig.stat().st_size > 5000
+    for metric in ("success_rate", "steps_median"):  # one figure per ranking metric and key
+        assert (smoke_sweep / "figures" / f"{metric}_vs_estimator_p0.png").stat().st_size > 5000
     assert len(journal(smoke_sweep)) == 4
     meta = json.loads((smoke_sweep / "meta.json").read_text())
     assert meta["status"] == "completed" and meta["command"] == "sweep"
