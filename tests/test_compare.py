@@ -272,3 +272,25 @@ def test_resume_with_another_config_names_what_changed(compare_smoke_run, tmp_pa
         )
     with pytest.raises(UserError, match="not a run folder"):
         run_compare(str(SMOKE), [], str(tmp_path), progress=False, workers=1, resume=str(tmp_path))
+
+
+def test_an_exception_inside_an_episode_is_its_error_row_and_the_run_goes_on(tmp_path, monkeypatch):
+    from rodctl.method import Method
+
+    act = Method.act
+
+    def broken_act(self, obs):
+        if "broyden" in self.label:
+            raise RuntimeError("boom in the estimator")
+        return act(self, obs)
+
+    monkeypatch.setattr(Method, "act", broken_act)  # in this process: workers=1
+    folder = run_compare(str(SMOKE), ["targets.count=1"], str(tmp_path), progress=False, workers=1)
+    got = {r["method"]: r for r in _rows(folder)}
+    assert len(got) == 6
+    for name in ("ma2022", "broyden-mfac"):  # the Broyden methods
+        assert got[name]["outcome"] == "error"
+        assert got[name]["error"] == "RuntimeError: boom in the estimator"
+    others = [r for n, r in got.items() if n not in ("ma2022", "broyden-mfac")]
+    assert all(r["outcome"] != "error" and r["error"] == "" for r in others)  # the run went on
+    assert json.loads((folder / "meta.json").read_text())["status"] == "completed"
