@@ -171,7 +171,10 @@ class LocalExecutor(Executor):
                 exc = fut.exception()
                 if isinstance(exc, BrokenProcessPool):
                     broken = True
-                    if attempt > MAX_RETRIES or self._cancelled:
+                    if self._cancelled or self._signalled():
+                        # Stopping: a worker that a signal ended mid-start-up is no fault.
+                        yield Done(key, error=CANCELLED, attempts=attempt)
+                    elif attempt > MAX_RETRIES:
                         yield Done(
                             key, error=f"worker lost {attempt} time(s): {exc}", attempts=attempt
                         )
