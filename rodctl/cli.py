@@ -112,11 +112,16 @@ def plugins() -> None:
 
 
 def _config_model(path: str) -> type:
-    """The model a config file is for: a compare config has `methods`, any other an experiment."""
+    """The model a config file is for: a sweep config has `parameters`, a compare config
+    `methods`, any other is an experiment."""
     from rodctl.config import read_yaml
     from rodctl.config.compare import CompareConfig
+    from rodctl.config.sweep import SweepConfig
 
-    return CompareConfig if "methods" in read_yaml(path) else ExperimentConfig
+    data = read_yaml(path)
+    if "parameters" in data:
+        return SweepConfig
+    return CompareConfig if "methods" in data else ExperimentConfig
 
 
 @config_app.command("show")
@@ -130,6 +135,11 @@ def config_show(config: ConfigArg, set_: SetOpt = None) -> None:
     if model is ExperimentConfig:
         cfg = load_config(config, set_ or [])
         derived = _derived_values(cfg)
+    elif model.__name__ == "SweepConfig":
+        from rodctl.sweep import load_sweep_config
+
+        cfg = load_sweep_config(config, set_ or [])
+        derived = {}
     else:
         from rodctl.compare import load_compare_config
 
@@ -182,11 +192,15 @@ def config_schema(
     compare: Annotated[
         bool, typer.Option("--compare", help="The schema of `rodctl compare` configs instead.")
     ] = False,
+    sweep: Annotated[
+        bool, typer.Option("--sweep", help="The schema of `rodctl sweep` configs instead.")
+    ] = False,
 ) -> None:
-    """Print the JSON schema of the experiment config (or, with --compare, of compare configs)."""
+    """Print the JSON schema of the experiment config (or of compare / sweep configs)."""
     from rodctl.config.compare import CompareConfig
+    from rodctl.config.sweep import SweepConfig
 
-    model = CompareConfig if compare else ExperimentConfig
+    model = SweepConfig if sweep else CompareConfig if compare else ExperimentConfig
     typer.echo(json.dumps(model.model_json_schema(), indent=2))
 
 
@@ -221,10 +235,11 @@ def simulate(
     from rodctl.display import print_summary, step_progress
     from rodctl.simulate import simulate as run_simulation
 
-    if _config_model(config) is not ExperimentConfig:
+    model = _config_model(config)
+    if model is not ExperimentConfig:
+        command = "sweep" if model.__name__ == "SweepConfig" else "compare"
         raise UserError(
-            f"{config}: this is a compare config (it has 'methods'); run it with "
-            f"`rodctl compare {config}`"
+            f"{config}: this is a {command} config; run it with `rodctl {command} {config}`"
         )
     cfg = load_config(config, set_ or [])
     with step_progress(cfg.run.max_steps, enabled=not (quiet or as_json)) as on_step:

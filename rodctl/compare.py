@@ -11,8 +11,10 @@ Fairness is structural: `CompareConfig` lets a method choose only its feature, e
 controller; everything else comes from one shared `base` experiment. Each target has its own
 seed (camera noise), shared by all methods, so two methods on one target differ only by method.
 
-Episodes are independent, so they run in worker processes (the 'spawn' context: torch and fork
-do not mix) with one BLAS/torch thread each; results do not depend on the number of workers.
+Episodes are independent, so an executor (`rodctl.executors`: this process, a spawn pool, Ray)
+runs them, one BLAS/torch thread each; results depend neither on the number of workers nor on
+the executor. Each row is appended to results.jsonl the moment its episode finishes, so a run
+stopped by SIGINT/SIGTERM (or killed) keeps them and `--resume` finishes it.
 Outputs, in one new folder: results.csv / results.json (one row per episode), summary.md (the
 table also printed to the terminal), targets.yaml (the target poses, reusable as a
 `targets.file`), figures/ (the paper's three figures side by side for one target, success rate
@@ -762,7 +764,9 @@ def run_compare(
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
     try:
-        with pool, stop_handlers():  # after the executor: ray.init replaces SIGTERM's handler
+        # Handlers before the executor starts (a signal during start-up counts) and again
+        # after it: ray.init replaces SIGTERM's handler.
+        with stop_handlers(), pool, stop_handlers():
             targets = make_targets(
                 cfg, given, lambda tasks, fn: run_tasks(pool, tasks, fn, "targets", progress)
             )

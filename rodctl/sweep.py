@@ -10,7 +10,7 @@ appended to results.jsonl the moment it finishes and `--resume` to finish an int
 
 Outputs, in one new folder: results.jsonl (the journal), results.csv (one row per episode, a
 column per swept key), summary.json / summary.md (one line per point and method, ranked by
-`rank_by`), figures/<metric>_vs_<key>.png (the first ranking metric against each swept key),
+`rank_by`), figures/<metric>_vs_<key>.png (each ranking metric against each swept key),
 targets_seed<S>.yaml.
 """
 
@@ -237,7 +237,7 @@ def run_sweep(
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
     try:
-        with pool, stop_handlers():
+        with stop_handlers(), pool, stop_handlers():  # as in run_compare
             targets = {}
             for s in cfg.seeds:
                 spec = SimpleNamespace(seed=s, targets=cfg.targets, base=cfg.base)
@@ -398,10 +398,10 @@ def _report(
     ]
     (folder / "summary.md").write_text("\n".join(text), encoding="utf-8")
     if rows:
-        for key in keys:
-            metric_figure(
-                rows, key, cfg.rank_by[0], method_names, folder / "figures" / _fig_name(cfg, key)
-            )
+        for metric in cfg.rank_by:
+            for key in keys:
+                path = folder / "figures" / f"{metric}_vs_{key.replace('.', '_')}.png"
+                metric_figure(rows, key, metric, method_names, path)
     if progress:
         from rich.table import Table
 
@@ -413,10 +413,6 @@ def _report(
         for line in lines[:20]:
             table.add_row(*line)
         stderr.print(table)
-
-
-def _fig_name(cfg: SweepConfig, key: str) -> str:
-    return f"{cfg.rank_by[0]}_vs_{key.replace('.', '_')}.png"
 
 
 def _fmt(v: Any, spec: str) -> str:

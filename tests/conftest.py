@@ -15,3 +15,20 @@ os.environ.setdefault("RERUN_STRICT", "1")
 @pytest.fixture
 def repo() -> Path:
     return REPO
+
+
+@pytest.fixture(scope="session")
+def compare_smoke_run(tmp_path_factory) -> Path:
+    """configs/compare-smoke.yaml run once per session on the local pool (2 spawned workers),
+    as a user types it; shared by the compare and executor tests (it takes ~30 s)."""
+    from typer.testing import CliRunner
+
+    from rodctl.cli import app
+
+    out = tmp_path_factory.mktemp("compare")
+    smoke = REPO / "configs" / "compare-smoke.yaml"
+    result = CliRunner().invoke(app, ["compare", str(smoke), "--out", str(out), "-q"])
+    assert result.exit_code == 0, result.output
+    folder = Path(result.stdout.strip().splitlines()[-1])  # the output folder is the last line
+    assert folder.parent == out
+    return folder

@@ -7,7 +7,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-from pathlib import Path
 
 import pytest
 import yaml
@@ -21,19 +20,10 @@ SMOKE = REPO / "configs" / "compare-smoke.yaml"
 COMPARE_CONFIGS = sorted((REPO / "configs").glob("compare*.yaml"))
 
 
-@pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    """The smoke benchmark, run once in 2 spawned worker processes, as a user types it."""
-    from typer.testing import CliRunner
-
-    from rodctl.cli import app
-
-    out = tmp_path_factory.mktemp("compare")
-    result = CliRunner().invoke(app, ["compare", str(SMOKE), "--out", str(out), "-q"])
-    assert result.exit_code == 0, result.output
-    folder = Path(result.stdout.strip().splitlines()[-1])  # the output folder is the last line
-    assert folder.parent == out
-    return folder
+@pytest.fixture
+def smoke_run(compare_smoke_run):
+    """The smoke benchmark, run once in 2 spawned worker processes (conftest.py)."""
+    return compare_smoke_run
 
 
 def _rows(folder):
@@ -217,6 +207,93 @@ def test_unreachable_target_pose_is_a_user_error(tmp_path):
             progress=False,
             workers=1,
         )
+
+
+def test_sigterm_to_compare_stops_the_pool_keeps_results_and_resume_finishes_it(
+    compare_smoke_run, tmp_path
+):
+    """#14 items 3-4: SIGTERM to the parent of a 2-worker compare stops every worker within
+    seconds (none left behind), keeps each finished episode (results.jsonl as they finish,
+    results.csv / summary.md marked partial), meta.json says `interrupted`, the episodes that
+    were cut have replayable logs; `--resume` runs only the rest, to the uninterrupted table."""
+    import signal
+
+    from batch_helpers import interrupt, journal, rows
+
+    from rodctl.replay import rebuild
+
+    sets = ["figure_target=1", "keep_logs=true", "base.logging.mcap=true"]
+    args = ["compare", str(SMOKE), "--workers", "2"]
+    for s in sets:
+        args += ["--set", s]
+    out = tmp_path / "runs"
+    out.mkdir()
+    run = interrupt(args, out, after_rows=2, sig=signal.SIGTERM)
+    assert run.returncode == 1, run.stderr
+    assert "interrupted" in run.stderr
+    assert run.stop_seconds < 20, run.stop_seconds
+    assert run.leftovers == []
+    meta = json.loads((run.folder / "meta.json").read_text())
+    assert meta["status"] == "interrupted" and "SIGTERM" in meta["error"]
+    kept = rows(run.folder)
+    assert 2 <= len(kept) < 12
+    assert json.loads((run.folder / "results.json").read_text())["partial"] is True
+    assert (run.folder / "summary.md").read_text().startswith("**PARTIAL**")
+    cut = [r for r in journal(run.folder) if r["outcome"] == "interrupted"]
+    assert cut, "a running episode should have been cut"
+    for row in cut:
+        log = run.folder / "episodes" / row["method"] / f"t{row['target']:03d}"
+        assert json.loads((log / "summary.json").read_text())["status"] == "interrupted"
+        assert rebuild(log, tmp_path / "replay", figures=False).run.header is not None
+    resumed = run_compare(
+        str(SMOKE), sets, str(out), progress=False, workers=1, resume=str(run.folder)
+    )
+    assert resumed == run.folder
+    assert rows(resumed) == rows(compare_smoke_run)
+    before = {
+        (r["method"], r["target"])
+        for r in journal(run.folder)[: len(kept) + len(cut)]
+        if r["outcome"] != "interrupted" and r["target"] != 1
+    }
+    after = [(r["method"], r["target"]) for r in journal(run.folder)]
+    assert all(after.count(k) == 1 for k in before)  # finished episodes did not run again
+    assert json.loads((run.folder / "meta.json").read_text())["status"] == "completed"
+
+
+def test_resume_with_another_config_names_what_changed(compare_smoke_run, tmp_path):
+    with pytest.raises(UserError, match=r"config changed.*targets\.count"):
+        run_compare(
+            str(SMOKE),
+            ["targets.count=3"],
+            str(tmp_path),
+            progress=False,
+            workers=1,
+            resume=str(compare_smoke_run),
+        )
+    with pytest.raises(UserError, match="not a run folder"):
+        run_compare(str(SMOKE), [], str(tmp_path), progress=False, workers=1, resume=str(tmp_path))
+
+
+def test_an_exception_inside_an_episode_is_its_error_row_and_the_run_goes_on(tmp_path, monkeypatch):
+    from rodctl.method import Method
+
+    act = Method.act
+
+    def broken_act(self, obs):
+        if "broyden" in self.label:
+            raise RuntimeError("boom in the estimator")
+        return act(self, obs)
+
+    monkeypatch.setattr(Method, "act", broken_act)  # in this process: workers=1
+    folder = run_compare(str(SMOKE), ["targets.count=1"], str(tmp_path), progress=False, workers=1)
+    got = {r["method"]: r for r in _rows(folder)}
+    assert len(got) == 6
+    for name in ("ma2022", "broyden-mfac"):  # the Broyden methods
+        assert got[name]["outcome"] == "error"
+        assert got[name]["error"] == "RuntimeError: boom in the estimator"
+    others = [r for n, r in got.items() if n not in ("ma2022", "broyden-mfac")]
+    assert all(r["outcome"] != "error" and r["error"] == "" for r in others)  # the run went on
+    assert json.loads((folder / "meta.json").read_text())["status"] == "completed"
 
 
 def test_terminal_table_fits_80_columns_without_truncating_a_cell():

@@ -29,9 +29,19 @@ def _is_compare(path) -> bool:
     return "methods" in read_yaml(path)
 
 
+def _is_sweep(path) -> bool:
+    return "parameters" in read_yaml(path)
+
+
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
 def test_every_shipped_config_validates(path):
-    if _is_compare(path):
+    if _is_sweep(path):
+        from rodctl.config.sweep import SweepConfig
+        from rodctl.sweep import load_sweep_config
+
+        cfg = load_sweep_config(path)
+        model = SweepConfig
+    elif _is_compare(path):
         cfg = load_compare_config(path)
         model = CompareConfig
     else:
@@ -46,7 +56,8 @@ def test_every_shipped_config_validates(path):
 
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
 def test_schema_validates_shipped_configs(path):
-    args = ["config", "schema"] + (["--compare"] if _is_compare(path) else [])
+    kind = ["--sweep"] if _is_sweep(path) else ["--compare"] if _is_compare(path) else []
+    args = ["config", "schema", *kind]
     result = runner.invoke(app, args)
     assert result.exit_code == 0
     schema = json.loads(result.stdout)

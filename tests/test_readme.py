@@ -25,6 +25,7 @@ SHORTEN = {
         "--set", "feature.training.batch_size=100",
     ],
     "simulate": ["--set", "logging.rerun=false", "--set", "logging.figures=false"],
+    "sweep": ["--workers", "1"],
 }  # fmt: skip
 
 
@@ -55,7 +56,7 @@ def test_every_command_example_runs(tmp_path, monkeypatch):
     run_dir = None
     for args in _examples():
         args = [a.replace(PLACEHOLDER, str(run_dir)) if run_dir else a for a in args]
-        if args[0] in ("simulate", "compare", "train-encoder") and "-o" not in args:
+        if args[0] in ("simulate", "compare", "sweep", "train-encoder") and "-o" not in args:
             args += ["-o", str(tmp_path)]
         if args[0] == "replay":
             assert run_dir is not None, "a simulate example must come before replay"

@@ -74,6 +74,7 @@ class LocalExecutor(Executor):
         self._futures: dict[Future, tuple[Any, Callable[[Any], Any], Any, int]] = {}
         self._saved_env: dict[str, str | None] = {}
         self._cancelled = False
+        self._procs: list[Any] = []
 
     # --- lifecycle ----------------------------------------------------------------------------
 
@@ -108,6 +109,9 @@ class LocalExecutor(Executor):
             for p in procs:
                 if _alive(p):
                     p.kill()
+            end = time.monotonic() + 2.0  # SIGKILL is not instant; do not return before
+            while any(_alive(p) for p in procs) and time.monotonic() < end:
+                time.sleep(0.05)
         for k, v in self._saved_env.items():
             if v is None:
                 os.environ.pop(k, None)
@@ -126,6 +130,7 @@ class LocalExecutor(Executor):
         for item in queue:
             key, fn, task, _attempt = item
             self._futures[self.pool.submit(call_unless_stopped, fn, task)] = item
+        self._procs = list((self.pool._processes or {}).values())  # noqa: SLF001
 
     def cancel(self) -> None:
         if self._cancelled:
@@ -166,7 +171,10 @@ class LocalExecutor(Executor):
                 exc = fut.exception()
                 if isinstance(exc, BrokenProcessPool):
                     broken = True
-                    if attempt > MAX_RETRIES or self._cancelled:
+                    if self._cancelled or self._signalled():
+                        # Stopping: a worker that a signal ended mid-start-up is no fault.
+                        yield Done(key, error=CANCELLED, attempts=attempt)
+                    elif attempt > MAX_RETRIES:
                         yield Done(
                             key, error=f"worker lost {attempt} time(s): {exc}", attempts=attempt
                         )
@@ -182,8 +190,18 @@ class LocalExecutor(Executor):
                     yield Done(key, error=CANCELLED, attempts=attempt)
                     continue
                 yield Done(key, value=value, attempts=attempt)
+            if broken and self._signalled():
+                # A worker killed by SIGINT/SIGTERM (before its handler was in place, or
+                # the default action): the user or the system asked to stop, not a fault.
+                request_stop("a worker was stopped")
+                self._cancelled = True
             if broken and not self._cancelled:
                 self._rebuild()
+
+    def _signalled(self) -> bool:
+        """Whether a pool process ended by SIGINT or SIGTERM."""
+        codes = {p.exitcode for p in self._procs}
+        return bool(codes & {-signal.SIGINT, -signal.SIGTERM})
 
     def _rebuild(self) -> None:
         """A worker died: every future of the old pool failed; run the survivors again."""

@@ -2,9 +2,10 @@
 
 Optional: `pip install 'rodctl[ray]'`; Ray is imported only when this executor starts. Without
 `address`, a private local Ray is started with `num_cpus=workers`, no dashboard, a small object
-store, every service bound to 127.0.0.1, and it is shut down with the run. With `address`
-(`--address HOST:PORT`, or `auto`), the run connects to that cluster as a driver and only
-disconnects at the end; the cluster's nodes need rodctl (and any plug-in) installed.
+store, every service bound to 127.0.0.1, no usage reporting, and it is shut down with the run.
+With `address` (`--address HOST:PORT`, or `auto`), the run connects to that cluster as a
+driver and only disconnects at the end; the cluster's nodes need rodctl (and any plug-in)
+installed.
 
 Faults: a task whose worker process or node dies is retried by Ray itself (`max_retries`,
 bounded by `MAX_RETRIES`) and then comes back as `Done.error`; an exception inside the task
@@ -16,6 +17,7 @@ task; Ray delivers it to a running task as a SIGINT in its worker, which the tas
 from __future__ import annotations
 
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -28,6 +30,7 @@ from rodctl.executors.base import (
     Done,
     Executor,
     clear_stop,
+    request_stop,
     stop_handlers,
     stop_reason,
 )
@@ -64,6 +67,8 @@ def _import_ray(local: bool) -> Any:
         # Ray otherwise advertises the machine's network address even for a one-node Ray;
         # with this its node address (and so every service) is the loopback one.
         os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+        # A Ray started for one run sends nothing anywhere (Ray reports usage by default).
+        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     try:
         import ray
     except ImportError:
@@ -96,7 +101,22 @@ class RayExecutor(Executor):
         env = {k: "1" for k in THREAD_ENV}
         if ray.is_initialized():
             pass  # a Ray the caller started (a notebook, a test): use it, leave it running
-        elif self.address is None:
+        else:
+            self._owns_ray = True  # ours to shut down (or to disconnect from), even half-started
+            try:
+                self._init(ray, env)
+            except SystemExit as exc:
+                # ray.init's own SIGTERM handler exits the process; a run stopped while Ray
+                # starts is an interrupted run like any other, with nothing left running.
+                request_stop(signal.Signals(exc.code).name if exc.code in (2, 15) else "exit")
+                self.shutdown(self.shutdown_timeout)
+                raise KeyboardInterrupt(stop_reason()) from None
+        self._remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)(
+            run_task
+        )
+
+    def _init(self, ray: Any, env: dict[str, str]) -> None:
+        if self.address is None:
             ray.init(
                 num_cpus=self.workers,
                 include_dashboard=False,
@@ -107,21 +127,17 @@ class RayExecutor(Executor):
                 logging_level="warning",
                 runtime_env={"env_vars": env},
             )
-            self._owns_ray = True
-        else:
-            try:
-                ray.init(
-                    address=self.address,
-                    log_to_driver=False,
-                    logging_level="warning",
-                    runtime_env={"env_vars": env},
-                )
-            except (ConnectionError, ValueError, RuntimeError) as exc:
-                raise UserError(f"--address {self.address}: cannot connect to Ray: {exc}") from None
-            self._owns_ray = True  # our driver connection: disconnect at the end
-        self._remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)(
-            run_task
-        )
+            return
+        try:
+            ray.init(
+                address=self.address,
+                log_to_driver=False,
+                logging_level="warning",
+                runtime_env={"env_vars": env},
+            )
+        except (ConnectionError, ValueError, RuntimeError) as exc:
+            self._owns_ray = False
+            raise UserError(f"--address {self.address}: cannot connect to Ray: {exc}") from None
 
     def submit(self, fn: Callable[[Any], Any], task: Any, key: Any) -> None:
         if self._remote is None:

@@ -1,0 +1,204 @@
+"""`rodctl sweep`: points (grid and seeded random), validation up front with the key named,
+the results table and ranked summary, figures, and an interrupted sweep resumed."""
+
+from __future__ import annotations
+
+import json
+import signal
+
+import pytest
+import yaml
+from batch_helpers import journal, rows, send_self_after
+from paths import REPO
+from typer.testing import CliRunner
+
+from rodctl.cli import app
+from rodctl.compare import RunInterrupted
+from rodctl.config import ConfigError
+from rodctl.errors import UserError
+from rodctl.executors import clear_stop
+from rodctl.sweep import load_sweep_config, rank_groups, run_sweep, sweep_points
+
+SMOKE = REPO / "configs" / "sweep-smoke.yaml"
+TUNING = REPO / "configs" / "sweep-tuning.yaml"
+
+
+def _write(tmp_path, data):
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def _smoke():
+    return yaml.safe_load(SMOKE.read_text())
+
+
+def test_shipped_sweep_configs_validate_and_tuning_is_the_papers_grid():
+    load_sweep_config(SMOKE)
+    cfg = load_sweep_config(TUNING)
+    points = sweep_points(cfg)
+    assert len(points) == 6  # 3 MFAC weight sets x 2 AKF p0
+    assert {p["estimator.p0"] for p in points} == {10.0, 1000.0}
+    assert cfg.seeds == [1] and cfg.targets.count == 12
+    assert cfg.rank_by == ["success_rate", "steps_median"]
+
+
+def test_grid_points_are_the_product_first_key_slowest(tmp_path):
+    data = _smoke()
+    data["parameters"] = {
+        "estimator.p0": {"values": [1.0, 2.0]},
+        "controller.weights": {"values": [[0.7, 1e-4, 0.1, 0.05, 1e-4, 0.0498, 0.1]] * 3},
+    }
+    points = sweep_points(load_sweep_config(_write(tmp_path, data)))
+    assert len(points) == 6
+    assert [p["estimator.p0"] for p in points] == [1.0, 1.0, 1.0, 2.0, 2.0, 2.0]
+
+
+def test_random_search_is_seeded_and_stays_in_range(tmp_path):
+    data = _smoke()
+    data.update(search="random", samples=20)
+    data["parameters"] = {
+        "estimator.p0": {"low": 1.0, "high": 1000.0, "log": True},
+        "run.max_steps": {"low": 20, "high": 80, "integer": True},
+        "estimator.forgetting": {"values": [0.9, 0.95]},
+    }
+    a = sweep_points(load_sweep_config(_write(tmp_path, data)))
+    b = sweep_points(load_sweep_config(_write(tmp_path, data)))
+    assert a == b and len(a) == 20
+    assert all(1.0 <= p["estimator.p0"] <= 1000.0 for p in a)
+    assert all(isinstance(p["run.max_steps"], int) and 20 <= p["run.max_steps"] <= 80 for p in a)
+    assert {p["estimator.forgetting"] for p in a} == {0.9, 0.95}
+    assert min(p["estimator.p0"] for p in a) < 31.6 < max(p["estimator.p0"] for p in a)
+    data["seed"] = 1
+    assert sweep_points(load_sweep_config(_write(tmp_path, data))) != a
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"parameters": {"estimator.nope": {"values": [1]}}}, r"estimator\.nope"),
+        ({"parameters": {"estimator.p0": {"values": [-1.0]}}}, r"estimator\.p0=-1\.0.*base"),
+        ({"parameters": {"estimator.p0": {"low": 1, "high": 2}}}, "grid search needs `values`"),
+        ({"search": "random"}, "needs `samples`"),
+        ({"rank_by": ["speed"]}, r"rank_by.*unknown metric"),
+        ({"parameters": {"estimator.p0": {"values": [1.0], "low": 1}}}, "either `values`"),
+        ({"parameters": {}}, "parameters"),
+        ({"paramters": {}}, "paramters: unknown key"),
+    ],
+)
+def test_bad_sweep_configs_name_the_key(tmp_path, change, match):
+    data = _smoke()
+    data.update(change)
+    with pytest.raises(ConfigError, match=match):
+        load_sweep_config(_write(tmp_path, data))
+
+
+def test_a_key_one_method_lacks_names_that_method(tmp_path):
+    data = _smoke()
+    data["methods"] = {
+        "paper": {
+            "feature": {"type": "bezier"},
+            "estimator": {"type": "akf"},
+            "controller": {"type": "mfac"},
+        },
+        "ma": {
+            "feature": {"type": "bezier"},
+            "estimator": {"type": "broyden"},
+            "controller": {"type": "pinv"},
+        },
+    }
+    with pytest.raises(ConfigError, match=r"(?s)method ma.*estimator\.p0"):
+        load_sweep_config(_write(tmp_path, data))
+
+
+def test_the_cli_exits_2_on_a_bad_sweep(tmp_path):
+    data = _smoke()
+    data["parameters"] = {"rod.nope": {"values": [1]}}
+    result = CliRunner().invoke(app, ["sweep", str(_write(tmp_path, data)), "-o", str(tmp_path)])
+    assert result.exit_code == 2 and "rod.nope" in result.output
+
+
+def test_ranking_success_first_then_steps_missing_last():
+    groups = [
+        {"point": 0, "success_rate": 0.5, "steps_median": 5.0},
+        {"point": 1, "success_rate": 1.0, "steps_median": 9.0},
+        {"point": 2, "success_rate": 1.0, "steps_median": 7.0},
+        {"point": 3, "success_rate": 0.0, "steps_median": None},
+    ]
+    ranked = rank_groups(groups, ["success_rate", "steps_median"])
+    assert [g["point"] for g in ranked] == [2, 1, 0, 3]
+    assert [g["rank"] for g in ranked] == [1, 2, 3, 4]
+
+
+@pytest.fixture(scope="module")
+def smoke_sweep(tmp_path_factory):
+    """The smoke sweep in this process (1 worker): 2 points x 2 targets."""
+    out = tmp_path_factory.mktemp("sweep")
+    return run_sweep(str(SMOKE), [], str(out), progress=False, workers=1)
+
+
+def test_sweep_results_summary_and_figures(smoke_sweep):
+    got = rows(smoke_sweep)
+    assert len(got) == 4
+    assert list(got[0])[:3] == ["point", "seed", "estimator.p0"]
+    assert {(r["point"], r["estimator.p0"]) for r in got} == {("0", "10.0"), ("1", "1000.0")}
+    assert all(r["outcome"] == "converged" for r in got)
+    summary = json.loads((smoke_sweep / "summary.json").read_text())
+    assert summary["episodes"] == {"finished": 4, "total": 4} and not summary["partial"]
+    ranking = summary["ranking"]
+    assert [g["rank"] for g in ranking] == [1, 2]
+    assert all(g["episodes"] == 2 and g["success_rate"] == 1.0 for g in ranking)
+    steps = [g["steps_median"] for g in ranking]
+    assert steps == sorted(steps)
+    assert "| rank | point | method | estimator.p0 |" in (smoke_sweep / "summary.md").read_text()
+    for metric in ("success_rate", "steps_median"):  # one figure per ranking metric and key
+        assert (smoke_sweep / "figures" / f"{metric}_vs_estimator_p0.png").stat().st_size > 5000
+    assert len(journal(smoke_sweep)) == 4
+    meta = json.loads((smoke_sweep / "meta.json").read_text())
+    assert meta["status"] == "completed" and meta["command"] == "sweep"
+
+
+def test_resume_of_a_finished_sweep_runs_nothing_and_a_changed_one_is_refused(
+    smoke_sweep, tmp_path
+):
+    before = rows(smoke_sweep)
+    again = run_sweep(
+        str(SMOKE), [], str(tmp_path), progress=False, workers=1, resume=str(smoke_sweep)
+    )
+    assert again == smoke_sweep
+    assert len(journal(smoke_sweep)) == 4  # nothing ran again
+    assert rows(again) == before
+    with pytest.raises(UserError, match=r"config changed.*targets\.count"):
+        run_sweep(
+            str(SMOKE),
+            ["targets.count=3"],
+            str(tmp_path),
+            progress=False,
+            workers=1,
+            resume=str(smoke_sweep),
+        )
+
+
+def test_an_interrupted_sweep_keeps_what_finished_and_resumes_to_the_same_table(
+    smoke_sweep, tmp_path
+):
+    """Ctrl-C (SIGINT to this process) after the first episode: partial results, then
+    --resume runs only the rest and gives the uninterrupted table."""
+    send_self_after(tmp_path, after_rows=1, sig=signal.SIGINT)
+    with pytest.raises(RunInterrupted) as info:
+        run_sweep(str(SMOKE), [], str(tmp_path), progress=False, workers=1)
+    folder = info.value.folder
+    clear_stop()
+    meta = json.loads((folder / "meta.json").read_text())
+    assert meta["status"] == "interrupted" and "SIGINT" in meta["error"]
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["partial"] and 1 <= summary["episodes"]["finished"] < 4
+    assert (folder / "summary.md").read_text().count("PARTIAL") == 1
+    finished = len(rows(folder))
+    resumed = run_sweep(
+        str(SMOKE), [], str(tmp_path), progress=False, workers=1, resume=str(folder)
+    )
+    assert rows(resumed) == rows(smoke_sweep)
+    done = [r for r in journal(folder) if r["outcome"] != "interrupted"]
+    assert len(done) == 4, done  # the finished ones were not run again
+    assert finished >= 1
