@@ -620,8 +620,8 @@ def _fmt(v: Any, spec: str = ".0f") -> str:
 def summary_rows(summary: dict, bands: Sequence[str]) -> tuple[list[str], list[list[str]]]:
     """The summary table as a header and string rows (shared by the terminal and summary.md).
 
-    Band cells read "success % / median steps"; the last column counts stalled / step-limit /
-    failed (diverged, lost the rod, raised) episodes.
+    Band cells read "success % / median steps"; the last column counts stalled / pinned /
+    step-limit / failed (diverged, lost the rod, raised) episodes.
     """
     header = [
         "method",
@@ -632,7 +632,7 @@ def summary_rows(summary: dict, bands: Sequence[str]) -> tuple[list[str], list[l
         "path m",
         "final px",
         *bands,
-        "stall/limit/fail",
+        "stall/pin/limit/fail",
     ]
     lines = []
     for m, s in summary["methods"].items():
@@ -653,7 +653,7 @@ def summary_rows(summary: dict, bands: Sequence[str]) -> tuple[list[str], list[l
                     f"{_fmt(bs['steps_median'])}"
                     for bs in (s["bands"][b] for b in bands)
                 ],
-                f"{o['stalled']}/{o['step_limit']}/"
+                f"{o['stalled']}/{o.get('pinned', 0)}/{o['step_limit']}/"
                 f"{o['diverged'] + o['lost_tracking'] + o['error']}",
             ]
         )
@@ -996,7 +996,7 @@ def write_summary_md(
         f"{summary['common_targets']} targets every method converged on. Smoothness: summed "
         "||u_k - u_{k-1}|| and path: summed ||(dx, dy)||, medians over converged episodes. "
         f"Band columns (difficulty edges {cfg.targets.bands}): success % / median steps. Last "
-        "column: stalled / step limit / failed (diverged, lost the rod, error) episodes.",
+        "column: stalled / pinned / step limit / failed (diverged, lost the rod, error) episodes.",
         "",
         markdown_table(header, lines),
         "",
@@ -1025,8 +1025,8 @@ def terminal_table(summary: dict, title: str) -> Any:
     """The summary as a rich table that fits 80 columns (the full table is in summary.md).
 
     Columns: success rate; median [IQR] steps to converge; paired median (targets every
-    method converged on); median smoothness; median final pixel error; stalled / step-limit /
-    failed episodes.
+    method converged on); median smoothness; median final pixel error; stalled / pinned /
+    step-limit / failed episodes.
     """
     from rich import box
     from rich.table import Table
@@ -1039,7 +1039,7 @@ def terminal_table(summary: dict, title: str) -> Any:
         ("paired", "right"),
         ("smooth", "right"),
         ("px", "right"),
-        ("st/lim/fail", "right"),
+        ("st/pin/lim/fail", "right"),
     ):
         table.add_column(name, justify=justify, no_wrap=True, min_width=len(name))
     for m, st in summary["methods"].items():
@@ -1053,7 +1053,7 @@ def terminal_table(summary: dict, title: str) -> Any:
             _fmt(st["paired_steps_median"]),
             _fmt(st["smoothness_median"], ".3f"),
             _fmt(st["final_pixel_error_median"], ".2f"),
-            f"{o['stalled']}/{o['step_limit']}/{fails}",
+            f"{o['stalled']}/{o.get('pinned', 0)}/{o['step_limit']}/{fails}",
         )
     return table
 

@@ -151,12 +151,27 @@ def write_json_best_effort(path: Path, data: Any) -> str | None:
         first = describe_os_error(exc)
     if not path.exists():
         return first
-    try:
-        with path.open("w", encoding="utf-8") as fh:
-            fh.write(json.dumps(jsonable(data), separators=(",", ":"), allow_nan=False))
-        return None
-    except OSError:
-        return first
+    # Truncating frees the old file's blocks; the full text, else the text without the bulky
+    # descriptive keys (the status and the error are what must get through).
+    for text in (
+        json.dumps(jsonable(data), separators=(",", ":"), allow_nan=False),
+        json.dumps(
+            jsonable({k: v for k, v in data.items() if k not in _BULKY}),
+            separators=(",", ":"),
+            allow_nan=False,
+        ),
+    ):
+        try:
+            with path.open("w", encoding="utf-8") as fh:
+                fh.write(text)
+            return None
+        except OSError:
+            continue
+    return first
+
+
+#: meta.json keys a full disk may have to go without (descriptive, also in the MCAP header).
+_BULKY = ("numeric_env", "versions", "argv")
 
 
 @dataclass

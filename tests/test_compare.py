@@ -303,7 +303,14 @@ def test_terminal_table_fits_80_columns_without_truncating_a_cell():
 
     st = {
         "success_rate": 0.77,
-        "outcomes": {"stalled": 20, "step_limit": 3, "diverged": 1, "lost_tracking": 0, "error": 0},
+        "outcomes": {
+            "stalled": 20,
+            "pinned": 2,
+            "step_limit": 3,
+            "diverged": 1,
+            "lost_tracking": 0,
+            "error": 0,
+        },
         "steps_median": 17.0,
         "steps_q25": 9.0,
         "steps_q75": 25.0,
@@ -317,5 +324,5 @@ def test_terminal_table_fits_80_columns_without_truncating_a_cell():
     text = console.export_text()
     assert "…" not in text
     assert all(len(line) <= 80 for line in text.splitlines())
-    for cell in ("aghajanzadeh2022", "77%", "17 [9-25]", "0.057", "0.97", "20/3/1"):
+    for cell in ("aghajanzadeh2022", "77%", "17 [9-25]", "0.057", "0.97", "20/2/3/1"):
         assert cell in text
