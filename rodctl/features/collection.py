@@ -229,7 +229,13 @@ def _start_method() -> str:
     return "spawn"
 
 
-def collect_dataset(cfg: ExperimentConfig, *, progress: bool = True) -> CenterlineDataset:
+def collect_dataset(
+    cfg: ExperimentConfig,
+    *,
+    progress: bool = True,
+    keep_partial: Path | None = None,
+    fingerprint: dict[str, Any] | None = None,
+) -> CenterlineDataset:
     """Collect `cfg.feature.data.samples` centerlines through the simulator and the camera.
 
     Uses `cfg.feature.data.workers` processes (see `_start_method`); the result does not depend
@@ -238,6 +244,10 @@ def collect_dataset(cfg: ExperimentConfig, *, progress: bool = True) -> Centerli
     Args:
         cfg: the experiment config; `cfg.feature` must be an autoencoder.
         progress: show a rich progress bar.
+        keep_partial: where to save the chunks collected so far if the collection is
+            interrupted (SIGINT/SIGTERM), so that `train-encoder --dataset` can reuse them;
+            needs `fingerprint`.
+        fingerprint: the encoder fingerprint the dataset is saved with.
 
     Returns:
         The dataset, chunks in order.
@@ -248,20 +258,33 @@ def collect_dataset(cfg: ExperimentConfig, *, progress: bool = True) -> Centerli
     cfg_json = cfg.model_dump_json()
     tasks = [(cfg_json, size, s) for size, s in zip(sizes, seeds, strict=True)]
     results: list[dict[str, Any]] = []
-    with task_progress("collecting", data_cfg.samples, progress) as advance:
-        if data_cfg.workers == 1 or len(tasks) == 1:
-            for task in tasks:
-                results.append(_collect_task(task))
-                advance(n=task[1])
-        else:
-            ctx = multiprocessing.get_context(_start_method())
-            with ctx.Pool(min(data_cfg.workers, len(tasks))) as pool:
-                for task, res in zip(tasks, pool.imap(_collect_task, tasks), strict=True):
-                    results.append(res)
+    try:
+        with task_progress("collecting", data_cfg.samples, progress) as advance:
+            if data_cfg.workers == 1 or len(tasks) == 1:
+                for task in tasks:
+                    results.append(_collect_task(task))
                     advance(n=task[1])
+            else:
+                ctx = multiprocessing.get_context(_start_method())
+                with ctx.Pool(min(data_cfg.workers, len(tasks))) as pool:
+                    for task, res in zip(tasks, pool.imap(_collect_task, tasks), strict=True):
+                        results.append(res)
+                        advance(n=task[1])
+    except KeyboardInterrupt:
+        # Chunks finish in order (imap), so the first len(results) chunks are whole: keep them.
+        if keep_partial is not None and len(results) >= 1 and fingerprint is not None:
+            _assemble(results).save(keep_partial, fingerprint=fingerprint)
+        raise
+    return _assemble(results)
+
+
+def _assemble(results: list[dict[str, Any]]) -> CenterlineDataset:
+    """The dataset of the first len(results) chunks."""
     return CenterlineDataset(
         centerlines=np.concatenate([r["centerlines"] for r in results]),
         poses=np.concatenate([r["poses"] for r in results]),
-        chunk=np.concatenate([np.full(s, i, dtype=np.int32) for i, s in enumerate(sizes)]),
+        chunk=np.concatenate(
+            [np.full(len(r["centerlines"]), i, dtype=np.int32) for i, r in enumerate(results)]
+        ),
         attempts=int(sum(r["attempts"] for r in results)),
     )

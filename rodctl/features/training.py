@@ -205,8 +205,11 @@ def train_encoder(
     fingerprint = encoder_fingerprint(cfg)
     t0 = time.perf_counter()
     if dataset is None:
-        data = collect_dataset(cfg, progress=progress)
         dataset_path = run.path / "dataset.npz"
+        # Interrupted, the chunks collected so far are kept there (reuse with --dataset).
+        data = collect_dataset(
+            cfg, progress=progress, keep_partial=dataset_path, fingerprint=fingerprint
+        )
         data.save(dataset_path, fingerprint=fingerprint)
         collected = True
     else:

@@ -93,15 +93,17 @@ def test_sigkill_then_replay_recover_reads_the_whole_steps(tmp_path):
     assert "recovered" in res.stderr
 
 
-def test_train_encoder_records_sigterm_as_interrupted(tmp_path):
+def test_train_encoder_records_sigterm_as_interrupted_and_keeps_the_data(tmp_path):
+    """SIGTERM while collecting: `interrupted`, exit 1, no worker left, and the chunks collected
+    so far saved as the run's dataset.npz, which `--dataset` trains on."""
     proc = _start(
         ["train-encoder", str(REPO / "configs/default.yaml"), "-q", "-o", str(tmp_path),
-         "--set", "feature.data.samples=400", "--set", "feature.data.chunk=100",
-         "--set", "feature.data.workers=2", "--set", "feature.training.epochs=100000",
+         "--set", "feature.data.samples=20000", "--set", "feature.data.chunk=40",
+         "--set", "feature.data.workers=2", "--set", "feature.training.epochs=2",
          "--set", "feature.training.batch_size=100"]
     )  # fmt: skip
     run_dir = _run_dir(tmp_path)
-    time.sleep(3.0)
+    time.sleep(8.0)  # collection runs for minutes; a few chunks of 40 are done by now
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 1, err
@@ -116,3 +118,12 @@ def test_train_encoder_records_sigterm_as_interrupted(tmp_path):
         return left.stdout.strip() == ""
 
     _wait_for(gone, 10)
+    dataset = run_dir / "dataset.npz"
+    assert dataset.is_file(), "the chunks collected before the signal are kept"
+    res = subprocess.run(
+        [sys.executable, "-m", "rodctl", "train-encoder", str(REPO / "configs/default.yaml"),
+         "-q", "-o", str(tmp_path / "again"), "--dataset", str(dataset),
+         "--set", "feature.training.epochs=2", "--set", "feature.training.batch_size=100"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
