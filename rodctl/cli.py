@@ -455,20 +455,23 @@ def _finish_batch(run: Callable[[], Any]) -> None:
     typer.echo(str(folder))
 
 
+WorkersOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--workers",
+        min=1,
+        help="Worker processes, or CPUs of a Ray started for the run (default: the config's).",
+    ),
+]
+
+
 @app.command()
 @user_errors
 def compare(
     config: Annotated[str, typer.Argument(help="Compare config, e.g. configs/compare.yaml.")],
     set_: SetOpt = None,
     out: OutOpt = "runs",
-    workers: Annotated[
-        int | None,
-        typer.Option(
-            "--workers",
-            min=1,
-            help="Worker processes, or CPUs of a Ray started for the run (default: the config's).",
-        ),
-    ] = None,
+    workers: WorkersOpt = None,
     executor: ExecutorOpt = "local",
     address: AddressOpt = None,
     resume: ResumeOpt = None,
@@ -507,14 +510,7 @@ def sweep(
     config: Annotated[str, typer.Argument(help="Sweep config, e.g. configs/sweep-tuning.yaml.")],
     set_: SetOpt = None,
     out: OutOpt = "runs",
-    workers: Annotated[
-        int | None,
-        typer.Option(
-            "--workers",
-            min=1,
-            help="Worker processes, or CPUs of a Ray started for the run (default: the config's).",
-        ),
-    ] = None,
+    workers: WorkersOpt = None,
     executor: ExecutorOpt = "local",
     address: AddressOpt = None,
     resume: ResumeOpt = None,
