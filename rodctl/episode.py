@@ -33,7 +33,7 @@ from rodctl import fixedla as fla
 from rodctl import metrics
 from rodctl.config import ExperimentConfig, dump_config
 from rodctl.env import Q, ShapeServoEnv, StageTimes
-from rodctl.errors import UserError
+from rodctl.errors import UserError, describe_os_error
 from rodctl.logs.base import Sink
 from rodctl.method import CONTROL, INITIAL, Method
 from rodctl.numenv import numeric_environment
@@ -378,16 +378,22 @@ class _Loop:
 
     def finish(self, outcome: Outcome, error: BaseException | None = None) -> EpisodeResult:
         """Summarise, close the sinks with the real status, and return the result."""
-        message = None
-        tb = None
-        if error is not None:
-            message = (
-                str(error) if isinstance(error, UserError) else f"{type(error).__name__}: {error}"
-            )
-            tb = "".join(traceback.format_exception(error))
         summary = self.summary(outcome)
         if self.header is not None:
-            self.close(summary, outcome.status)
+            try:
+                self.close(summary, outcome.status)
+            except Exception as exc:  # noqa: BLE001 - e.g. a full disk while finalising
+                if error is None:  # the logs could not be finalised: the run failed
+                    outcome, error = Outcome.ERROR, exc
+                    summary = self.summary(outcome)
+        message = tb = None
+        if error is not None:
+            message = str(error)
+            if isinstance(error, OSError):
+                message = f"{type(error).__name__}: {describe_os_error(error)}"
+            elif not isinstance(error, UserError):
+                message = f"{type(error).__name__}: {error}"
+            tb = "".join(traceback.format_exception(error))
         return EpisodeResult(outcome, summary, self.header, self.records, message, tb)
 
     def _benchmark_metrics(self, outcome: Outcome) -> dict[str, Any]:

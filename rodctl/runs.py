@@ -124,35 +124,44 @@ def jsonable(value: Any) -> Any:
     return value
 
 
-def write_json_atomic(path: Path, data: Any) -> None:
+def write_json_atomic(path: Path, data: Any, *, reserve: int = 0) -> None:
     """Write `jsonable(data)` to `path` via a temporary file and a rename, so readers never see
-    half a file and every JSON parser reads it (no NaN)."""
+    half a file and every JSON parser reads it (no NaN).
+
+    Args:
+        reserve: pad the file with trailing whitespace (valid JSON) to at least this many
+            bytes: space already on disk that `write_json_best_effort` can rewrite in place
+            when the disk is full.
+    """
     tmp = path.with_name(path.name + ".tmp")
-    text = json.dumps(jsonable(data), indent=2, allow_nan=False)
+    text = json.dumps(jsonable(data), indent=2, allow_nan=False) + "\n"
+    text += " " * max(0, reserve - len(text.encode("utf-8")))
     try:
-        tmp.write_text(text + "\n", encoding="utf-8")
+        tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, path)
     except OSError:
         tmp.unlink(missing_ok=True)
         raise
 
 
-def write_json_best_effort(path: Path, data: Any) -> str | None:
+def write_json_best_effort(path: Path, data: Any, *, reserve: int = 0) -> str | None:
     """Write JSON even on a full disk if at all possible; the error message if not.
 
-    First atomically (`write_json_atomic`). If that fails and the file exists, it is rewritten
-    in place: truncating it frees its blocks, and the new text is about as long, so a status
-    update usually fits where a second file would not.
+    First atomically (`write_json_atomic`). If that fails and the file exists, it is
+    overwritten in place *without* truncating it, so no new block is needed while the new text
+    fits in the old file's size (a file written with `reserve` has room to spare); the rest is
+    blanked with spaces. The text without the bulky descriptive keys is tried when the full one
+    does not fit: the status and the error are what must get through.
     """
     try:
-        write_json_atomic(path, data)
+        write_json_atomic(path, data, reserve=reserve)
         return None
     except OSError as exc:
         first = describe_os_error(exc)
-    if not path.exists():
+    try:
+        size = path.stat().st_size
+    except OSError:
         return first
-    # Truncating frees the old file's blocks; the full text, else the text without the bulky
-    # descriptive keys (the status and the error are what must get through).
     for text in (
         json.dumps(jsonable(data), separators=(",", ":"), allow_nan=False),
         json.dumps(
@@ -161,9 +170,12 @@ def write_json_best_effort(path: Path, data: Any) -> str | None:
             allow_nan=False,
         ),
     ):
+        raw = text.encode("utf-8")
+        if len(raw) > size:
+            continue
         try:
-            with path.open("w", encoding="utf-8") as fh:
-                fh.write(text)
+            with path.open("r+b") as fh:
+                fh.write(raw + b" " * (size - len(raw)))
             return None
         except OSError:
             continue
@@ -172,6 +184,9 @@ def write_json_best_effort(path: Path, data: Any) -> str | None:
 
 #: meta.json keys a full disk may have to go without (descriptive, also in the MCAP header).
 _BULKY = ("numeric_env", "versions", "argv")
+
+#: Bytes meta.json keeps on disk so that its final status can be written on a full disk.
+META_RESERVE = 16_384
 
 
 @dataclass
@@ -234,8 +249,8 @@ class RunDir:
         return run
 
     def write_meta(self) -> None:
-        """Rewrite meta.json from `self.meta`."""
-        write_json_atomic(self.path / "meta.json", self.meta)
+        """Rewrite meta.json from `self.meta` (keeping `META_RESERVE` bytes on disk for it)."""
+        write_json_atomic(self.path / "meta.json", self.meta, reserve=META_RESERVE)
 
     def finish(self, status: str, **extra: Any) -> str | None:
         """Record the terminal status (completed, failed or interrupted) and the end time.
@@ -246,4 +261,4 @@ class RunDir:
         if status not in STATUSES[1:]:
             raise ValueError(f"terminal status must be one of {STATUSES[1:]}, got {status!r}")
         self.meta.update(status=status, ended_at=_now(), **extra)
-        return write_json_best_effort(self.path / "meta.json", self.meta)
+        return write_json_best_effort(self.path / "meta.json", self.meta, reserve=META_RESERVE)
