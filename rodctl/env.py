@@ -386,6 +386,8 @@ class ShapeServoEnv(gym.Env):
         grasp slip or a camera bump; after a bump the target — the same physical shape — is
         seen again through the moved camera, so its pixels change (the observation's `target`).
         """
+        if not self.cfg.run.events:
+            return []
         from rodctl.events import due
 
         lines = []
