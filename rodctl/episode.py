@@ -221,7 +221,12 @@ def run_episode(
     obs, info = env.reset(seed=cfg.seed if seed is None else seed, options=options)
     method.start(env.task)
     loop = _Loop(env, method, sinks, on_step, wall0)
-    loop.open(run_id)
+    try:
+        loop.open(run_id)  # closes what it opened if one sink fails to open
+    except Exception as exc:
+        if isinstance(exc, UserError):
+            raise
+        raise EpisodeFailed(loop.finish(Outcome.ERROR, error=exc, close=False)) from exc
     outcome: Outcome | None = None
     try:
         u = method.act(obs)
@@ -376,10 +381,13 @@ class _Loop:
         if first is not None:
             raise first
 
-    def finish(self, outcome: Outcome, error: BaseException | None = None) -> EpisodeResult:
-        """Summarise, close the sinks with the real status, and return the result."""
+    def finish(
+        self, outcome: Outcome, error: BaseException | None = None, *, close: bool = True
+    ) -> EpisodeResult:
+        """Summarise, close the sinks with the real status (unless `close` is False: they were
+        never all opened), and return the result."""
         summary = self.summary(outcome)
-        if self.header is not None:
+        if close and self.header is not None:
             try:
                 self.close(summary, outcome.status)
             except Exception as exc:  # noqa: BLE001 - e.g. a full disk while finalising

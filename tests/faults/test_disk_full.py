@@ -101,3 +101,23 @@ def test_replay_into_a_read_only_folder_says_so(tmp_path, small_disk):
     res = CliRunner().invoke(app, ["replay", run_dir, "-o", str(ro / "out")])
     assert res.exit_code == 1, res.output
     assert "Read-only file system" in res.output and "Traceback" not in res.output
+
+
+class _FailsToOpen:
+    def open(self, header):
+        raise OSError(errno.ENOSPC, "No space left on device", "run.mcap")
+
+    def write(self, record):
+        raise AssertionError("never opened")
+
+    def close(self, summary, status):
+        raise AssertionError("never opened")
+
+
+def test_a_log_that_cannot_be_opened_fails_the_run_cleanly(tmp_path, monkeypatch):
+    monkeypatch.setattr(simulate_module, "make_sinks", lambda cfg, path: [_FailsToOpen()])
+    res = CliRunner().invoke(app, ["simulate", SCRIPTED, "-q", "-o", str(tmp_path), *QUICK])
+    assert res.exit_code == 1 and "No space left on device" in res.output, res.output
+    (run_dir,) = tmp_path.iterdir()
+    meta = json.loads((run_dir / "meta.json").read_text())
+    assert meta["status"] == "failed" and "No space left" in meta["error"]
