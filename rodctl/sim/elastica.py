@@ -31,6 +31,28 @@ def _frame(pose: Sequence[float]) -> tuple[np.ndarray, float]:
     return pose[:2], float(pose[2])
 
 
+def _guess_profile(guess: np.ndarray, start_pose, end_pose, length: float) -> tuple:
+    """The BVP solvers' starting profile from a guess shape: (p0, p1, th0, th1, s, xy, theta,
+    kappa, dkappa) in units of L. The guess's angles are pinned to the start angle, and the end
+    angle to the guess's branch of 2π."""
+    guess = np.asarray(guess, dtype=float)
+    p0, th0 = _frame(start_pose)
+    p1, th1 = _frame(end_pose)
+    s = np.linspace(0.0, 1.0, guess.shape[0])
+    xy = (guess[:, :2] - p0) / length
+    if guess.shape[1] >= 3:
+        theta = np.unwrap(guess[:, 2])
+    else:
+        d = np.diff(guess[:, :2], axis=0)
+        chord = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+        theta = np.interp(s, 0.5 * (s[1:] + s[:-1]), chord)
+    theta = theta + th0 - theta[0]
+    th1 = th1 + 2 * np.pi * np.round((theta[-1] - th1) / (2 * np.pi))
+    kappa = np.gradient(theta, s)
+    dkappa = np.gradient(kappa, s)
+    return p0, p1, th0, th1, s, xy, theta, kappa, dkappa
+
+
 def circular_arc(
     length: float,
     curvature: float,
@@ -189,23 +211,9 @@ def two_pose_equilibrium(
     Returns:
         The solution; check `success`.
     """
-    guess = np.asarray(guess, dtype=float)
-    p0, th0 = _frame(start_pose)
-    p1, th1 = _frame(end_pose)
-    m = guess.shape[0]
-    s = np.linspace(0.0, 1.0, m)
-    xy = (guess[:, :2] - p0) / length
-    if guess.shape[1] >= 3:
-        theta = np.unwrap(guess[:, 2])
-    else:
-        d = np.diff(guess[:, :2], axis=0)
-        chord = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
-        theta = np.interp(s, 0.5 * (s[1:] + s[:-1]), chord)
-    # Pin the guess's angles to the start angle, and the end angle to the guess's branch of 2π.
-    theta += th0 - theta[0]
-    th1 = th1 + 2 * np.pi * np.round((theta[-1] - th1) / (2 * np.pi))
-    kappa = np.gradient(theta, s)
-    dkappa = np.gradient(kappa, s)
+    p0, p1, th0, th1, s, xy, theta, kappa, dkappa = _guess_profile(
+        guess, start_pose, end_pose, length
+    )
     # Least-squares guess of the force from κ' = p_x sin θ − p_y cos θ.
     a = np.stack([np.sin(theta), -np.cos(theta)], axis=1)
     p_guess = np.linalg.lstsq(a, dkappa, rcond=None)[0]
@@ -407,23 +415,10 @@ def heavy_two_pose_equilibrium(
         distributed_load: (2,) f (N/m, world frame), e.g. ρA·g.
         tol: solve_bvp tolerance.
     """
-    guess = np.asarray(guess, dtype=float)
-    p0, th0 = _frame(start_pose)
-    p1, th1 = _frame(end_pose)
     w = np.asarray(distributed_load, dtype=float) * length**3 / bending_stiffness
-    m = guess.shape[0]
-    s = np.linspace(0.0, 1.0, m)
-    xy = (guess[:, :2] - p0) / length
-    if guess.shape[1] >= 3:
-        theta = np.unwrap(guess[:, 2])
-    else:
-        d = np.diff(guess[:, :2], axis=0)
-        chord = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
-        theta = np.interp(s, 0.5 * (s[1:] + s[:-1]), chord)
-    theta += th0 - theta[0]
-    th1 = th1 + 2 * np.pi * np.round((theta[-1] - th1) / (2 * np.pi))
-    kappa = np.gradient(theta, s)
-    dkappa = np.gradient(kappa, s)
+    p0, p1, th0, th1, s, xy, theta, kappa, dkappa = _guess_profile(
+        guess, start_pose, end_pose, length
+    )
     # Least-squares guess of p(0) from κ' = (p0 − w s) × ... (linear in p0).
     a = np.stack([np.sin(theta), -np.cos(theta)], axis=1)
     rhs_known = dkappa + s * (w[0] * np.sin(theta) - w[1] * np.cos(theta))
