@@ -442,12 +442,15 @@ ResumeOpt = Annotated[
 ]
 
 
-def _finish_batch(run: Callable[[], Any]) -> None:
-    """Run compare/sweep; an interrupted run prints its folder and exits 1 (results kept)."""
+def _finish_batch(runner: Callable[..., Any], config: str, **kwargs: Any) -> None:
+    """Run compare/sweep (`runner(config, overrides, out, ...)`); an interrupted run prints its
+    folder and exits 1 (results kept)."""
     from rodctl.compare import RunInterrupted
 
+    kwargs["overrides"] = kwargs.pop("set_") or []
+    kwargs["progress"] = not kwargs.pop("quiet")
     try:
-        folder = run()
+        folder = runner(config, **kwargs)
     except RunInterrupted as exc:
         typer.echo(f"interrupted: {exc}; partial results kept, resume with --resume", err=True)
         typer.echo(str(exc.folder))
@@ -491,17 +494,9 @@ def compare(
     # A config with `scenarios` is a benchmark suite: every scenario is a compare of its own.
     runner = run_suite if "scenarios" in read_yaml(config) else run_compare
     _finish_batch(
-        lambda: runner(
-            config,
-            set_ or [],
-            out,
-            progress=not quiet,
-            workers=workers,
-            executor=executor,
-            address=address,
-            resume=resume,
-        )
-    )
+        runner, config, set_=set_, out=out, quiet=quiet, workers=workers,
+        executor=executor, address=address, resume=resume,
+    )  # fmt: skip
 
 
 @app.command()
@@ -525,17 +520,9 @@ def sweep(
     from rodctl.sweep import run_sweep
 
     _finish_batch(
-        lambda: run_sweep(
-            config,
-            set_ or [],
-            out,
-            progress=not quiet,
-            workers=workers,
-            executor=executor,
-            address=address,
-            resume=resume,
-        )
-    )
+        run_sweep, config, set_=set_, out=out, quiet=quiet, workers=workers,
+        executor=executor, address=address, resume=resume,
+    )  # fmt: skip
 
 
 def main() -> None:

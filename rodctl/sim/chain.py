@@ -105,6 +105,19 @@ def first_mode_rate(
     return wavenumber * math.sqrt(bending_stiffness / j_per_length)
 
 
+def _drive(body: pymunk.Body, target: Sequence[float] | None, dt: float) -> None:
+    """Set a kinematic body's velocity so that it lands exactly on `target` [x, y, theta] at
+    the end of a time step of `dt` (None: hold it still)."""
+    if target is None:
+        body.velocity = (0.0, 0.0)
+        body.angular_velocity = 0.0
+        return
+    p = body.position
+    inv = 1.0 / dt
+    body.velocity = ((target[0] - p.x) * inv, (target[1] - p.y) * inv)
+    body.angular_velocity = (target[2] - body.angle) * inv
+
+
 def _table_joints(space: pymunk.Space, bodies: list) -> list[pymunk.Constraint]:
     """pymunk's top-down friction: per segment a pivot (sliding) and a gear (turning) joint to
     the static body, with no position correction; their max forces are set from mu."""
@@ -464,28 +477,12 @@ class RodChain:
         step (kinematic bodies are integrated from their velocity). `target=None` holds it still.
         `clamp_target` drives a movable clamp the same way (None: it stays).
         """
-        clamp = self.clamp_body
-        if clamp is not None:
-            if clamp_target is None:
-                clamp.velocity = (0.0, 0.0)
-                clamp.angular_velocity = 0.0
-            else:
-                p = clamp.position
-                inv = 1.0 / self.dt
-                clamp.velocity = ((clamp_target[0] - p.x) * inv, (clamp_target[1] - p.y) * inv)
-                clamp.angular_velocity = (clamp_target[2] - clamp.angle) * inv
+        if self.clamp_body is not None:
+            _drive(self.clamp_body, clamp_target, self.dt)
         elif clamp_target is not None:
             raise ValueError("this chain's clamp is fixed (built with movable_clamp=False)")
-        grip = self.gripper
-        if grip is not None:
-            if target is None:
-                grip.velocity = (0.0, 0.0)
-                grip.angular_velocity = 0.0
-            else:
-                p = grip.position
-                inv = 1.0 / self.dt
-                grip.velocity = ((target[0] - p.x) * inv, (target[1] - p.y) * inv)
-                grip.angular_velocity = (target[2] - grip.angle) * inv
+        if self.gripper is not None:
+            _drive(self.gripper, target, self.dt)
         elif self.tip_force is not None:
             # A dead load: fixed world direction, applied at the free end (forces reset each step).
             tip = self.bodies[-1]
