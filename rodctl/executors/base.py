@@ -16,6 +16,7 @@ pool process, `ray.cancel` on Ray), whichever process the user's signal reached 
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
@@ -78,13 +79,17 @@ def stop_handlers() -> Iterator[None]:
 
 def init_worker() -> None:
     """Start of every worker process: plug-ins registered as in the parent (a config naming a
-    plug-in type must validate there too), one torch thread, and cooperative stop handlers."""
-    import torch
+    plug-in type must validate there too), one torch thread, and cooperative stop handlers.
 
+    torch is not imported here (1.2 s a worker, and most tasks never use it): both executors
+    start their workers with `THREAD_ENV` set to 1, which torch reads when a task imports it.
+    Only if a plug-in already imported it is its thread count set here."""
     from rodctl.registry import load_plugins
 
     load_plugins()
-    torch.set_num_threads(1)
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(1)
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, _handler)
