@@ -38,6 +38,7 @@ The gripper is a kinematic body driven by velocity, never teleported (pitfall 3)
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 
 import numpy as np
@@ -118,6 +119,16 @@ def _drive(body: pymunk.Body, target: Sequence[float] | None, dt: float) -> None
     body.angular_velocity = (target[2] - body.angle) * inv
 
 
+#: Rate at which the solver closes every pivot joint's gap (clamp, interior, gripper) while the
+#: rod lies on a table with friction, as a multiple of the rod's first bending-mode rate ω1
+#: (27/s for the default rod; Chipmunk's default is 6.3/s). See `RodChain.set_table_friction`.
+TABLE_GAP_RATE = 1.3
+#: Largest speed (m/s) of that correction, so that a wide gap (0.2-0.3 mm at the gripper right
+#: after a move) does not kick the rod: uncapped, 2 ω1 made an underdamped rod (rod.damping
+#: 0.25-0.5) snap to the mirror-image shape at N = 50 or never settle at N = 100.
+TABLE_GAP_MAX_SPEED = 2e-3
+
+
 def _table_joints(space: pymunk.Space, bodies: list) -> list[pymunk.Constraint]:
     """pymunk's top-down friction: per segment a pivot (sliding) and a gear (turning) joint to
     the static body, with no position correction; their max forces are set from mu."""
@@ -163,8 +174,9 @@ class RodChain:
             `PivotJoint` to the static body at the segment centre with max_force μ m g and a
             `GearJoint` with max torque μ m g l/4 (the Coulomb torque of a uniformly loaded
             segment spinning about its centre), both with max_bias 0 so they only resist motion
-            and never pull the rod back. μ = 0 builds the joints with zero force (a table without
-            friction): the same shapes as no table.
+            and never pull the rod back. With μ > 0 the pivot joints close their gaps faster
+            (see `set_table_friction`). μ = 0 builds the joints with zero force (a table without
+            friction) and keeps the default gap correction: the same shapes as no table.
         table_gravity: g (m/s²) pressing the rod on the table (only with `table_friction`).
         movable_clamp: hold the clamped end by a kinematic body that `step` can drive (like the
             gripper) instead of pinning it to the static body. False builds exactly the chain
@@ -228,6 +240,9 @@ class RodChain:
 
         bodies = self._add_segments(space, mass, inertia)
         constraints = self._joints(space, bodies, k_in, k_end, movable_clamp, gripped)
+        self._joint_pivots = [c for c in constraints if isinstance(c, pymunk.PivotJoint)]
+        self._default_error_bias = self._joint_pivots[0].error_bias
+        self._default_max_bias = self._joint_pivots[0].max_bias
         self.table_friction = None if table_friction is None else float(table_friction)
         self.table_gravity = float(table_gravity)
         self.friction_joints: list[pymunk.Constraint] = []
@@ -322,12 +337,35 @@ class RodChain:
 
     # ------------------------------------------------------------------ changing the rod
     def set_table_friction(self, mu: float) -> None:
-        """Set the table's Coulomb coefficient (only on a chain built with `table_friction`)."""
+        """Set the table's Coulomb coefficient (only on a chain built with `table_friction`).
+
+        With μ > 0 the pivot joints also close their gaps faster (`TABLE_GAP_RATE` · ω1, at most
+        `TABLE_GAP_MAX_SPEED`) than Chipmunk's default 10 % per 1/60 s. Why: at 20 solver
+        iterations the chain's pivots open while the gripper drags it (a few mm summed along the
+        chain during a move, on the weightless rod too) and the solver closes those gaps after
+        the move. Without friction the default rate only sets how long the settle takes. On a
+        table, friction holds the segments against that slow correction: the rod kept slipping
+        at about the settle speed for a second or more while the gaps closed, and a control
+        step took 2.3x the physics steps of the weightless rod (1.2x with the faster rate). The
+        gaps are a solver error, not physics, so closing them faster changes no equilibrium (a
+        table with μ = 1e-9 settles within 0.03 mm of the frictionless rod). μ = 0 keeps
+        Chipmunk's defaults: a frictionless table is then the frictionless rod bit for bit.
+        """
         if self.table_friction is None:
             raise ValueError("this chain has no table (built with table_friction=None)")
         if not (math.isfinite(mu) and mu >= 0):
             raise ValueError(f"table friction must be finite and >= 0, got {mu}")
         self.table_friction = float(mu)
+        bias = self._default_error_bias
+        if mu > 0:
+            # Chipmunk closes 1 - error_bias**dt of the gap per step: error_bias is the fraction
+            # left after one second. Past a rate of ~708/s it would underflow to 0 (the whole gap
+            # in one step); the smallest normal float then closes a little less than asked.
+            bias = max(math.exp(-TABLE_GAP_RATE * self.mode1_rate()), sys.float_info.min)
+        max_bias = self._default_max_bias if mu == 0 else TABLE_GAP_MAX_SPEED
+        for pivot in self._joint_pivots:
+            pivot.error_bias = bias
+            pivot.max_bias = max_bias
         normal = self.segment_mass * self.table_gravity
         for i in range(0, len(self.friction_joints), 2):
             self.friction_joints[i].max_force = mu * normal
@@ -368,6 +406,13 @@ class RodChain:
         self.mass_per_length = float(mass_per_length)
         if self.table_friction is not None:
             self.set_table_friction(self.table_friction)
+
+    def mode1_rate(self) -> float:
+        """ω1 (rad/s) of the gripper-held chain as it is now: `first_mode_rate` with the actual
+        segment inertia and length (which `set_bending_stiffness` leaves unchanged and
+        `set_mass_per_length` or a shorter held length change)."""
+        j_per_length = self.segment_inertia / self.seg_length
+        return 2.0 * math.pi / self.length * math.sqrt(self.bending_stiffness / j_per_length)
 
     # ------------------------------------------------------------------ readouts
     def _read(self, fields: pbatch.BodyFields) -> np.ndarray:
