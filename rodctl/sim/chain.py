@@ -124,8 +124,10 @@ def _drive(body: pymunk.Body, target: Sequence[float] | None, dt: float) -> None
 #: (27/s for the default rod; Chipmunk's default is 6.3/s). See `RodChain.set_table_friction`.
 TABLE_GAP_RATE = 1.3
 #: Largest speed (m/s) of that correction, so that a wide gap (0.2-0.3 mm at the gripper right
-#: after a move) does not kick the rod: uncapped, 2 ω1 made an underdamped rod (rod.damping
-#: 0.25-0.5) snap to the mirror-image shape at N = 50 or never settle at N = 100.
+#: after a move) does not kick the rod. Measured: uncapped, 1.7 ω1 made an underdamped rod
+#: (rod.damping 0.25-0.5) jump to another equilibrium branch (0.24 m away) at N = 50, and 2 ω1,
+#: even capped, kept it from settling at N = 100; 1.3 ω1 with the cap settles at N = 25, 50, 100,
+#: mu = 0.2-2, damping 0.25-1.
 TABLE_GAP_MAX_SPEED = 2e-3
 
 
