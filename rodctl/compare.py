@@ -91,6 +91,8 @@ CSV_COLUMNS = (
     "smoothness_translation",
     "smoothness_rotation",
     "near_origin_steps",
+    "event_peak_error",
+    "event_steps_to_converge",
     "wall_time_s",
     "error",
 )
@@ -102,6 +104,8 @@ METRIC_COLUMNS = (
     "smoothness_translation",
     "smoothness_rotation",
     "near_origin_steps",
+    "event_peak_error",
+    "event_steps_to_converge",
 )
 
 #: Candidate poses tried per sampled target before giving up (a candidate can fail to settle).
@@ -734,12 +738,13 @@ def success_figure(rows: Sequence[dict], methods: Sequence[str], path: Path, bin
 
 
 def _preflight(cfg: CompareConfig) -> dict[str, ExperimentConfig]:
-    """Every method's config, each built once here so a missing checkpoint fails before work."""
+    """Every method's config, each built once here so a missing checkpoint, or one trained for
+    another rod or camera, fails before work (and `checkpoint: auto` trains here, once)."""
     from rodctl.features import make_feature_map
 
     configs = {name: method_config(cfg, name) for name in cfg.methods}
     for ecfg in configs.values():
-        make_feature_map(ecfg.feature, points=ecfg.camera.points)  # raises UserError if unusable
+        make_feature_map(ecfg.feature, points=ecfg.camera.points, experiment=ecfg)
     return configs
 
 
