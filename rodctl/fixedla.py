@@ -23,10 +23,14 @@ import math
 import numpy as np
 
 __all__ = [
+    "apply_reflectors",
     "cho_solve",
     "cholesky",
+    "cholesky_inverse_factor",
+    "clip_eigenvalues",
     "dot",
     "eigh_small",
+    "eigh_tridiagonal_qr",
     "inv3",
     "matmul",
     "matvec",
@@ -35,6 +39,9 @@ __all__ = [
     "pinv_tall",
     "singular_values",
     "spd_solve",
+    "tridiagonal_eigenvalues",
+    "tridiagonal_eigenvector",
+    "tridiagonalize",
 ]
 
 
@@ -459,7 +466,7 @@ def tridiagonal_eigenvector(n: int, j: int, rots: list[tuple[int, float, float]]
 
 
 def apply_reflectors(refl: list[tuple[int, np.ndarray, float]], x: np.ndarray) -> np.ndarray:
-    """H x for the H = H_0 H_1 ... of `tridiagonalize` and x (n, m): vectors of T to vectors of a."""
+    """H x for the H = H_0 H_1 ... of `tridiagonalize`, x (n, m): vectors of T to those of a."""
     x = np.array(x, dtype=np.float64)
     for k, v, beta in reversed(refl):
         blk = x[k + 1 :]
@@ -481,7 +488,7 @@ def eigh_tridiagonal_qr(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def clip_eigenvalues(a: np.ndarray, floor: float) -> np.ndarray:
-    """Raise every eigenvalue of the symmetric matrix a below `floor` to `floor`, kernel-independent.
+    """Raise every eigenvalue of a symmetric matrix below `floor` to `floor`, kernel-independent.
 
     out = a + sum over {i: w_i < floor} of (floor - w_i) v_i v_i^T, the nearest matrix (Frobenius
     norm) whose eigenvalues are all >= floor. The eigenvalues come from `tridiagonalize` and

@@ -5,14 +5,17 @@ is J stacked by rows, x = vec_rows(J) in R^{pq}, under a random walk (A = I), ob
 y_k = Delta s_k = M_k x with M_k = I_p kron u_k^T.
 
 Why it is written the way it is:
-- Speed. The loop runs one update per control step and the goal is <= 100 us for the AKF and the
-  MFAC law together (p = 6, q = 3: an 18-dimensional state). M_k is never formed: with the
-  Kronecker structure, P M^T is `P.reshape(pq, p, q) @ u` and M (P M^T) is `u @ (.).reshape(p,
-  q, p)`, so every product is a small dense numpy call; no scipy.
+- Reproducibility (issue #18). No BLAS or LAPACK call: the products are `einsum` or
+  elementwise, S^-1 comes from a Cholesky factor in Python floats and the eigenvalue clip from
+  `rodctl.fixedla`, all in a fixed order of operations, so a run gives the same bits under every
+  BLAS kernel (README, "Reproducibility"). The clip is what that costs most (an 18 x 18
+  eigenproblem at nearly every step; `benchmarks/bench_estimation_control.py`).
+- Speed. M_k is never formed: with the Kronecker structure, P M^T is P.reshape(pq, p, q) u and
+  M (P M^T) is u against (.).reshape(p, q, p), each one small einsum (p = 6, q = 3: an
+  18-dimensional state); no scipy.
 - Robustness. The noise estimates Q and R (eqs. 17-18) are fading-memory sums that can lose
   definiteness (eq. 17 subtracts a matrix, Q's increment contains P_k - P_{k|k-1}), so after each
-  update they are symmetrised and their eigenvalues clipped to a floor. The clip costs an `eigh`
-  only when a Cholesky test says some eigenvalue is below the floor.
+  update they are symmetrised and their eigenvalues clipped to a floor (`clip_psd`).
 - The adaptive factor alpha of eq. 14 reaches 0 for gross outliers, and the filter divides by
   it; it is clamped to `alpha_floor` instead (a config value).
 """
@@ -25,11 +28,10 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, PositiveFloat, model_validator
 
+from rodctl import fixedla
 from rodctl.config.base import StrictModel
 from rodctl.estimation.base import DEAD_ZONE_DOC, checked_jacobian
 from rodctl.registry import ESTIMATORS, BuildContext
-
-from rodctl import fixedla
 
 
 def igg3_factor(stat: float, c0: float, c1: float, floor: float) -> float:
