@@ -404,13 +404,16 @@ def tridiagonal_eigenvalues(
     n = len(d)
     e = list(sub) + [0.0]
     rots: list[tuple[int, float, float]] = []
+    record = rots.append
+    sqrt = math.sqrt
+    fabs = math.fabs
     for l in range(n):  # noqa: E741 (the classic name of the index)
         it = 0
         while True:
             m = l
             while m < n - 1:  # a negligible subdiagonal entry splits the matrix
-                dd = abs(d[m]) + abs(d[m + 1])
-                if abs(e[m]) + dd == dd:
+                dd = fabs(d[m]) + fabs(d[m + 1])
+                if fabs(e[m]) + dd == dd:
                     break
                 m += 1
             if m == l:
@@ -419,7 +422,7 @@ def tridiagonal_eigenvalues(
             if it > 60:
                 raise np.linalg.LinAlgError("tridiagonal QL did not converge")
             g = (d[l + 1] - d[l]) / (2.0 * e[l])
-            r = math.sqrt(g * g + 1.0)
+            r = sqrt(g * g + 1.0)
             g = d[m] - d[l] + e[l] / (g + (r if g >= 0.0 else -r))
             s = c = 1.0
             p = 0.0
@@ -428,7 +431,7 @@ def tridiagonal_eigenvalues(
             while i >= l:
                 f = s * e[i]
                 b = c * e[i]
-                r = math.sqrt(f * f + g * g)
+                r = sqrt(f * f + g * g)
                 e[i + 1] = r
                 if r == 0.0:  # underflow: the matrix splits here
                     d[i + 1] -= p
@@ -442,7 +445,7 @@ def tridiagonal_eigenvalues(
                 p = s * r
                 d[i + 1] = g + p
                 g = c * r - b
-                rots.append((i, c, s))
+                record((i, c, s))
                 i -= 1
             if split:
                 continue
