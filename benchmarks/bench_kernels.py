@@ -4,8 +4,8 @@ Goal: every shipped config, run under one OpenBLAS kernel and re-run under anoth
 bit-identically or within a stated tolerance (1e-9: |a - b| <= 1e-9 max(1, |a|)).
 
 For each single-run config in configs/ (compare and sweep configs excluded) the run is made
-twice in fresh processes, under `OPENBLAS_CORETYPE` = the CPU's own kernel and = another one (Prescott: SSE3
-kernels every x86-64 CPU runs), and the two record sequences are compared with
+twice in fresh processes, under `OPENBLAS_CORETYPE` = the CPU's own kernel and = another one
+(Prescott: SSE3 kernels every x86-64 CPU runs), and the two record sequences are compared with
 `rodctl.replay.compare_runs`, as `rodctl replay --verify` compares a log with its rerun. Prints
 the verdict and the largest deviation per config next to the goal. Needs numpy's BLAS to be
 OpenBLAS on x86-64.
