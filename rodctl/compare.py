@@ -314,9 +314,7 @@ def make_targets(
             what = f"target {i} {given[i]}" if given is not None else f"sampled target {i}"
             raise UserError(f"{what} is unusable: {res['error']}")
         targets.append(
-            CompareTarget(
-                i, np.asarray(res["pose"]), res["difficulty"], seeds[i], res.get("view")
-            )
+            CompareTarget(i, np.asarray(res["pose"]), res["difficulty"], seeds[i], res.get("view"))
         )
     return targets
 
