@@ -3,9 +3,9 @@
 Goal: every shipped config, run under one OpenBLAS kernel and re-run under another, verifies
 bit-identically or within a stated tolerance (1e-9: |a - b| <= 1e-9 max(1, |a|)).
 
-For each experiment config in configs/ (compare configs excluded) the run is made twice in fresh
-processes, under `OPENBLAS_CORETYPE` = the CPU's own kernel and = another one (Prescott: SSE3
-kernels every x86-64 CPU runs), and the two record sequences are compared with
+For each single-run config in configs/ (compare and sweep configs excluded) the run is made
+twice in fresh processes, under `OPENBLAS_CORETYPE` = the CPU's own kernel and = another one
+(Prescott: SSE3 kernels every x86-64 CPU runs), and the two record sequences are compared with
 `rodctl.replay.compare_runs`, as `rodctl replay --verify` compares a log with its rerun. Prints
 the verdict and the largest deviation per config next to the goal. Needs numpy's BLAS to be
 OpenBLAS on x86-64.
@@ -59,7 +59,9 @@ def main() -> None:
         sys.exit("numpy's BLAS is not OpenBLAS here: nothing to compare")
     mine = kernels[0]
     names = args.configs or sorted(
-        p.stem for p in (REPO / "configs").glob("*.yaml") if not p.stem.startswith("compare")
+        p.stem
+        for p in (REPO / "configs").glob("*.yaml")
+        if not p.stem.startswith(("compare", "sweep"))  # not single-run configs
     )
     print(f"kernels: {mine} (this CPU's) vs {args.other}; goal: identical or within {TOLERANCE:g}")
     worst_all = 0.0

@@ -91,6 +91,8 @@ CSV_COLUMNS = (
     "smoothness_translation",
     "smoothness_rotation",
     "near_origin_steps",
+    "event_peak_error",
+    "event_steps_to_converge",
     "wall_time_s",
     "error",
 )
@@ -102,6 +104,8 @@ METRIC_COLUMNS = (
     "smoothness_translation",
     "smoothness_rotation",
     "near_origin_steps",
+    "event_peak_error",
+    "event_steps_to_converge",
 )
 
 #: Candidate poses tried per sampled target before giving up (a candidate can fail to settle).
@@ -162,12 +166,16 @@ class CompareTarget:
         pose: (3,) gripper pose [x, y, theta], world frame, as the rod settled there.
         difficulty: normalised distance of `pose` from the home pose (`rodctl.targets`).
         seed: the experiment seed of every episode on this target (camera noise).
+        view: what the clean camera saw there, {"centerline": (M, 2) m, "pixels": (N, 2) px}:
+            every method's episode reuses it instead of driving a rod to the target again
+            (the same rod and camera made it; `_settle_target`). None: each episode makes it.
     """
 
     index: int
     pose: np.ndarray
     difficulty: float
     seed: int
+    view: dict[str, Any] | None = None
 
     def band(self, edges: Sequence[float]) -> str:
         """The difficulty band's name: easy / medium / hard for two edges, else band0..bandN."""
@@ -253,7 +261,11 @@ def _settle_target(task: dict[str, Any]) -> dict[str, Any]:
         except UserError as exc:
             why = str(exc)
             continue
-        return {"pose": [float(v) for v in target.pose], "difficulty": float(target.difficulty)}
+        return {
+            "pose": [float(v) for v in target.pose],
+            "difficulty": float(target.difficulty),
+            "view": {"centerline": target.centerline, "pixels": target.pixels},
+        }
     return {"error": why}
 
 
@@ -301,7 +313,9 @@ def make_targets(
         if "error" in res:
             what = f"target {i} {given[i]}" if given is not None else f"sampled target {i}"
             raise UserError(f"{what} is unusable: {res['error']}")
-        targets.append(CompareTarget(i, np.asarray(res["pose"]), res["difficulty"], seeds[i]))
+        targets.append(
+            CompareTarget(i, np.asarray(res["pose"]), res["difficulty"], seeds[i], res.get("view"))
+        )
     return targets
 
 
@@ -318,6 +332,20 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
     # The episode's own config says everything (seed, target), so its log replays alone.
     cfg.seed = task["seed"]
     cfg.run.target.pose = tuple(task["pose"])
+    # The shared target as the clean camera saw it, when this episode's rod and camera made it:
+    # the same Target the episode would make by driving a rod there again (issue #17).
+    view = task.get("target_view")
+    options = None
+    if view is not None:
+        from rodctl.env import Target
+
+        target = Target(
+            pose=np.asarray(task["pose"], dtype=float),
+            centerline=np.asarray(view["centerline"], dtype=float),
+            pixels=np.asarray(view["pixels"], dtype=float),
+            difficulty=float(task["target_difficulty"]),
+        )
+        options = {"target": target}
     run_id = task.get("run_id") or f"{task['method']}_t{task['target']:03d}"
     row: dict[str, Any] = _task_tags(task)
     log_dir = Path(task["log_dir"]) if task.get("log_dir") else None
@@ -335,6 +363,7 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
             Method.from_config(cfg),
             sinks=sinks,
             run_id=run_id,
+            options=options,
             # SIGINT/SIGTERM of this process (or Ray's cancel) end it whole, between two steps.
             stop_requested=stop_reason,
         )
@@ -707,12 +736,13 @@ def success_figure(rows: Sequence[dict], methods: Sequence[str], path: Path, bin
 
 
 def _preflight(cfg: CompareConfig) -> dict[str, ExperimentConfig]:
-    """Every method's config, each built once here so a missing checkpoint fails before work."""
+    """Every method's config, each built once here so a missing checkpoint, or one trained for
+    another rod or camera, fails before work (and `checkpoint: auto` trains here, once)."""
     from rodctl.features import make_feature_map
 
     configs = {name: method_config(cfg, name) for name in cfg.methods}
     for ecfg in configs.values():
-        make_feature_map(ecfg.feature, points=ecfg.camera.points)  # raises UserError if unusable
+        make_feature_map(ecfg.feature, points=ecfg.camera.points, experiment=ecfg)
     return configs
 
 
@@ -839,6 +869,9 @@ def _episode_tasks(
                     "method": name,
                     "target": t.index,
                     "pose": [float(v) for v in t.pose],
+                    # Every method shares the base's rod and camera: the target made once.
+                    "target_view": t.view,
+                    "target_difficulty": t.difficulty,
                     "seed": t.seed,
                     "want_records": t.index == fig_target,
                     "log_dir": str(log_dir) if log_dir else None,

@@ -410,6 +410,7 @@ class _Loop:
         bound = metrics.step_bound(env.home_pose, env.target.pose, env.max_step)
         trans, rot = metrics.smoothness(recs, env.max_step)
         converged = outcome is Outcome.CONVERGED
+        peak, reconverge = metrics.after_event(recs, converged)
         return {
             "step_bound": bound,
             "excess_steps": recs[-1].step - bound if converged else None,
@@ -418,6 +419,8 @@ class _Loop:
             "near_origin_steps": (
                 metrics.near_origin_steps(recs, env.cfg.run.pixel_tolerance) if converged else None
             ),
+            "event_peak_error": peak,
+            "event_steps_to_converge": reconverge,
         }
 
     def summary(self, outcome: Outcome) -> RunSummary:

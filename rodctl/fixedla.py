@@ -23,10 +23,14 @@ import math
 import numpy as np
 
 __all__ = [
+    "apply_reflectors",
     "cho_solve",
     "cholesky",
+    "cholesky_inverse_factor",
+    "clip_eigenvalues",
     "dot",
     "eigh_small",
+    "eigh_tridiagonal_qr",
     "inv3",
     "matmul",
     "matvec",
@@ -35,6 +39,9 @@ __all__ = [
     "pinv_tall",
     "singular_values",
     "spd_solve",
+    "tridiagonal_eigenvalues",
+    "tridiagonal_eigenvector",
+    "tridiagonalize",
 ]
 
 
@@ -300,3 +307,224 @@ def pinv_tall(a: np.ndarray) -> np.ndarray:
             row -= np.einsum("j,jn->n", R[i, i + 1 :], out[i + 1 :])
         out[i] = row / R[i, i]
     return out
+
+
+def cholesky_inverse_factor(a: np.ndarray) -> list[list[float]] | None:
+    """L^-1 for the lower Cholesky factor L of a small SPD matrix (so a^-1 = L^-T L^-1), as
+    nested lists; None if a is not positive definite. Forward substitution on the identity,
+    in Python floats (fixed order): for the 6 x 6 innovation covariance of the AKF."""
+    L = cholesky(a)
+    if L is None:
+        return None
+    n = len(L)
+    X = [[0.0] * n for _ in range(n)]
+    for j in range(n):  # column j of L^-1: L x = e_j, x_i = 0 for i < j
+        X[j][j] = 1.0 / L[j][j]
+        for i in range(j + 1, n):
+            Li = L[i]
+            v = 0.0
+            for k in range(j, i):
+                v -= Li[k] * X[k][j]
+            X[i][j] = v / Li[i]
+    return X
+
+
+def tridiagonalize(
+    a: np.ndarray,
+) -> tuple[list[float], list[float], list[tuple[int, np.ndarray, float]]]:
+    """Householder reduction of a symmetric matrix to tridiagonal form, a = H T H^T, in a fixed
+    order of operations (numpy elementwise ops, pairwise sums and `einsum`, no BLAS).
+
+    The textbook reduction (Golub & Van Loan, Algorithm 8.3.1): for k = 0 .. n-3 a reflector
+    I - beta v v^T on rows/columns k+1.. zeroes column k below the subdiagonal, and the trailing
+    block is updated by the symmetric rank-2 form A - v w^T - w v^T. Only the lower triangle's
+    values matter (the input is assumed symmetric).
+
+    Returns:
+        (diagonal (n), subdiagonal (n - 1), reflectors [(k, v, beta)]), to be applied by
+        `apply_reflectors` to vectors of T.
+    """
+    W = np.array(a, dtype=np.float64)  # the trailing block still to reduce, rows/cols k..
+    n = W.shape[0]
+    diag: list[float] = []
+    sub: list[float] = []
+    refl: list[tuple[int, np.ndarray, float]] = []
+    for k in range(n - 2):
+        diag.append(float(W[0, 0]))
+        x = W[1:, 0]
+        xx = float(np.einsum("i,i->", x, x))
+        if xx == 0.0:  # column already reduced: no reflector
+            sub.append(0.0)
+            W = W[1:, 1:]
+            continue
+        norm_x = math.sqrt(xx)
+        x0 = float(x[0])
+        alpha = -norm_x if x0 >= 0.0 else norm_x  # sign opposite x0: no cancellation in v0
+        v = x.copy()
+        v[0] = x0 - alpha
+        beta = 1.0 / (norm_x * (norm_x + abs(x0)))  # 2 / (v^T v), in closed form
+        B = W[1:, 1:]
+        p = np.einsum("ij,j->i", B, v)
+        w = beta * p - (0.5 * beta * beta * float(np.einsum("i,i->", p, v))) * v
+        vw = np.multiply.outer(v, w)
+        W = B - (vw + vw.T)  # exactly symmetric: v_i w_j + w_i v_j, in either order
+        sub.append(alpha)
+        refl.append((k, v, beta))
+    if n >= 2:
+        diag += [float(W[0, 0]), float(W[1, 1])]
+        sub.append(float(W[1, 0]))
+    elif n == 1:
+        diag.append(float(W[0, 0]))
+    return diag, sub, refl
+
+
+def tridiagonal_eigenvalues(
+    diag: list[float], sub: list[float]
+) -> tuple[list[float], list[tuple[int, float, float]]]:
+    """Eigenvalues of a symmetric tridiagonal matrix by the implicit QL method with Wilkinson
+    shifts (EISPACK tql1/tql2, Numerical Recipes' tqli), in Python floats.
+
+    The eigenvectors are not accumulated here (that would be n operations per rotation): the
+    plane rotations are returned in the order applied, so that `tridiagonal_eigenvector` can
+    build just the eigenvectors wanted.
+
+    Args:
+        diag: (n) diagonal.
+        sub: (n - 1) subdiagonal.
+
+    Returns:
+        (eigenvalues in the order QL leaves them (not sorted), rotations [(i, c, s)]: the
+        eigenvector matrix is Z = G_1 G_2 ... G_R, G_r acting on coordinates i, i + 1 as
+        [[c, s], [-s, c]]).
+
+    Raises:
+        numpy.linalg.LinAlgError: no convergence in 60 iterations for one eigenvalue.
+    """
+    d = list(diag)
+    n = len(d)
+    e = list(sub) + [0.0]
+    rots: list[tuple[int, float, float]] = []
+    record = rots.append
+    sqrt = math.sqrt
+    fabs = math.fabs
+    for l in range(n):  # noqa: E741 (the classic name of the index)
+        it = 0
+        while True:
+            m = l
+            while m < n - 1:  # a negligible subdiagonal entry splits the matrix
+                dd = fabs(d[m]) + fabs(d[m + 1])
+                if fabs(e[m]) + dd == dd:
+                    break
+                m += 1
+            if m == l:
+                break
+            it += 1
+            if it > 60:
+                raise np.linalg.LinAlgError("tridiagonal QL did not converge")
+            g = (d[l + 1] - d[l]) / (2.0 * e[l])
+            r = sqrt(g * g + 1.0)
+            g = d[m] - d[l] + e[l] / (g + (r if g >= 0.0 else -r))
+            s = c = 1.0
+            p = 0.0
+            i = m - 1
+            split = False
+            while i >= l:
+                f = s * e[i]
+                b = c * e[i]
+                r = sqrt(f * f + g * g)
+                e[i + 1] = r
+                if r == 0.0:  # underflow: the matrix splits here
+                    d[i + 1] -= p
+                    e[m] = 0.0
+                    split = True
+                    break
+                s = f / r
+                c = g / r
+                g = d[i + 1] - p
+                r = (d[i] - g) * s + 2.0 * c * b
+                p = s * r
+                d[i + 1] = g + p
+                g = c * r - b
+                record((i, c, s))
+                i -= 1
+            if split:
+                continue
+            d[l] -= p
+            e[l] = g
+            e[m] = 0.0
+    return d, rots
+
+
+def tridiagonal_eigenvector(n: int, j: int, rots: list[tuple[int, float, float]]) -> list[float]:
+    """Column j of Z = G_1 ... G_R (the rotations of `tridiagonal_eigenvalues`): the
+    eigenvector of the tridiagonal matrix for its j-th eigenvalue, as G_1 (G_2 (... G_R e_j)).
+    Four multiplications per rotation, in Python floats."""
+    x = [0.0] * n
+    x[j] = 1.0
+    for i, c, s in reversed(rots):
+        a, b = x[i], x[i + 1]
+        x[i] = c * a + s * b
+        x[i + 1] = c * b - s * a
+    return x
+
+
+def apply_reflectors(refl: list[tuple[int, np.ndarray, float]], x: np.ndarray) -> np.ndarray:
+    """H x for the H = H_0 H_1 ... of `tridiagonalize`, x (n, m): vectors of T to those of a."""
+    x = np.array(x, dtype=np.float64)
+    for k, v, beta in reversed(refl):
+        blk = x[k + 1 :]
+        blk -= np.multiply.outer(v, beta * np.einsum("i,ij->j", v, blk))
+    return x
+
+
+def eigh_tridiagonal_qr(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (ascending) and eigenvectors (columns) of a symmetric matrix, kernel-independent:
+    `tridiagonalize`, `tridiagonal_eigenvalues`, then every eigenvector. Meant for checking and for
+    n of about 20; `clip_eigenvalues` builds only the eigenvectors it needs."""
+    a = np.asarray(a, dtype=np.float64)
+    n = a.shape[0]
+    diag, sub, refl = tridiagonalize(a)
+    w, rots = tridiagonal_eigenvalues(diag, sub)
+    order = sorted(range(n), key=lambda j: w[j])
+    z = np.array([tridiagonal_eigenvector(n, j, rots) for j in order]).T.reshape(n, n)
+    return np.array([w[j] for j in order]), apply_reflectors(refl, z)
+
+
+def clip_eigenvalues(a: np.ndarray, floor: float) -> np.ndarray:
+    """Raise every eigenvalue of a symmetric matrix below `floor` to `floor`, kernel-independent.
+
+    out = a + sum over {i: w_i < floor} of (floor - w_i) v_i v_i^T, the nearest matrix (Frobenius
+    norm) whose eigenvalues are all >= floor. The eigenvalues come from `tridiagonalize` and
+    `tridiagonal_eigenvalues`; eigenvectors (`tridiagonal_eigenvector`, `apply_reflectors`) only
+    for one side: usually the clipped eigenpairs, added to a as above (the unclipped part stays
+    as it was). When a clipped eigenvalue is further below the floor than every kept one is
+    large, a + correction would cancel and leave errors of eps * |w_min| in a result whose
+    size is only max(w); then out = floor I + sum over the kept {w_j >= floor} of
+    (w_j - floor) v_j v_j^T is built instead. Either way the error is about eps * ||out||.
+
+    Args:
+        a: (n, n) symmetric (exactly: the caller symmetrises).
+        floor: the eigenvalue floor.
+
+    Returns:
+        (n, n) exactly symmetric; `a` itself (not a copy) when no eigenvalue is below the floor.
+        Its eigenvalues are >= floor to about eps * ||a||.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    n = a.shape[0]
+    diag, sub, refl = tridiagonalize(a)
+    w, rots = tridiagonal_eigenvalues(diag, sub)
+    low = [j for j in range(n) if w[j] < floor]
+    if not low:
+        return a
+    kept = [j for j in range(n) if w[j] >= floor]
+    if max(floor - w[j] for j in low) <= max((abs(w[j]) for j in kept), default=0.0):
+        side, out = low, a
+    else:
+        side, out = kept, floor * np.eye(n)
+    if side:
+        z = np.array([tridiagonal_eigenvector(n, j, rots) for j in side]).T  # (n, k)
+        v = apply_reflectors(refl, z)
+        gap = np.array([abs(floor - w[j]) for j in side])  # raise the low, or the kept above floor
+        out = out + np.einsum("ik,k,jk->ij", v, gap, v)
+    return 0.5 * (out + out.T)

@@ -56,3 +56,19 @@ def near_origin_steps(records: Sequence[StepRecord], tolerance: float) -> int | 
         if r.phase == "control" and r.extraction_ok and r.pixel_error < 2.0 * tolerance:
             return int(records[-1].step - r.step)
     return None
+
+
+def after_event(records: Sequence[StepRecord], converged: bool) -> tuple[float | None, int | None]:
+    """(peak pixel error from the first mid-run event on, steps from that event to convergence).
+
+    The event is applied before its step's move, so the error of that step's record is the
+    first one it can show. Frames the camera could not extract are left out of the peak. Both
+    are None when no event happened (the episode ended first); the steps are None unless the
+    episode converged.
+    """
+    first = next((r.step for r in records if r.events), None)
+    if first is None:
+        return None, None
+    errors = [r.pixel_error for r in records if r.step >= first and r.extraction_ok]
+    peak = float(max(errors)) if errors else None
+    return peak, (int(records[-1].step - first) if converged else None)

@@ -30,7 +30,7 @@ from typing import Any
 import yaml
 
 from rodctl.config.compare import CompareConfig
-from rodctl.config.loading import apply_override, validate_config
+from rodctl.config.loading import ConfigError, apply_override, validate_config
 from rodctl.errors import UserError
 from rodctl.runs import RunDir, write_json_atomic
 from rodctl.statistics import PairedDifference, paired_difference
@@ -42,7 +42,15 @@ PAIRED_METRICS = (
     ("near_origin_steps", "final approach (below 2x tolerance to converged)", "steps"),
     ("smoothness_translation", "smoothness, translation", "speed limits"),
     ("smoothness_rotation", "smoothness, rotation", "speed limits"),
+    ("event_peak_error", "peak error after the event", "px"),
+    ("event_steps_to_converge", "steps from the event to convergence", "steps"),
 )
+
+
+def present_metrics(rows: Sequence[dict[str, Any]]) -> tuple[tuple[str, str, str], ...]:
+    """The paired metrics some episode of `rows` has a value for (the event metrics only
+    where an event happened)."""
+    return tuple(m for m in PAIRED_METRICS if any(r.get(m[0]) is not None for r in rows))
 
 
 def scenario_configs(cfg: CompareConfig, config_dir: Path, source: str) -> dict[str, dict]:
@@ -58,9 +66,14 @@ def scenario_configs(cfg: CompareConfig, config_dir: Path, source: str) -> dict[
     common = cfg.model_dump(mode="json", exclude={"scenarios"})
     for name, sc in (cfg.scenarios or {}).items():
         data = json.loads(json.dumps(common))
+        # The base as written, not resolved: a scenario that sets `rod.material` must not meet
+        # the EI and rho*A the default material resolved to.
+        data["base"] = cfg.base.model_dump(mode="json", exclude_unset=True)
         data.update(name=f"{cfg.name}-{name}"[:64], scenario=name)
         for key, value in sc.set.items():
             apply_override(data["base"], key.split("."), value, f"scenarios.{name}.set.{key}")
+        for key, value in sc.method_set.items():
+            _set_in_methods(data["methods"], key, value, f"{source}: scenarios.{name}.method_set")
         if sc.targets is not None:
             data["targets"] = sc.targets.model_dump(mode="json")
         tfile = data["targets"].get("file")
@@ -72,6 +85,31 @@ def scenario_configs(cfg: CompareConfig, config_dir: Path, source: str) -> dict[
             method_config(scfg, method, source=where)
         out[name] = data
     return out
+
+
+def _set_in_methods(methods: dict[str, dict], key: str, value: Any, where: str) -> None:
+    """Set `key` (`<stage>.<field>...`) in every method whose stage's type has that field.
+
+    Raises:
+        ConfigError: the key does not start with a stage, or no method's stage has the field.
+    """
+    from rodctl.registry import STAGES
+
+    parts = key.split(".")
+    if len(parts) < 2 or parts[0] not in STAGES:
+        raise ConfigError(
+            f"{where}.{key}: expected <stage>.<field> with stage one of {', '.join(STAGES)}"
+        )
+    registry = STAGES[parts[0]]
+    hit = False
+    for method in methods.values():
+        section = method[parts[0]]
+        fields = registry.get(section.get("type", registry.default)).config.model_fields
+        if parts[1] in fields:
+            apply_override(section, parts[1:], value, f"{where}.{key}")
+            hit = True
+    if not hit:
+        raise ConfigError(f"{where}.{key}: no method's {parts[0]} has a field {parts[1]!r}")
 
 
 def run_suite(
@@ -174,7 +212,10 @@ def read_rows(folders: dict[str, str]) -> list[dict[str, Any]]:
 
 
 def paired_table(
-    rows: Sequence[dict[str, Any]], methods: Sequence[str], reference: str
+    rows: Sequence[dict[str, Any]],
+    methods: Sequence[str],
+    reference: str,
+    metrics: Sequence[tuple[str, str, str]] = PAIRED_METRICS,
 ) -> dict[str, dict[str, PairedDifference]]:
     """For each method but the reference and each paired metric: method - reference over the
     targets both converged on (smoothness and steps only mean something for a converged run)."""
@@ -196,7 +237,7 @@ def paired_table(
             col: paired_difference(
                 [value(m, t, col) for t in targets], [value(reference, t, col) for t in targets]
             )
-            for col, _, _ in PAIRED_METRICS
+            for col, _, _ in metrics
         }
     return out
 
@@ -254,7 +295,8 @@ def write_suite_outputs(
         mine = [r for r in rows if r["scenario"] == name]
         summary = summarize(mine, methods, bands)
         header, lines = summary_rows(summary, bands)
-        paired = paired_table(mine, methods, ref)
+        metrics = present_metrics(mine)
+        paired = paired_table(mine, methods, ref, metrics)
         sc = (cfg.scenarios or {}).get(name)
         md += [f"## {name}", ""]
         if sc is not None and sc.description:
@@ -262,7 +304,7 @@ def write_suite_outputs(
         if sc is not None and sc.set:
             md += ["Changed: " + ", ".join(f"`{k}` = `{v}`" for k, v in sc.set.items()), ""]
         md += [markdown_table(header, lines), ""]
-        md += _paired_markdown(mine, methods, ref, paired)
+        md += _paired_markdown(mine, methods, ref, paired, metrics)
         stats[name] = {
             m: {col: vars(d) for col, d in per.items()} | {"success": success_pairs(mine, m, ref)}
             for m, per in paired.items()
@@ -283,13 +325,14 @@ def _paired_markdown(
     methods: Sequence[str],
     ref: str,
     paired: dict[str, dict[str, PairedDifference]],
+    metrics: Sequence[tuple[str, str, str]],
 ) -> list[str]:
-    header = ["method", "converged only / both / only ref"] + [lbl for _, lbl, _ in PAIRED_METRICS]
+    header = ["method", "converged only / both / only ref"] + [lbl for _, lbl, _ in metrics]
     lines = []
     for m, per in paired.items():
         om, both, orf = success_pairs(rows, m, ref)
         cells = [m, f"{om} / {both} / {orf}"]
-        for col, _, unit in PAIRED_METRICS:
+        for col, _, unit in metrics:
             d = per[col]
             text = d.describe(unit)
             cells.append(f"**{text}**" if d.significant() else text)

@@ -278,7 +278,7 @@ def _preflight(methods: dict[str, dict[str, Any]]) -> None:
 
     for data in methods.values():
         ecfg = ExperimentConfig.model_validate(data)
-        make_feature_map(ecfg.feature, points=ecfg.camera.points)
+        make_feature_map(ecfg.feature, points=ecfg.camera.points, experiment=ecfg)
 
 
 def _tasks(

@@ -94,6 +94,24 @@ def test_a_shared_targets_file_reproduces_the_run_in_one_process(smoke_run, tmp_
     assert first == second
 
 
+def test_an_episode_on_the_shared_target_equals_one_that_drives_its_own(tmp_path):
+    """Targets are driven once and shared (issue #17): an episode handed the target's view
+    gives the row an episode that drives a rod to the target itself gives, step for step."""
+    from rodctl.compare import _episode, _episode_tasks, _preflight, make_targets
+
+    cfg = load_compare_config(SMOKE, ["targets.count=2"])
+    configs = _preflight(cfg)
+    targets = make_targets(cfg, None, lambda tasks, fn: [fn(t) for t in tasks])
+    assert all(t.view is not None for t in targets)
+    tasks = _episode_tasks(cfg, configs, targets, fig_target=-1, folder=tmp_path)
+    for task in tasks[:: len(configs) - 1]:  # a few methods on both targets
+        shared = _episode(task)
+        own = _episode({**task, "target_view": None})
+        shared.pop("wall_time_s")
+        own.pop("wall_time_s")
+        assert shared == own, task["method"]
+
+
 def test_summary_statistics():
     rows = [
         {

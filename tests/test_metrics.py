@@ -50,6 +50,17 @@ def test_near_origin_counts_the_final_approach():
     assert metrics.near_origin_steps(recs[:2], 1.0) is None
 
 
+def test_after_an_event_the_peak_error_and_the_steps_to_converge():
+    errs = [9.0, 6.0, 4.0, 7.5, 3.0, 0.8]  # the event at step 3 (before its move)
+    recs = [rec(i + 1, px=e) for i, e in enumerate(errs)]
+    recs[2].events = ["stiffness x 0.5"]
+    recs[4].extraction_ok = False  # a lost frame does not count in the peak
+    recs[4].pixel_error = 50.0
+    assert metrics.after_event(recs, converged=True) == (7.5, 3)  # peak 7.5, steps 3 -> 6
+    assert metrics.after_event(recs, converged=False) == (7.5, None)
+    assert metrics.after_event(recs[:2], converged=True) == (None, None)  # no event yet
+
+
 def _rule(window=4):
     rule = StopRule(RunConfig(stall_window=window, stall_improvement=0.02, stall_gradient=0.05))
     rule.reset()

@@ -188,8 +188,9 @@ def test_a_run_verifies_bit_for_bit_under_another_kernel(tmp_path):
 
 
 def test_the_paper_method_verifies_within_tolerance_under_another_kernel(tmp_path):
-    """The AKF's eigenvalue clip still calls LAPACK: the last bits may differ and 1e-9 holds;
-    a value altered by more than the tolerance is still caught."""
+    """The paper's method (autoencoder, AKF, MFAC) verifies under another kernel (its AKF is
+    fixed-order too, so bit for bit in practice; 1e-9 is the stated tolerance); a value altered
+    by more than the tolerance is still caught."""
     mine, other = _other_kernel()
     run = _simulate(tmp_path, "default.yaml", other)
     res = _rodctl(["replay", str(run), "--verify", "--no-figures", "--tolerance", "1e-9"], mine)
@@ -212,3 +213,104 @@ def test_the_paper_method_verifies_within_tolerance_under_another_kernel(tmp_pat
     result = verify(read_run(altered), tolerance=1e-9)
     assert result.verdict == "mismatch" and result.exit_code == 1
     assert result.mismatch == "step 5: pixel_error differs (by 1e-06 px)"
+
+
+def _akf_steps(n: int = 300) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(ds, u) pairs that exercise every branch of the AKF update: small and large moves,
+    noise levels, outliers (alpha < 1), an abrupt change of J, dead-zone steps."""
+    rng = np.random.default_rng(11)
+    J = rng.normal(0.0, 30.0, (6, 3))
+    steps = []
+    for k in range(n):
+        if k == n // 2:
+            J = rng.normal(0.0, 30.0, (6, 3))
+        u = rng.uniform(-1.0, 1.0, 3) * np.array([0.01, 0.01, 0.05]) * rng.choice([1e-3, 1.0])
+        noise = rng.normal(0.0, rng.choice([1e-4, 1e-2]), 6)
+        if rng.random() < 0.05:
+            noise += rng.normal(0.0, 5.0, 6)
+        steps.append((np.einsum("ij,j->i", J, u) + noise, u))
+    return steps
+
+
+def _psd_clip_lapack(a: np.ndarray, floor: float) -> np.ndarray:
+    """The clip as it was written with LAPACK: symmetrise, eigh, raise w < floor, rebuild."""
+    a = 0.5 * (a + a.T)
+    w, v = np.linalg.eigh(a)
+    return (v * np.maximum(w, floor)) @ v.T if w.min() < floor else a
+
+
+def test_fixed_order_eigenvalue_clip_agrees_with_lapack():
+    """The AKF's fixed-order pieces give LAPACK's results: the clip of Q-like matrices (low
+    eigenvalues far below, at and just below the floor, clusters) and the eigendecomposition."""
+    from rodctl import fixedla
+    from rodctl.estimation.akf import clip_psd
+
+    rng = np.random.default_rng(3)
+    floor = 1e-8
+    for trial in range(40):
+        n = (18, 6, 3)[trial % 3]
+        V, _ = np.linalg.qr(rng.normal(size=(n, n)))
+        w = rng.uniform(1e-3, 1e3, n) * 10.0 ** rng.integers(-3, 3)
+        k = int(rng.integers(0, n))
+        w[:k] = rng.choice([-5.0, -1e-3, 0.95 * floor, floor, 0.0], k)  # clipped, clusters
+        noisy = (V * w) @ V.T + 1e-15 * rng.normal(size=(n, n))  # not exactly symmetric
+        ref = _psd_clip_lapack(noisy, floor)
+        got = clip_psd(noisy, floor, test_first=bool(trial % 2))
+        np.testing.assert_array_equal(got, got.T)
+        scale = np.abs(ref).max()
+        assert np.abs(got - ref).max() <= 1e-12 * scale, trial
+        assert np.linalg.eigvalsh(got)[0] >= floor - 1e-13 * scale
+        wf, vf = fixedla.eigh_tridiagonal_qr(0.5 * (noisy + noisy.T))
+        np.testing.assert_allclose(
+            wf, np.linalg.eigvalsh(0.5 * (noisy + noisy.T)), rtol=0, atol=1e-13 * np.abs(w).max()
+        )
+        np.testing.assert_allclose(vf.T @ vf, np.eye(n), atol=1e-13)
+    # a matrix whose clipped eigenvalue dwarfs the kept ones: built from the kept side
+    V, _ = np.linalg.qr(rng.normal(size=(6, 6)))
+    a = (V * np.array([-8e8, -100.0, 0.5, 200.0, 1e3, 3e4])) @ V.T
+    got = clip_psd(a, floor)
+    assert np.linalg.eigvalsh(got)[0] >= floor - 1e-12 * 3e4
+    np.testing.assert_allclose(got, _psd_clip_lapack(a, floor), rtol=0, atol=1e-10 * 3e4)
+
+
+_AKF_CHILD = """
+import hashlib, json, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from threadpoolctl import threadpool_info
+from test_reproducibility import _akf_steps
+from rodctl.estimation.akf import AdaptiveKalmanJacobian
+est = AdaptiveKalmanJacobian(6, 3)
+est.reset(np.full((6, 3), 10.0))
+h, lapack = hashlib.sha256(), hashlib.sha256()
+for ds, u in _akf_steps():
+    est.update(ds, u)
+    for m in (est.J, est.P, est.Q, est.R):
+        h.update(m.tobytes())
+    lapack.update(np.linalg.eigh(est.P + est.Q)[0].tobytes())
+kernels = [lib.get("architecture") for lib in threadpool_info() if lib["user_api"] == "blas"]
+print(json.dumps({"akf": h.hexdigest(), "lapack": lapack.hexdigest(), "kernels": kernels}))
+"""
+
+
+def test_the_akf_is_bit_identical_under_another_kernel():
+    """300 AKF updates (outliers, an abrupt change, dead-zone steps) give the same bits of J, P,
+    Q and R under this CPU's OpenBLAS kernel and another one: no BLAS/LAPACK call is left in it.
+    (LAPACK's own eigh on the same matrices is hashed alongside, for information only: it
+    may or may not differ between two given kernels.)"""
+    mine, other = _other_kernel()
+    out = {}
+    for kernel in (mine, other):
+        res = subprocess.run(
+            [sys.executable, "-c", _AKF_CHILD, str(Path(__file__).parent)],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env={**os.environ, "OPENBLAS_CORETYPE": kernel},
+            cwd=REPO,
+        )
+        assert res.returncode == 0, res.stderr
+        out[kernel] = json.loads(res.stdout.strip().splitlines()[-1])
+    # the environment variable took effect: the two children ran different kernels
+    assert out[mine]["kernels"] != out[other]["kernels"], out
+    assert out[mine]["akf"] == out[other]["akf"]

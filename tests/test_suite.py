@@ -20,15 +20,23 @@ def test_smoke_suite_runs_every_scenario_and_reports_paired_statistics(tmp_path)
     folder = res.output.strip().splitlines()[-1]
     with open(f"{folder}/results.csv", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
-    assert {r["scenario"] for r in rows} == {"nominal", "loose-limit"}
-    assert len(rows) == 2 * 3 * 2
+    assert {r["scenario"] for r in rows} == {"nominal", "loose-limit", "event-camera-bump"}
+    assert len(rows) == 3 * 3 * 2
     for col in ("excess_steps", "smoothness_translation", "smoothness_rotation", "step_bound"):
         assert all(r[col] != "" for r in rows if r["outcome"] == "converged"), col
+    # The event metrics exist exactly where the event happened.
+    for r in rows:
+        bumped = r["scenario"] == "event-camera-bump"
+        assert (r["event_peak_error"] != "") == bumped, r
+        if bumped and r["outcome"] == "converged":
+            assert int(r["event_steps_to_converge"]) == int(r["steps"]) - 3
     # The scenario's change really reached its episodes: the loose limit is in its config.
     loose = tmp_path / next(iter(tmp_path.iterdir())).name / "scenarios" / "loose-limit.yaml"
     assert "0.25" in loose.read_text()
     stats = json.loads(open(f"{folder}/statistics.json", encoding="utf-8").read())
-    assert set(stats) == {"nominal", "loose-limit"}
+    assert set(stats) == {"nominal", "loose-limit", "event-camera-bump"}
+    assert "event_peak_error" in stats["event-camera-bump"]["ma2022"]
+    assert "event_peak_error" not in stats["nominal"]["ma2022"]
     assert set(stats["nominal"]) == {"ma2022", "aghajanzadeh2022"}  # all but the reference
     summary = open(f"{folder}/summary.md", encoding="utf-8").read()
     assert "Paired against **paper-bezier**" in summary and "## loose-limit" in summary
@@ -43,3 +51,38 @@ def test_a_scenario_key_that_does_not_exist_is_named(tmp_path):
         ["compare", SMOKE, "-o", str(tmp_path), "--set", "scenarios.nominal.set={rod.lenght: 1}"],
     )
     assert res.exit_code == 2 and "scenarios.nominal" in res.output and "lenght" in res.output
+
+
+def _scenarios(overrides):
+    from rodctl.compare import load_compare_config
+    from rodctl.suite import scenario_configs
+
+    cfg = load_compare_config(SMOKE, overrides)
+    return scenario_configs(cfg, REPO / "configs/benchmarks", SMOKE)
+
+
+def test_method_set_reaches_every_method_whose_stage_has_the_field():
+    sc = _scenarios(["scenarios.nominal.method_set={feature.degree: 3}"])
+    methods = sc["nominal"]["methods"]
+    assert methods["paper-bezier"]["feature"]["degree"] == 3
+    assert methods["ma2022"]["feature"]["degree"] == 3
+    assert "degree" not in methods["aghajanzadeh2022"]["feature"]  # nodes: no such field
+    assert sc["loose-limit"]["methods"]["ma2022"]["feature"]["degree"] == 4  # one scenario only
+
+
+def test_a_method_set_key_no_method_has_is_named(tmp_path):
+    res = CliRunner().invoke(
+        app,
+        [
+            "compare", SMOKE, "-o", str(tmp_path),
+            "--set", "scenarios.nominal.method_set={feature.checkpoint: auto}",
+        ],
+    )  # fmt: skip
+    assert res.exit_code == 2, res.output
+    assert "scenarios.nominal.method_set.feature.checkpoint" in res.output
+    assert "no method's feature has a field 'checkpoint'" in res.output
+
+
+def test_a_scenario_may_set_a_material_over_the_resolved_default_rod():
+    sc = _scenarios(["scenarios.nominal.set={rod.material: {name: silicone_tube}}"])
+    assert sc["nominal"]["base"]["rod"] == {"material": {"name": "silicone_tube"}}

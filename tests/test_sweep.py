@@ -4,6 +4,7 @@ the results table and ranked summary, figures, and an interrupted sweep resumed.
 from __future__ import annotations
 
 import json
+import re
 import signal
 
 import pytest
@@ -41,6 +42,45 @@ def test_shipped_sweep_configs_validate_and_tuning_is_the_papers_grid():
     assert {p["estimator.p0"] for p in points} == {10.0, 1000.0}
     assert cfg.seeds == [1] and cfg.targets.count == 12
     assert cfg.rank_by == ["success_rate", "steps_median"]
+
+
+def test_the_fair_tuning_gives_every_method_the_same_budget_and_targets():
+    """configs/benchmarks/tuning/: one sweep per tuned method of the suite, the same number of
+    settings, the same tuning targets (not the suite's seed), the same ranking; the paper's
+    method on its own autoencoder feature."""
+    from rodctl.compare import load_compare_config
+
+    suite = load_compare_config(REPO / "configs/benchmarks/suite.yaml")
+    configs = {
+        p.stem: load_sweep_config(p) for p in (REPO / "configs/benchmarks/tuning").glob("*.yaml")
+    }
+    assert set(configs) == {"paper", "ma2022", "ma2022-wls", "aghajanzadeh2022"}
+    assert configs["paper"].base.feature.type == "autoencoder"
+    for name, cfg in configs.items():
+        assert len(sweep_points(cfg)) == 8, name
+        assert cfg.targets == configs["paper"].targets and cfg.seeds == [1] != [suite.seed]
+        assert cfg.rank_by == ["success_rate", "steps_median"]
+        # The suite's method is this sweep's base with the chosen point's values.
+        method = suite.methods[name]
+        for stage in ("feature", "estimator", "controller"):
+            assert getattr(method, stage).type == getattr(cfg.base, stage).type, (name, stage)
+        chosen = {k: v for k, v in _suite_values(method).items() if k in cfg.parameters}
+        assert sweep_points(cfg)[_rank_one(name)] == chosen, (name, chosen)
+
+
+def _rank_one(method: str) -> int:
+    """The grid point ranked first for `method` in configs/benchmarks/tuning/RECORD.md."""
+    text = (REPO / "configs/benchmarks/tuning/RECORD.md").read_text(encoding="utf-8")
+    section = text.split(f"## {method}\n", 1)[1].split("\n## ", 1)[0]
+    return int(re.search(r"^\| 1 \| (\d+) \|", section, re.M).group(1))
+
+
+def _suite_values(method) -> dict:
+    out = {}
+    for stage in ("feature", "estimator", "controller"):
+        for key, value in getattr(method, stage).model_dump(mode="json").items():
+            out[f"{stage}.{key}"] = value
+    return out
 
 
 def test_grid_points_are_the_product_first_key_slowest(tmp_path):

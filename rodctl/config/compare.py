@@ -97,6 +97,12 @@ class ScenarioConfig(StrictModel):
         default_factory=dict,
         description="Dotted keys of `base` and their values for this scenario (like --set).",
     )
+    method_set: dict[str, Any] = Field(
+        default_factory=dict,
+        description="Dotted keys of the methods' stages and their values for this scenario, set "
+        "in every method whose stage has that field (e.g. `feature.checkpoint` reaches every "
+        "autoencoder method: a rod the packaged encoder was not trained for needs its own).",
+    )
     targets: CompareTargetsConfig | None = Field(
         None, description="This scenario's target set (None: the suite's `targets`)."
     )

@@ -5,14 +5,17 @@ is J stacked by rows, x = vec_rows(J) in R^{pq}, under a random walk (A = I), ob
 y_k = Delta s_k = M_k x with M_k = I_p kron u_k^T.
 
 Why it is written the way it is:
-- Speed. The loop runs one update per control step and the goal is <= 100 us for the AKF and the
-  MFAC law together (p = 6, q = 3: an 18-dimensional state). M_k is never formed: with the
-  Kronecker structure, P M^T is `P.reshape(pq, p, q) @ u` and M (P M^T) is `u @ (.).reshape(p,
-  q, p)`, so every product is a small dense numpy call; no scipy.
+- Reproducibility (issue #18). No BLAS or LAPACK call: the products are `einsum` or
+  elementwise, S^-1 comes from a Cholesky factor in Python floats and the eigenvalue clip from
+  `rodctl.fixedla`, all in a fixed order of operations, so a run gives the same bits under every
+  BLAS kernel (README, "Reproducibility"). The clip is what that costs most (an 18 x 18
+  eigenproblem at nearly every step; `benchmarks/bench_estimation_control.py`).
+- Speed. M_k is never formed: with the Kronecker structure, P M^T is P.reshape(pq, p, q) u and
+  M (P M^T) is u against (.).reshape(p, q, p), each one small einsum (p = 6, q = 3: an
+  18-dimensional state); no scipy.
 - Robustness. The noise estimates Q and R (eqs. 17-18) are fading-memory sums that can lose
   definiteness (eq. 17 subtracts a matrix, Q's increment contains P_k - P_{k|k-1}), so after each
-  update they are symmetrised and their eigenvalues clipped to a floor. The clip costs an `eigh`
-  only when a Cholesky test says some eigenvalue is below the floor.
+  update they are symmetrised and their eigenvalues clipped to a floor (`clip_psd`).
 - The adaptive factor alpha of eq. 14 reaches 0 for gross outliers, and the filter divides by
   it; it is clamped to `alpha_floor` instead (a config value).
 """
@@ -25,19 +28,10 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, PositiveFloat, model_validator
 
+from rodctl import fixedla
 from rodctl.config.base import StrictModel
 from rodctl.estimation.base import DEAD_ZONE_DOC, checked_jacobian
 from rodctl.registry import ESTIMATORS, BuildContext
-
-# numpy.linalg rather than scipy.linalg.lapack's raw calls: importing scipy.linalg costs about
-# 0.3 s of every run's start (issue #17), more than a whole run's extra per-call overhead.
-# These LAPACK calls (and the BLAS products below) are the one part of the per-step path whose
-# last bits still depend on the BLAS kernel: a fixed-order 18 x 18 eigendecomposition costs
-# about 1 ms in numpy (README, "Reproducibility").
-_cholesky = np.linalg.cholesky
-_eigh = np.linalg.eigh
-_solve = np.linalg.solve
-_LinAlgError = np.linalg.LinAlgError
 
 
 def igg3_factor(stat: float, c0: float, c1: float, floor: float) -> float:
@@ -66,32 +60,33 @@ def igg3_factor(stat: float, c0: float, c1: float, floor: float) -> float:
     return floor
 
 
-def clip_psd(a: np.ndarray, floor: float, shifted_eye: np.ndarray | None = None) -> np.ndarray:
-    """Symmetrise `a` and raise any eigenvalue below `floor` to `floor`.
+def clip_psd(a: np.ndarray, floor: float, test_first: bool = True) -> np.ndarray:
+    """Symmetrise `a` and raise any eigenvalue below `floor` to `floor`, kernel-independent.
+
+    out = a + sum over {w_i < floor} of (floor - w_i) v_i v_i^T (w_i, v_i the eigenpairs of
+    the symmetrised a): the nearest matrix in the Frobenius norm whose eigenvalues are all
+    >= floor. Computed by `rodctl.fixedla` (fixed-order Householder tridiagonalisation, QL
+    eigenvalues, then only the eigenvectors below the floor), no LAPACK, so the result has the
+    same bits under every BLAS kernel (issue #18).
 
     Args:
         a: (n, n) nearly symmetric matrix.
         floor: eigenvalue floor (> 0 keeps the result positive definite).
-        shifted_eye: optional precomputed `floor * I` (n, n), to save an allocation per call.
+        test_first: first try a Cholesky factorisation of a - floor I (Python floats, fixed
+            order): it succeeds iff every eigenvalue is above the floor, and then nothing is
+            computed. Worth it for R (6 x 6, almost never clipped); not for Q, which is clipped
+            at nearly every step (README, "Reproducibility").
 
     Returns:
-        (n, n) symmetric matrix whose eigenvalues are all >= floor (to rounding, about
+        (n, n) exactly symmetric matrix whose eigenvalues are all >= floor (to rounding, about
         eps * ||a||); equal to the symmetrised input when they already were.
     """
     a = 0.5 * (a + a.T)
-    if shifted_eye is None:
-        shifted_eye = floor * np.eye(a.shape[0])
-    # All eigenvalues > floor  <=>  a - floor I is positive definite: then nothing to clip.
-    try:
-        _cholesky(a - shifted_eye)
-        return a
-    except _LinAlgError:
-        pass
-    # A full eigendecomposition: clipping only the low eigenpairs (dsyevr with a range) is a
-    # little faster but leaves eigenvalues ~1e-11 * ||a|| below the floor; this stays ~1e-13.
-    w, v = _eigh(a)
-    out = (v * np.maximum(w, floor)) @ v.T
-    return 0.5 * (out + out.T)  # exactly symmetric again after the round trip
+    if test_first:
+        n = a.shape[0]
+        if fixedla.cholesky(a - floor * np.eye(n)) is not None:
+            return a
+    return fixedla.clip_eigenvalues(a, floor)
 
 
 class AdaptiveKalmanJacobian:
@@ -142,8 +137,6 @@ class AdaptiveKalmanJacobian:
         self._eq32 = cfg.r_update == "eq32"
         self._q_min, self._r_min = cfg.q_min, cfg.r_min
         self._dead_zone = cfg.dead_zone
-        self._q_eye = self._q_min * np.eye(self._n)
-        self._r_eye = self._r_min * np.eye(self.p)
         self.reset(np.zeros((self.p, self.q)))
 
     @property
@@ -179,27 +172,33 @@ class AdaptiveKalmanJacobian:
         """Fold in ds (p,) = s_k - s_{k-1} caused by dr (q,) = u_k; return the (p, q) estimate."""
         u = np.asarray(dr, dtype=float)
         y = np.asarray(ds, dtype=float)
-        if math.sqrt(float(u @ u)) < self._dead_zone:
+        if math.sqrt(fixedla.dot(u, u)) < self._dead_zone:
             self._info = {"alpha": 1.0, "innovation": 0.0, "skipped": 1.0}
             return self._J.copy()
         p, q, n = self.p, self.q, self._n
 
+        # Every product below is `einsum` or elementwise and the solve is a Cholesky factor in
+        # Python floats (rodctl.fixedla): no BLAS/LAPACK, the same bits under every kernel.
         P_pred = self._P + self._Q  # A = I (eq. 11)
-        eps = y - self._J @ u  # eq. 16: z_k - C_k x_{k|k-1}
-        PMt = P_pred.reshape(n, p, q) @ u  # (n, p) = P- M^T, M = I_p kron u^T (eq. 12)
-        G = u @ PMt.reshape(p, q, p)  # (p, p) = M P- M^T (eq. 16)
+        eps = y - fixedla.matvec(self._J, u)  # eq. 16: z_k - C_k x_{k|k-1}
+        PMt = fixedla.matvec(P_pred.reshape(n, p, q), u)  # (n, p) = P- M^T, M = I_p kron u^T
+        G = np.einsum("j,ijk->ik", u, PMt.reshape(p, q, p))  # (p, p) = M P- M^T (eq. 16)
         trG = float(G.trace())
-        stat = math.sqrt(float(eps @ eps) / trG) if trG > 0.0 else 0.0  # eq. 15
+        stat = math.sqrt(fixedla.dot(eps, eps) / trG) if trG > 0.0 else 0.0  # eq. 15
         alpha = igg3_factor(stat, self._c0, self._c1, self._floor)  # eq. 14
         inv_a = 1.0 / alpha
 
         S = inv_a * G + self._R  # eq. 13; symmetric positive definite (R is clipped to r_min)
-        SiMP = _solve(S, PMt.T)  # S^-1 M P-
-        K = inv_a * SiMP.T  # (n, p)
-        Keps = K @ eps
+        Li = fixedla.cholesky_inverse_factor(0.5 * (S + S.T))  # S^-1 = Li^T Li
+        if Li is None:  # only if P lost definiteness to rounding: make S PD again
+            Li = fixedla.cholesky_inverse_factor(clip_psd(S, self._r_min, test_first=False))
+        Li = np.array(Li)
+        W = np.einsum("ik,jk->ij", Li, PMt)  # (p, n) = L^-1 M P-
+        Keps = inv_a * np.einsum("ki,k->i", W, fixedla.matvec(Li, eps))  # K eps (eq. 13)
         self._J = self._J + Keps.reshape(p, q)
-        P_new = inv_a * (P_pred - K @ PMt.T)  # (1/alpha)(I - K M) P-, M P- = (P- M^T)^T
-        self._P = 0.5 * (P_new + P_new.T)
+        # (1/alpha)(I - K M) P- with K M P- = (1/alpha) P- M^T S^-1 M P- = (1/alpha) W^T W
+        # (exactly symmetric as computed: entry (i, j) and (j, i) sum the same products)
+        self._P = inv_a * (P_pred - inv_a * np.einsum("ki,kj->ij", W, W))
 
         self._k += 1
         b = self._b
@@ -207,9 +206,9 @@ class AdaptiveKalmanJacobian:
         R = (1.0 - d) * self._R + d * (eps[:, None] * eps)  # eq. 18
         if self._eq32:
             R -= d * G  # eq. 17: the unbiased form
-        self._R = clip_psd(R, self._r_min, self._r_eye)
+        self._R = clip_psd(R, self._r_min)
         Q = (1.0 - d) * self._Q + d * (Keps[:, None] * Keps + self._P - P_pred)  # eq. 17 (Q)
-        self._Q = clip_psd(Q, self._q_min, self._q_eye)
+        self._Q = clip_psd(Q, self._q_min, test_first=False)
 
         self._info = {"alpha": alpha, "innovation": stat, "skipped": 0.0}
         return self._J.copy()

@@ -464,6 +464,14 @@ class EncoderCheckpoint:
             metrics=metrics,
         )
 
+    def mismatches(
+        self, expected: dict[str, Any], experiment: ExperimentConfig | None = None
+    ) -> list[str]:
+        """Where the set-up it was trained for differs from `expected` (empty: it fits), as
+        config keys when `experiment` is given (see `check_compatible`)."""
+        diffs = fingerprint_differences(self.fingerprint, expected)
+        return config_key_differences(self, experiment, diffs) if diffs else []
+
     def check_compatible(
         self,
         expected: dict[str, Any],
@@ -479,10 +487,9 @@ class EncoderCheckpoint:
                 `camera.tilt_deg`) instead of the fingerprint's derived quantities (the camera
                 homography), by comparing the config the checkpoint was trained with.
         """
-        diffs = fingerprint_differences(self.fingerprint, expected)
-        if not diffs:
+        lines = self.mismatches(expected, experiment)
+        if not lines:
             return
-        lines = config_key_differences(self, experiment, diffs)
         raise UserError(
             f"{source}: this encoder was trained for another rod or camera:\n  "
             + "\n  ".join(lines)
@@ -490,7 +497,8 @@ class EncoderCheckpoint:
             "on 2 cores) with `rodctl train-encoder CONFIG --quick` (same --set options) and "
             "set feature.checkpoint to its encoder.npz, or set feature.checkpoint=auto to "
             "train one once and reuse it. `rodctl train-encoder CONFIG` trains the paper's "
-            "full-size encoder (about 15 minutes)."
+            "full-size encoder (about 15 minutes). To run it on this set-up anyway (a transfer "
+            "experiment), set feature.other_setup=accept."
         )
 
 

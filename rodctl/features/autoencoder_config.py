@@ -9,6 +9,7 @@ camera, and how the network is trained. Those settings never change what a train
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -91,6 +92,12 @@ class AutoencoderFeatureConfig(StrictModel):
         "'auto': a quick encoder for this rod and camera (3,000 samples, 300 epochs, about 20 s), "
         "trained on first use and cached in $XDG_CACHE_HOME/rodctl/encoders.",
     )
+    other_setup: Literal["refuse", "accept"] = Field(
+        "refuse",
+        description="A checkpoint trained for another rod or camera (its fingerprint differs "
+        "from this config's): 'refuse' it, naming the config keys that differ (exit 2), or "
+        "'accept' it for a transfer experiment (the differences are printed once on stderr).",
+    )
     data: EncoderDataConfig = Field(
         EncoderDataConfig(),
         description="How `rodctl train-encoder` collects centerlines (ignored when encoding).",
@@ -148,8 +155,31 @@ def load_autoencoder(cfg: AutoencoderFeatureConfig, *, points: int, experiment=N
             "points": points,
             "architecture": architecture_of(cfg, points),
         }
-    ckpt.check_compatible(expected, str(path), experiment)
+    if cfg.other_setup == "accept":
+        # Another rod or camera is a transfer experiment; another N or network cannot run.
+        shape = {k: expected.get(k) for k in ("points", "architecture")}
+        ckpt.check_compatible({**ckpt.fingerprint, **shape}, str(path), experiment)
+        _say_transfer(path, ckpt.mismatches(expected, experiment))
+    else:
+        ckpt.check_compatible(expected, str(path), experiment)
     return ckpt.feature_map(source=str(path))
+
+
+#: Checkpoints already reported as used on another set-up, in this process.
+_TRANSFERS_SAID: set[str] = set()
+
+
+def _say_transfer(path: Path, lines: list[str]) -> None:
+    """Say once per process that an encoder runs on a set-up it was not trained for."""
+    if not lines or str(path) in _TRANSFERS_SAID:
+        return
+    _TRANSFERS_SAID.add(str(path))
+    print(
+        f"feature.other_setup=accept: {path} was trained for another set-up:\n  "
+        + "\n  ".join(lines),
+        file=sys.stderr,
+        flush=True,
+    )
 
 
 def _resolve(checkpoint: str) -> Path:

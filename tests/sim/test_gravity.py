@@ -125,6 +125,24 @@ def test_gravity_zero_is_the_weightless_rod_bit_for_bit() -> None:
     np.testing.assert_array_equal(a.centerline(), b.centerline())
 
 
+def test_other_setup_accept_runs_an_encoder_on_a_rod_it_was_not_trained_for(capsys) -> None:
+    # A transfer experiment: the packaged weightless encoder on a heavy rod, said on stderr
+    # once; a checkpoint for another N or network still cannot run and is refused.
+    from rodctl.config import load_config
+    from rodctl.features import load_autoencoder
+
+    heavy = load_config(None, ["rod.gravity=[0,-9.81]", "feature.other_setup=accept"])
+    fmap = load_autoencoder(heavy.feature, points=100, experiment=heavy)
+    assert fmap.encode(np.zeros((100, 2)) + 300.0).shape == (6,)
+    err = capsys.readouterr().err
+    assert "feature.other_setup=accept" in err and "gravity_load_per_stiffness" in err
+    load_autoencoder(heavy.feature, points=100, experiment=heavy)
+    assert capsys.readouterr().err == ""  # once per process
+    other_n = load_config(None, ["camera.points=50", "feature.other_setup=accept"])
+    with pytest.raises(UserError, match="points"):
+        load_autoencoder(other_n.feature, points=50, experiment=other_n)
+
+
 def test_encoder_fingerprint_refuses_the_weightless_encoder_for_a_heavy_rod() -> None:
     # The packaged checkpoint was trained without gravity: refused, naming the load. A table
     # (friction) keeps the weightless family of shapes and is accepted (README, measured).
