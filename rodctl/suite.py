@@ -127,7 +127,7 @@ def run_suite(
 
     `resume`: an earlier suite folder; scenarios that completed are kept, the others resumed.
     """
-    from rodctl.compare import load_compare_config, run_compare
+    from rodctl.compare import RunInterrupted, load_compare_config, run_compare
 
     wall0 = time.perf_counter()
     cfg = load_compare_config(config_path, overrides)
@@ -167,7 +167,7 @@ def run_suite(
             stderr.print(report)
         status = "completed"
         return run.path
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, RunInterrupted):
         status = "interrupted"
         raise
     finally:

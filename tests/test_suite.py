@@ -86,3 +86,40 @@ def test_a_method_set_key_no_method_has_is_named(tmp_path):
 def test_a_scenario_may_set_a_material_over_the_resolved_default_rod():
     sc = _scenarios(["scenarios.nominal.set={rod.material: {name: silicone_tube}}"])
     assert sc["nominal"]["base"]["rod"] == {"material": {"name": "silicone_tube"}}
+
+
+def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
+    """SIGTERM during a suite: the suite's meta.json says `interrupted` (not `failed`), the
+    scenarios done so far are kept, and `--resume` runs the rest to a complete suite."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from batch_helpers import journal
+
+    out = tmp_path / "runs"
+    out.mkdir()
+    args = [sys.executable, "-m", "rodctl", "compare", SMOKE, "--workers", "2", "-q"]
+    proc = subprocess.Popen(
+        [*args, "--out", str(out)], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None:
+        done = [journal(p) for p in out.glob("*/scenarios/*") if p.is_dir()]
+        if sum(len(j) for j in done) >= 2:
+            break
+        time.sleep(0.1)
+    assert proc.poll() is None, "the suite finished before the signal"
+    os.kill(proc.pid, signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1, err
+    (suite,) = [p for p in out.iterdir() if p.is_dir()]
+    meta = json.loads((suite / "meta.json").read_text())
+    assert meta["status"] == "interrupted", meta
+    res = CliRunner().invoke(app, ["compare", SMOKE, "-q", "--resume", str(suite)])
+    assert res.exit_code == 0, res.output
+    assert json.loads((suite / "meta.json").read_text())["status"] == "completed"
+    with open(suite / "results.csv", encoding="utf-8") as fh:
+        assert len(list(csv.DictReader(fh))) == 3 * 3 * 2
