@@ -99,6 +99,7 @@ def simulate(
     *,
     argv: list[str] | None = None,
     on_step: Callable[[StepRecord], None] | None = None,
+    on_summary: Callable[[RunSummary], None] | None = None,
 ) -> SimulateResult:
     """Run one experiment into a new run directory under `out`.
 
@@ -107,6 +108,9 @@ def simulate(
     behind. SIGINT/SIGTERM are recorded from then until meta.json is final: the episode stops at
     the next step boundary, and the closing of the logs is never cut short.
     The figure process (when `logging.figures`) is started first and never outlives the call.
+    `on_summary` gets the episode's summary as soon as summary.json is written, before the
+    figures are waited for (the run's status may still become `failed` if they cannot be
+    written: see the result).
     """
     stops = StopRequests()
     figures = FigureWorker.start() if cfg.logging.figures else None
@@ -139,6 +143,12 @@ def simulate(
         )
         summary = result.summary
         problems = [write_json_best_effort(run.path / "summary.json", summary.to_json())]
+        shown: Exception | None = None  # a display error waits until meta.json is final
+        if on_summary is not None:
+            try:
+                on_summary(summary)
+            except Exception as exc:  # noqa: BLE001 - re-raised below
+                shown = exc
         if figures and result.records and result.error is None:
             problems.append(_figures(figures, result, run.path / "figures"))
         lost = [p for p in problems if p]
@@ -154,6 +164,8 @@ def simulate(
         if meta_error:
             error = "; ".join(filter(None, [error, f"meta.json not updated: {meta_error}"]))
             status = "failed" if status == "completed" else status
+    if shown is not None:
+        raise shown
     code = EXIT_OK if status == "completed" else EXIT_RUN_FAILED
     return SimulateResult(run=run, summary=summary, exit_code=code, error=error)
 

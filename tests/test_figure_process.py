@@ -156,3 +156,24 @@ def test_replay_draws_the_same_figures(tmp_path):
         assert (out / "figures" / name).read_bytes() == (
             res.run.path / "figures" / name
         ).read_bytes()
+
+
+def test_the_summary_is_shown_before_the_figures_are_waited_for(tmp_path):
+    """`on_summary` (the CLI's table) comes as soon as summary.json is written; a display that
+    fails (a closed pipe) is raised only once meta.json is final."""
+    out = tmp_path / "runs"
+    seen = []
+
+    def show(summary) -> None:
+        (run_dir,) = out.iterdir()
+        seen.append((summary.status, (run_dir / "summary.json").exists()))
+        seen.append((run_dir / "figures").exists())
+        raise BrokenPipeError("stderr closed")
+
+    cfg = load_config(REPO / "configs/default.yaml", FAST)
+    with pytest.raises(BrokenPipeError):
+        simulate(cfg, out, on_summary=show)
+    assert seen == [("completed", True), False]
+    (run_dir,) = out.iterdir()
+    assert json.loads((run_dir / "meta.json").read_text())["status"] == "completed"
+    assert {p.name for p in (run_dir / "figures").iterdir()} == FIGURES
