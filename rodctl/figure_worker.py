@@ -43,15 +43,18 @@ from rodctl.records import RunHeader, RunSummary, StepRecord
 #: that has not answered by then is killed and the figures are reported as not written).
 TIMEOUT_S = 60.0
 
-#: The folder holding the `rodctl` package the parent imported: the helper imports the same one.
-_ROOT = str(Path(__file__).resolve().parent.parent)
+#: The `rodctl` package folder the parent imported: the helper imports from the same one.
+_PACKAGE = str(Path(__file__).resolve().parent)
 
-#: The helper's program (`python -P -c`: no current folder on sys.path, so the helper cannot
-#: pick up another checkout's rodctl from where the command was started).
+#: The helper's program. It needs rodctl.records, rodctl.plots and this module, not the package's
+#: `__init__` (which imports gymnasium to register the environment: 0.2 s of CPU that would
+#: compete with the episode), so `rodctl` is a bare package of the parent's folder. `-P`: no
+#: current folder on sys.path either.
 _BOOT = (
-    "import sys\n"
-    "if sys.argv[1] not in sys.path:\n"
-    "    sys.path.insert(0, sys.argv[1])\n"
+    "import sys, types\n"
+    "package = types.ModuleType('rodctl')\n"
+    "package.__path__ = [sys.argv[1]]\n"
+    "sys.modules['rodctl'] = package\n"
     "from rodctl.figure_worker import main\n"
     "main()\n"
 )
@@ -77,7 +80,7 @@ class FigureWorker:
     def start(cls) -> FigureWorker:
         """Start the helper (it begins importing at once). Never raises: a helper that cannot
         be started is reported by `result()`."""
-        cmd = [sys.executable, "-P", "-c", _BOOT, _ROOT, str(os.getpid())]
+        cmd = [sys.executable, "-P", "-c", _BOOT, _PACKAGE, str(os.getpid())]
         own_group = {"process_group": 0} if os.name == "posix" else {}
         try:
             proc = subprocess.Popen(
