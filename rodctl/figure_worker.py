@@ -90,8 +90,9 @@ class FigureWorker:
                 stderr=subprocess.PIPE,
                 **own_group,
             )
-        except OSError as exc:
-            return cls(None, f"could not start the figure process: {describe_os_error(exc)}")
+        except Exception as exc:  # noqa: BLE001 - no fork, no executable (embedded Python) ...
+            why = describe_os_error(exc) if isinstance(exc, OSError) else repr(exc)
+            return cls(None, f"could not start the figure process: {why}")
         return cls(proc)
 
     # --- the sink: the episode hands the run over as it closes -------------------------------

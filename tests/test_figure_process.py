@@ -108,6 +108,20 @@ def test_a_figure_process_that_fails_costs_the_figures_only(
     assert _gone(int(pid_file.read_text())), "the figure process outlived the command"
 
 
+def test_a_figure_process_that_cannot_start_costs_the_figures_only(tmp_path, monkeypatch):
+    missing = tmp_path / "no-python"
+    monkeypatch.setattr("sys.executable", str(missing))
+    res = _run(tmp_path)
+    message = (
+        "figures not written: could not start the figure process: "
+        f"No such file or directory: {missing}"
+    )
+    assert res.exit_code == 1 and res.error == message
+    meta = json.loads((res.run.path / "meta.json").read_text())
+    assert meta["status"] == "failed" and meta["error"] == message
+    assert read_run(res.run.path).complete
+
+
 def test_no_figure_process_when_figures_are_off(tmp_path, broken_helper):
     pid_file = broken_helper("fails")
     res = _run(tmp_path, "logging.figures=false")
