@@ -7,12 +7,19 @@ wants under 1 s in all; the three figures of a run should take at most ~0.3 s. P
 The records are synthetic (`rodctl.logs.synthetic`), 17 steps like the default run, 4 of them
 probing; the comparison has 6 methods.
 
+`simulate` and `replay` draw the run figures in a helper process (`rodctl.figure_worker`) that
+starts with the run, so what the command waits for is printed too: from handing the records over
+to having the PNG bytes, with a helper that had time to import and warm up (the usual case: the
+episode lasts longer than its ~0.6 s of imports), and with one started at that moment (the worst
+case: an episode shorter than the helper's start-up).
+
 Run: .venv/bin/python benchmarks/bench_plots.py [--repeats R]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import statistics
 import tempfile
@@ -20,6 +27,7 @@ import time
 from pathlib import Path
 
 from rodctl import plots
+from rodctl.figure_worker import FigureWorker
 from rodctl.logs.synthetic import SyntheticRun
 
 GOAL_S = 0.3
@@ -29,6 +37,16 @@ def timed(fn) -> tuple[float, float]:
     c, t = time.process_time(), time.perf_counter()
     fn()
     return time.process_time() - c, time.perf_counter() - t
+
+
+def helper_wait(header, records, ready_after: float) -> float:
+    """Wall time from handing the run to a helper started `ready_after` s before to its PNGs."""
+    with FigureWorker.start() as worker:
+        time.sleep(ready_after)
+        t = time.perf_counter()
+        worker.submit(header, records)
+        worker.result()
+        return time.perf_counter() - t
 
 
 def main() -> None:
@@ -53,6 +71,8 @@ def main() -> None:
             timed(lambda: plots.write_comparison_figures(runs, out / "cmp"))
             for _ in range(max(1, args.repeats // 2))
         ]
+    ready = [helper_wait(run.header, records, 3.0) for _ in range(args.repeats)]
+    cold = [helper_wait(run.header, records, 0.0) for _ in range(args.repeats)]
     cpu1, wall1 = (statistics.median(x) for x in zip(*one, strict=True))
     cpu6, wall6 = (statistics.median(x) for x in zip(*cmp, strict=True))
     print(f"machine: {platform.machine()}, {platform.processor() or platform.system()}")
@@ -61,6 +81,10 @@ def main() -> None:
         f"-> {'met' if wall1 <= GOAL_S else 'NOT met'}"
     )
     print(f"comparison figures (4, 6 methods): cpu {cpu6:.3f} s, wall {wall6:.3f} s")
+    print("the command's wait for the run figures from the figure process (wall):")
+    print(f"  helper ready (imported, warmed up):  {statistics.median(ready):.3f} s")
+    print(f"  helper started at that moment:       {statistics.median(cold):.3f} s")
+    print(f"load average: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
 
 
 if __name__ == "__main__":

@@ -233,6 +233,7 @@ def simulate(
     failed (diverged, lost the rod, crashed) or was interrupted, 2 on bad input.
     """
     from rodctl.display import print_summary, step_progress
+    from rodctl.records import RunSummary
     from rodctl.simulate import simulate as run_simulation
 
     model = _config_model(config)
@@ -242,10 +243,17 @@ def simulate(
             f"{config}: this is a {command} config; run it with `rodctl {command} {config}`"
         )
     cfg = load_config(config, set_ or [])
-    with step_progress(cfg.run.max_steps, enabled=not (quiet or as_json)) as on_step:
-        result = run_simulation(cfg, out, argv=sys.argv, on_step=on_step)
-    if not (quiet or as_json):
-        print_summary(result.summary)
+    table = not (quiet or as_json)
+    with step_progress(cfg.run.max_steps, enabled=table) as on_step:
+
+        def first_result(summary: RunSummary) -> None:
+            # The table as soon as the episode has ended; the figures and meta.json follow.
+            on_step.done()
+            print_summary(summary)
+
+        result = run_simulation(
+            cfg, out, argv=sys.argv, on_step=on_step, on_summary=first_result if table else None
+        )
     if result.error:
         typer.echo(f"error: {result.error}", err=True)
     if as_json:

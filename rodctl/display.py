@@ -27,11 +27,22 @@ from rodctl.records import RunSummary, StepRecord
 stderr = Console(stderr=True)
 
 
+class StepProgress:
+    """The callback of `step_progress` (call it with each record); `done()` ends the bar before
+    the block does, so that the summary can be printed under it while the command finishes."""
+
+    def __init__(self, update: Callable[[StepRecord], None], done: Callable[[], None]) -> None:
+        self._update, self.done = update, done
+
+    def __call__(self, rec: StepRecord) -> None:
+        self._update(rec)
+
+
 @contextmanager
-def step_progress(total: int, enabled: bool = True) -> Iterator[Callable[[StepRecord], None]]:
+def step_progress(total: int, enabled: bool = True) -> Iterator[StepProgress]:
     """A progress bar over control steps showing T1 and the pixel error; yields the callback."""
     if not enabled:
-        yield lambda _rec: None
+        yield StepProgress(lambda _rec: None, lambda: None)
         return
     progress = Progress(
         TextColumn("[bold]{task.description}"),
@@ -42,15 +53,27 @@ def step_progress(total: int, enabled: bool = True) -> Iterator[Callable[[StepRe
         console=stderr,
         transient=False,
     )
-    with progress:
-        task = progress.add_task("step", total=total, t1=float("nan"), px=float("nan"))
+    task = progress.add_task("step", total=total, t1=float("nan"), px=float("nan"))
 
-        def on_step(rec: StepRecord) -> None:
-            progress.update(
-                task, completed=rec.step, t1=rec.T1, px=rec.pixel_error, description=rec.phase
-            )
+    def on_step(rec: StepRecord) -> None:
+        progress.update(
+            task, completed=rec.step, t1=rec.T1, px=rec.pixel_error, description=rec.phase
+        )
 
-        yield on_step
+    stopped = False
+
+    def done() -> None:
+        # Once only: off a terminal, every Progress.stop() prints an empty line.
+        nonlocal stopped
+        if not stopped:
+            stopped = True
+            progress.stop()
+
+    progress.start()
+    try:
+        yield StepProgress(on_step, done)
+    finally:
+        done()
 
 
 class RateColumn(ProgressColumn):

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
@@ -25,7 +26,8 @@ import yaml
 
 from rodctl.config.loading import safe_load
 from rodctl.config.logging import LoggingConfig
-from rodctl.errors import UserError
+from rodctl.errors import RunFailed, UserError
+from rodctl.figure_worker import FiguresFailed, FigureWorker, save_figures
 from rodctl.logs.codec import ReadRun
 from rodctl.records import RunSummary, StepRecord
 
@@ -127,36 +129,42 @@ def rebuild(
         out_dir: where to write; default the run directory (the MCAP file's folder).
         recover: accept an unfinished MCAP (see `read_run`).
         rerun: write `out_dir/run.rrd`.
-        figures: write `out_dir/figures/*.png` with `rodctl.plots.write_figures`.
+        figures: write `out_dir/figures/*.png`, drawn by a helper process
+            (`rodctl.figure_worker`) while run.rrd is rewritten.
 
     Returns:
         The records read and the paths written.
+
+    Raises:
+        RunFailed: the figures could not be drawn (the reason; run.rrd is written).
     """
     src = mcap_path(path)
-    run = read_run(src, recover=recover)
-    out = Path(out_dir) if out_dir is not None else src.parent
-    out.mkdir(parents=True, exist_ok=True)
-    result = Rebuilt(run=run, rrd=None)
-    if rerun:
-        from rodctl.logs.rerun import RerunSink
+    with FigureWorker.start() if figures else nullcontext() as worker:
+        run = read_run(src, recover=recover)
+        if worker is not None and run.records:
+            worker.submit(run.header, run.records)  # drawn while run.rrd is written
+        out = Path(out_dir) if out_dir is not None else src.parent
+        out.mkdir(parents=True, exist_ok=True)
+        result = Rebuilt(run=run, rrd=None)
+        if rerun:
+            from rodctl.logs.rerun import RerunSink
 
-        result.rrd = out / "run.rrd"
-        sink = RerunSink(result.rrd, _logging_config(run.header.config_yaml))
-        status = run.status or "interrupted"
-        try:
-            sink.open(run.header)
-            for rec in run.records:
-                sink.write(rec)
-        finally:
-            sink.close(summary_object(run.summary), status)
-    if figures:
-        try:
-            from rodctl.plots import write_figures
-        except ImportError as exc:  # pragma: no cover - plots ships with rodctl
-            result.notes.append(f"figures skipped: {exc}")
-        else:
+            result.rrd = out / "run.rrd"
+            sink = RerunSink(result.rrd, _logging_config(run.header.config_yaml))
+            status = run.status or "interrupted"
+            try:
+                sink.open(run.header)
+                for rec in run.records:
+                    sink.write(rec)
+            finally:
+                sink.close(summary_object(run.summary), status)
+        if worker is not None:
             if run.records:
-                result.figures = list(write_figures(run.header, run.records, out / "figures"))
+                try:
+                    pngs = worker.result()
+                except FiguresFailed as exc:
+                    raise RunFailed(f"figures not written: {exc}") from None
+                result.figures = save_figures(pngs, out / "figures")
             else:
                 result.notes.append("figures skipped: no complete step in the log")
     return result

@@ -4,6 +4,10 @@ Whatever happens — convergence, divergence, an exception inside the loop, Ctrl
 episode (`rodctl.episode.run_episode`) closes the sinks (MCAP and Rerun files finalised) with
 its real status, summary.json is written from the records so far and meta.json records the
 terminal status. Nothing already logged is lost.
+
+The figures are drawn by a helper process (`rodctl.figure_worker`) started with the run, so that
+importing matplotlib and drawing overlap with the episode and the closing of the logs instead
+of following them; the command still writes them, and waits for them, before it returns.
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ from __future__ import annotations
 import signal
 import threading
 from collections.abc import Callable
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,6 +24,7 @@ from rodctl.config import ExperimentConfig
 from rodctl.env import ShapeServoEnv
 from rodctl.episode import EpisodeFailed, Outcome, run_episode
 from rodctl.errors import UserError, describe_os_error
+from rodctl.figure_worker import FiguresFailed, FigureWorker, save_figures
 from rodctl.logs.base import Sink
 from rodctl.method import Method
 from rodctl.records import RunSummary, StepRecord
@@ -94,6 +99,7 @@ def simulate(
     *,
     argv: list[str] | None = None,
     on_step: Callable[[StepRecord], None] | None = None,
+    on_summary: Callable[[RunSummary], None] | None = None,
 ) -> SimulateResult:
     """Run one experiment into a new run directory under `out`.
 
@@ -101,14 +107,20 @@ def simulate(
     cannot run (a missing checkpoint, an impossible feature) is a `UserError` that leaves nothing
     behind. SIGINT/SIGTERM are recorded from then until meta.json is final: the episode stops at
     the next step boundary, and the closing of the logs is never cut short.
+    The figure process (when `logging.figures`) is started first and never outlives the call.
+    `on_summary` gets the episode's summary as soon as summary.json is written, before the
+    figures are waited for (the run's status may still become `failed` if they cannot be
+    written: see the result).
     """
     stops = StopRequests()
-    with stops.installed():
+    figures = FigureWorker.start() if cfg.logging.figures else None
+    with stops.installed(), figures or nullcontext():
         env = ShapeServoEnv(cfg)
         method = Method.from_config(cfg)
         run = RunDir.create(out, cfg, command="simulate", argv=argv)
         try:
-            sinks = make_sinks(cfg, run.path)
+            # The figure process first: it gets the records before the logs are closed.
+            sinks = ([figures] if figures else []) + make_sinks(cfg, run.path)
             result = run_episode(
                 env,
                 method,
@@ -131,8 +143,14 @@ def simulate(
         )
         summary = result.summary
         problems = [write_json_best_effort(run.path / "summary.json", summary.to_json())]
-        if cfg.logging.figures and result.records and result.error is None:
-            problems.append(_best_effort(lambda: _figures(result, run.path / "figures")))
+        shown: Exception | None = None  # a display error waits until meta.json is final
+        if on_summary is not None:
+            try:
+                on_summary(summary)
+            except Exception as exc:  # noqa: BLE001 - re-raised below
+                shown = exc
+        if figures and result.records and result.error is None:
+            problems.append(_figures(figures, result, run.path / "figures"))
         lost = [p for p in problems if p]
         status = result.status
         if lost:
@@ -146,14 +164,21 @@ def simulate(
         if meta_error:
             error = "; ".join(filter(None, [error, f"meta.json not updated: {meta_error}"]))
             status = "failed" if status == "completed" else status
+    if shown is not None:
+        raise shown
     code = EXIT_OK if status == "completed" else EXIT_RUN_FAILED
     return SimulateResult(run=run, summary=summary, exit_code=code, error=error)
 
 
-def _figures(result: Any, folder: Path) -> None:
-    from rodctl.plots import write_figures
-
-    write_figures(result.header, result.records, folder)
+def _figures(worker: FigureWorker, result: Any, folder: Path) -> str | None:
+    """Write the figures the worker drew (it has the records already, as a sink); what could
+    not be drawn or written, as a message."""
+    worker.submit(result.header, result.records)  # nothing to do when the sink handed them over
+    try:
+        pngs = worker.result()
+    except FiguresFailed as exc:
+        return f"figures not written: {exc}"
+    return _best_effort(lambda: save_figures(pngs, folder))
 
 
 def _best_effort(write: Callable[[], object]) -> str | None:

@@ -67,6 +67,52 @@ def test_simulate_stops_cleanly_on_a_signal(tmp_path, sig, after_bytes):
     assert "verify: OK" in res.stderr
 
 
+def _live_processes(session: int) -> list[str]:
+    """The processes of a session still running (a killed child that init has not reaped yet,
+    a zombie, is not running)."""
+    ps = subprocess.run(["ps", "-s", str(session), "-o", "pid=,stat=,args="],
+                        capture_output=True, text=True)  # fmt: skip
+    return [line for line in ps.stdout.splitlines() if line.split()[1][0] != "Z"]
+
+
+@pytest.mark.parametrize(
+    ("sig", "to_group"),
+    [(signal.SIGTERM, False), (signal.SIGINT, True)],
+    ids=["SIGTERM to the command", "SIGINT to its process group (Ctrl-C)"],
+)
+def test_simulate_stopped_by_a_signal_keeps_its_figures_and_leaves_no_process(
+    tmp_path, sig, to_group
+):
+    """The figures are drawn by a helper process: a stopped run still gets them (as when they
+    were drawn in-process), a Ctrl-C at the terminal does not kill the helper, and nothing of
+    the command is left when it returns."""
+    proc = _start(["simulate", SCRIPTED, "-q", "-o", str(tmp_path), "--set", "logging.rerun=false"])
+    run_dir = _run_dir(tmp_path)
+    mcap = run_dir / "run.mcap"
+    _wait_for(lambda: mcap.exists() and mcap.stat().st_size >= 40_000, 60)
+    (os.killpg if to_group else os.kill)(proc.pid, sig)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1, err
+    assert _live_processes(proc.pid) == []
+    meta = _meta(run_dir)
+    assert meta["status"] == "interrupted" and meta["error"] == f"interrupted by {sig.name}"
+    assert {p.name for p in (run_dir / "figures").iterdir()} == {
+        "shapes.png", "t1.png", "commands.png"
+    }  # fmt: skip
+
+
+def test_a_killed_simulate_leaves_no_figure_process(tmp_path):
+    """SIGKILL to the command alone: its figure process, which nothing told, ends too."""
+    proc = _start(["simulate", SCRIPTED, "-q", "-o", str(tmp_path), "--set", "logging.rerun=false"])
+    run_dir = _run_dir(tmp_path)
+    mcap = run_dir / "run.mcap"
+    _wait_for(lambda: mcap.exists() and mcap.stat().st_size >= 40_000, 60)
+    assert len(_live_processes(proc.pid)) >= 2, "the command and its figure process"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.communicate(timeout=30)
+    _wait_for(lambda: _live_processes(proc.pid) == [], 10)
+
+
 def test_sigkill_then_replay_recover_reads_the_whole_steps(tmp_path):
     proc = _start(["simulate", SCRIPTED, "-q", "-o", str(tmp_path), "--set", "logging.rerun=false",
                    "--set", "logging.flush_every_steps=2"])  # fmt: skip
