@@ -147,19 +147,28 @@ def run_suite(
             earlier = folders.get(name)
             if earlier and _completed(Path(earlier)):
                 continue
-            folder = run_compare(
-                str(path),
-                [],
-                str(run.path / "scenarios"),
-                progress=progress,
-                workers=workers,
-                executor=executor,
-                address=address,
-                resume=earlier,
-            )
-            folders[name] = str(folder)
-            run.meta["scenarios"] = folders
-            run.write_meta()
+            folder = None
+            try:
+                folder = run_compare(
+                    str(path),
+                    [],
+                    str(run.path / "scenarios"),
+                    progress=progress,
+                    workers=workers,
+                    executor=executor,
+                    address=address,
+                    resume=earlier,
+                )
+            except RunInterrupted as exc:
+                # Remember the cut scenario's folder: --resume continues it, keeping its
+                # finished episodes, instead of starting the scenario again.
+                folder = exc.folder
+                raise
+            finally:
+                if folder is not None:
+                    folders[name] = str(folder)
+                    run.meta["scenarios"] = folders
+                    run.write_meta()
         report = write_suite_outputs(cfg, run.path, folders, time.perf_counter() - wall0)
         if progress:
             from rodctl.display import stderr

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import re
+from pathlib import Path
 
 from paths import REPO
 from typer.testing import CliRunner
@@ -118,8 +119,19 @@ def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
     (suite,) = [p for p in out.iterdir() if p.is_dir()]
     meta = json.loads((suite / "meta.json").read_text())
     assert meta["status"] == "interrupted", meta
+    cut = [Path(f) for f in meta["scenarios"].values()]  # the cut scenario's folder is known
+    kept = {f: len([r for r in journal(f) if r["outcome"] != "interrupted"]) for f in cut}
+    assert sum(kept.values()) >= 2
     res = CliRunner().invoke(app, ["compare", SMOKE, "-q", "--resume", str(suite)])
     assert res.exit_code == 0, res.output
     assert json.loads((suite / "meta.json").read_text())["status"] == "completed"
     with open(suite / "results.csv", encoding="utf-8") as fh:
         assert len(list(csv.DictReader(fh))) == 3 * 3 * 2
+    # One folder per scenario: the cut one was continued, its finished episodes not run again
+    # (but for the figure target's, whose step records the figures need: by design).
+    assert len([p for p in (suite / "scenarios").iterdir() if p.is_dir()]) == 3
+    for f in cut:
+        keys = [(r["method"], r["target"]) for r in journal(f) if r["outcome"] != "interrupted"]
+        assert len(set(keys)) == 6, keys
+        again = {k for k in keys if keys.count(k) > 1}
+        assert len({t for _, t in again}) <= 1, again  # only the figure target's episodes
