@@ -10,13 +10,13 @@ import functools
 import json
 import sys
 from collections.abc import Callable
-from contextlib import contextmanager
 from typing import Annotated, Any, TypeVar
 
 import typer
 
 from rodctl.config import ExperimentConfig, dump_config, load_config
 from rodctl.errors import RunFailed, UserError, describe_os_error
+from rodctl.executors.base import sigterm_as_interrupt
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -341,30 +341,6 @@ def _open_rerun(rrd) -> None:
     subprocess.Popen([exe, str(rrd)], start_new_session=True)
 
 
-@contextmanager
-def _sigterm_as_interrupt():
-    """SIGTERM ends a long command like Ctrl-C does (KeyboardInterrupt), so it is caught and
-    recorded as `interrupted` instead of killing the process with meta.json left `running`."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt(signal.Signals(signum).name)
-
-    previous = signal.getsignal(signal.SIGTERM)
-    if previous is not signal.SIG_IGN:
-        signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        if previous is not signal.SIG_IGN:
-            signal.signal(signal.SIGTERM, previous)
-
-
 @app.command("train-encoder")
 @user_errors
 def train_encoder(
@@ -404,7 +380,7 @@ def train_encoder(
         raise UserError(f"--dataset {dataset}: no such file")
     run = RunDir.create(out, cfg, command="train-encoder", argv=sys.argv)
     try:
-        with _sigterm_as_interrupt():
+        with sigterm_as_interrupt():
             metrics = train(
                 cfg, run, dataset=Path(dataset) if dataset else None, progress=not quiet
             )
@@ -458,7 +434,10 @@ def _finish_batch(runner: Callable[..., Any], config: str, **kwargs: Any) -> Non
     kwargs["overrides"] = kwargs.pop("set_") or []
     kwargs["progress"] = not kwargs.pop("quiet")
     try:
-        folder = runner(config, **kwargs)
+        # Outside the episodes (set-up, an encoder trained for 'auto', the report, between a
+        # suite's scenarios) SIGTERM ends the run as Ctrl-C does, recorded as interrupted.
+        with sigterm_as_interrupt():
+            folder = runner(config, **kwargs)
     except RunInterrupted as exc:
         typer.echo(f"interrupted: {exc}; partial results kept, resume with --resume", err=True)
         typer.echo(str(exc.folder))

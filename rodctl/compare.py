@@ -439,8 +439,10 @@ class ResultsLog:
 class RunInterrupted(Exception):
     """SIGINT/SIGTERM stopped a run; its folder holds every finished episode, marked partial."""
 
-    def __init__(self, folder: Path, reason: str, done: int, total: int) -> None:
-        super().__init__(f"interrupted by {reason}: {done} of {total} episodes finished")
+    def __init__(
+        self, folder: Path, reason: str, done: int, total: int, unit: str = "episodes"
+    ) -> None:
+        super().__init__(f"interrupted by {reason}: {done} of {total} {unit} finished")
         self.folder = folder
         self.reason = reason
 

@@ -70,6 +70,13 @@ def scenario_configs(cfg: CompareConfig, config_dir: Path, source: str) -> dict[
         # the EI and rho*A the default material resolved to.
         data["base"] = cfg.base.model_dump(mode="json", exclude_unset=True)
         data.update(name=f"{cfg.name}-{name}"[:64], scenario=name)
+        if any(k.startswith("rod.material") for k in sc.set):
+            # A new material sets EI and rho*A: the base's (resolved from its own material)
+            # would contradict it, unless the scenario sets them too.
+            rod = data["base"].get("rod", {})
+            for derived in ("bending_stiffness", "mass_per_length"):
+                if f"rod.{derived}" not in sc.set:
+                    rod.pop(derived, None)
         for key, value in sc.set.items():
             apply_override(data["base"], key.split("."), value, f"scenarios.{name}.set.{key}")
         for key, value in sc.method_set.items():
@@ -176,9 +183,12 @@ def run_suite(
             stderr.print(report)
         status = "completed"
         return run.path
-    except (KeyboardInterrupt, RunInterrupted):
+    except (KeyboardInterrupt, RunInterrupted) as exc:
+        # The suite's folder is what --resume takes, not the cut scenario's.
         status = "interrupted"
-        raise
+        reason = exc.reason if isinstance(exc, RunInterrupted) else str(exc) or "SIGINT"
+        done = sum(_completed(Path(f)) for f in folders.values())
+        raise RunInterrupted(run.path, reason, done, len(scenarios), "scenarios") from None
     finally:
         run.finish(status)
 
@@ -310,8 +320,10 @@ def write_suite_outputs(
         md += [f"## {name}", ""]
         if sc is not None and sc.description:
             md += [sc.description, ""]
-        if sc is not None and sc.set:
-            md += ["Changed: " + ", ".join(f"`{k}` = `{v}`" for k, v in sc.set.items()), ""]
+        if sc is not None and (sc.set or sc.method_set):
+            changed = [f"`{k}` = `{v}`" for k, v in sc.set.items()]
+            changed += [f"methods' `{k}` = `{v}`" for k, v in sc.method_set.items()]
+            md += ["Changed: " + ", ".join(changed), ""]
         md += [markdown_table(header, lines), ""]
         md += _paired_markdown(mine, methods, ref, paired, metrics)
         stats[name] = {

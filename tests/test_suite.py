@@ -87,6 +87,15 @@ def test_a_method_set_key_no_method_has_is_named(tmp_path):
 def test_a_scenario_may_set_a_material_over_the_resolved_default_rod():
     sc = _scenarios(["scenarios.nominal.set={rod.material: {name: silicone_tube}}"])
     assert sc["nominal"]["base"]["rod"] == {"material": {"name": "silicone_tube"}}
+    # ... and over a base that names a material of its own.
+    sc = _scenarios(
+        [
+            "base.rod.material={name: nitinol_wire}",
+            "scenarios.nominal.set={rod.material: {name: silicone_tube}}",
+        ]
+    )
+    assert sc["nominal"]["base"]["rod"]["material"] == {"name": "silicone_tube"}
+    assert sc["loose-limit"]["base"]["rod"]["material"] == {"name": "nitinol_wire"}
 
 
 def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
@@ -114,9 +123,11 @@ def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
         time.sleep(0.1)
     assert proc.poll() is None, "the suite finished before the signal"
     os.kill(proc.pid, signal.SIGTERM)
-    _, err = proc.communicate(timeout=120)
+    printed, err = proc.communicate(timeout=120)
     assert proc.returncode == 1, err
     (suite,) = [p for p in out.iterdir() if p.is_dir()]
+    assert printed.decode().strip().splitlines()[-1] == str(suite)  # what --resume takes
+    assert b"scenarios finished" in err
     meta = json.loads((suite / "meta.json").read_text())
     assert meta["status"] == "interrupted", meta
     cut = [Path(f) for f in meta["scenarios"].values()]  # the cut scenario's folder is known

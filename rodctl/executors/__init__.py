@@ -7,6 +7,7 @@ from rodctl.executors.base import (
     clear_stop,
     make_executor,
     request_stop,
+    sigterm_as_interrupt,
     stop_handlers,
     stop_reason,
 )
@@ -18,6 +19,7 @@ __all__ = [
     "clear_stop",
     "make_executor",
     "request_stop",
+    "sigterm_as_interrupt",
     "stop_handlers",
     "stop_reason",
 ]

@@ -77,6 +77,27 @@ def stop_handlers() -> Iterator[None]:
             signal.signal(sig, old)
 
 
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM ends a long command like Ctrl-C does (KeyboardInterrupt), so it is caught and
+    recorded as `interrupted` instead of killing the process with meta.json left `running`."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous is not signal.SIG_IGN:
+        signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        if previous is not signal.SIG_IGN:
+            signal.signal(signal.SIGTERM, previous)
+
+
 def init_worker() -> None:
     """Start of every worker process: plug-ins registered as in the parent (a config naming a
     plug-in type must validate there too), one torch thread, and cooperative stop handlers.

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -50,12 +51,14 @@ def run_task(fn: Callable[[Any], Any], task: Any) -> Any:
     """
     global _worker_ready
     if not _worker_ready:
-        import torch
-
+        # As `init_worker`: THREAD_ENV (set in the runtime env) gives torch one thread if a
+        # task imports it; importing it here would cost every worker 1.2 s for nothing.
         from rodctl.registry import load_plugins
 
         load_plugins()
-        torch.set_num_threads(1)
+        torch = sys.modules.get("torch")
+        if torch is not None:
+            torch.set_num_threads(1)
         _worker_ready = True
     clear_stop()
     with stop_handlers():

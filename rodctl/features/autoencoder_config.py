@@ -171,9 +171,10 @@ _TRANSFERS_SAID: set[str] = set()
 
 def _say_transfer(path: Path, lines: list[str]) -> None:
     """Say once per process that an encoder runs on a set-up it was not trained for."""
-    if not lines or str(path) in _TRANSFERS_SAID:
+    key = f"{path}: {lines}"  # one checkpoint may go to several set-ups in one process
+    if not lines or key in _TRANSFERS_SAID:
         return
-    _TRANSFERS_SAID.add(str(path))
+    _TRANSFERS_SAID.add(key)
     print(
         f"feature.other_setup=accept: {path} was trained for another set-up:\n  "
         + "\n  ".join(lines),
