@@ -30,7 +30,6 @@ __all__ = [
     "clip_eigenvalues",
     "dot",
     "eigh_small",
-    "eigh_tridiagonal_qr",
     "inv3",
     "matmul",
     "matvec",
@@ -475,19 +474,6 @@ def apply_reflectors(refl: list[tuple[int, np.ndarray, float]], x: np.ndarray) -
         blk = x[k + 1 :]
         blk -= np.multiply.outer(v, beta * np.einsum("i,ij->j", v, blk))
     return x
-
-
-def eigh_tridiagonal_qr(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalues (ascending) and eigenvectors (columns) of a symmetric matrix, kernel-independent:
-    `tridiagonalize`, `tridiagonal_eigenvalues`, then every eigenvector. Meant for checking and for
-    n of about 20; `clip_eigenvalues` builds only the eigenvectors it needs."""
-    a = np.asarray(a, dtype=np.float64)
-    n = a.shape[0]
-    diag, sub, refl = tridiagonalize(a)
-    w, rots = tridiagonal_eigenvalues(diag, sub)
-    order = sorted(range(n), key=lambda j: w[j])
-    z = np.array([tridiagonal_eigenvector(n, j, rots) for j in order]).T.reshape(n, n)
-    return np.array([w[j] for j in order]), apply_reflectors(refl, z)
 
 
 def clip_eigenvalues(a: np.ndarray, floor: float) -> np.ndarray:

@@ -98,19 +98,23 @@ def sigterm_as_interrupt() -> Iterator[None]:
             signal.signal(signal.SIGTERM, previous)
 
 
-def init_worker() -> None:
-    """Start of every worker process: plug-ins registered as in the parent (a config naming a
-    plug-in type must validate there too), one torch thread, and cooperative stop handlers.
-
-    torch is not imported here (1.2 s a worker, and most tasks never use it): both executors
-    start their workers with `THREAD_ENV` set to 1, which torch reads when a task imports it.
-    Only if a plug-in already imported it is its thread count set here."""
+def prepare_worker() -> None:
+    """What every worker process (local pool or Ray) needs before its first task: plug-ins
+    registered as in the parent, and one torch thread if a plug-in already imported torch.
+    torch itself is not imported (1.2 s a worker, and most tasks never use it): the executors
+    start workers with `THREAD_ENV` set to 1, which torch reads when a task imports it."""
     from rodctl.registry import load_plugins
 
     load_plugins()
     torch = sys.modules.get("torch")
     if torch is not None:
         torch.set_num_threads(1)
+
+
+def init_worker() -> None:
+    """Start of every local pool process: `prepare_worker` (a config naming a plug-in type
+    must validate there too), and cooperative stop handlers."""
+    prepare_worker()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, _handler)

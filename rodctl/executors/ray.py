@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import os
 import signal
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -31,6 +30,7 @@ from rodctl.executors.base import (
     Done,
     Executor,
     clear_stop,
+    prepare_worker,
     request_stop,
     stop_handlers,
     stop_reason,
@@ -51,14 +51,7 @@ def run_task(fn: Callable[[Any], Any], task: Any) -> Any:
     """
     global _worker_ready
     if not _worker_ready:
-        # As `init_worker`: THREAD_ENV (set in the runtime env) gives torch one thread if a
-        # task imports it; importing it here would cost every worker 1.2 s for nothing.
-        from rodctl.registry import load_plugins
-
-        load_plugins()
-        torch = sys.modules.get("torch")
-        if torch is not None:
-            torch.set_num_threads(1)
+        prepare_worker()
         _worker_ready = True
     clear_stop()
     with stop_handlers():
