@@ -758,6 +758,7 @@ def run_compare(
     executor: str = "local",
     address: str | None = None,
     resume: str | None = None,
+    on_start: Callable[[Path], None] | None = None,
 ) -> Path:
     """Run the benchmark of `config_path` into a new folder under `out`; return that folder.
 
@@ -773,6 +774,8 @@ def run_compare(
         address: an existing Ray cluster to run on (executor "ray").
         resume: an earlier run folder of the same config: its finished episodes are kept and
             only the others run, into that folder.
+        on_start: called with the run's folder as soon as it exists (a suite records it, so
+            that `--resume` continues this folder even after the process was killed).
 
     Returns:
         The output folder (holding results.jsonl/csv/json, summary.md, targets.yaml, figures/).
@@ -793,6 +796,8 @@ def run_compare(
     pool = make_executor(executor, n_workers, address)
     hashed = {"config": cfg.model_dump(mode="json", exclude={"workers"}), "targets": given}
     run = start_run(out, cfg, "compare", hashed, resume)
+    if on_start is not None:
+        on_start(run.path)
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
     try:

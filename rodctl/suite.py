@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import base64
 import csv
+import functools
 import html
 import json
 import math
@@ -154,28 +155,19 @@ def run_suite(
             earlier = folders.get(name)
             if earlier and _completed(Path(earlier)):
                 continue
-            folder = None
-            try:
-                folder = run_compare(
-                    str(path),
-                    [],
-                    str(run.path / "scenarios"),
-                    progress=progress,
-                    workers=workers,
-                    executor=executor,
-                    address=address,
-                    resume=earlier,
-                )
-            except RunInterrupted as exc:
-                # Remember the cut scenario's folder: --resume continues it, keeping its
-                # finished episodes, instead of starting the scenario again.
-                folder = exc.folder
-                raise
-            finally:
-                if folder is not None:
-                    folders[name] = str(folder)
-                    run.meta["scenarios"] = folders
-                    run.write_meta()
+            # The scenario's folder is recorded as soon as it exists, so --resume continues it
+            # (keeping its finished episodes) after a stop, and after a kill or power cut too.
+            run_compare(
+                str(path),
+                [],
+                str(run.path / "scenarios"),
+                progress=progress,
+                workers=workers,
+                executor=executor,
+                address=address,
+                resume=earlier,
+                on_start=functools.partial(_record_scenario, run, folders, name),
+            )
         report = write_suite_outputs(cfg, run.path, folders, time.perf_counter() - wall0)
         if progress:
             from rodctl.display import stderr
@@ -191,6 +183,12 @@ def run_suite(
         raise RunInterrupted(run.path, reason, done, len(scenarios), "scenarios") from None
     finally:
         run.finish(status)
+
+
+def _record_scenario(run: RunDir, folders: dict[str, str], name: str, folder: Path) -> None:
+    folders[name] = str(folder)
+    run.meta["scenarios"] = folders
+    run.write_meta()
 
 
 def _completed(folder: Path) -> bool:

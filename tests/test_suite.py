@@ -146,3 +146,44 @@ def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
         assert len(set(keys)) == 6, keys
         again = {k for k in keys if keys.count(k) > 1}
         assert len({t for _, t in again}) <= 1, again  # only the figure target's episodes
+
+
+def test_a_killed_suite_resumes_its_cut_scenario_in_the_same_folder(tmp_path):
+    """SIGKILL (or a power cut) gives the suite no chance to say anything: meta.json still says
+    `running`. `--resume` must still continue the cut scenario's folder, keeping its finished
+    episodes, instead of starting that scenario again in a new one."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from batch_helpers import journal
+
+    out = tmp_path / "runs"
+    out.mkdir()
+    args = [sys.executable, "-m", "rodctl", "compare", SMOKE, "--workers", "1", "-q"]
+    proc = subprocess.Popen([*args, "--out", str(out)], cwd=REPO, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None:
+        done = [journal(p) for p in out.glob("*/scenarios/*") if p.is_dir()]
+        if sum(len(j) for j in done) >= 2:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the suite finished before the kill"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=60)
+    (suite,) = [p for p in out.iterdir() if p.is_dir()]
+    meta = json.loads((suite / "meta.json").read_text())
+    assert meta["status"] == "running", meta  # nobody could say otherwise
+    (cut,) = [Path(f) for f in meta["scenarios"].values()]  # recorded when it started
+    before = {(r["method"], r["target"]) for r in journal(cut) if r["outcome"] != "interrupted"}
+    assert len(before) >= 2
+    res = CliRunner().invoke(app, ["compare", SMOKE, "-q", "--resume", str(suite)])
+    assert res.exit_code == 0, res.output
+    assert json.loads((suite / "meta.json").read_text())["status"] == "completed"
+    assert len([p for p in (suite / "scenarios").iterdir() if p.is_dir()]) == 3
+    keys = [(r["method"], r["target"]) for r in journal(cut) if r["outcome"] != "interrupted"]
+    assert set(keys) >= before and len(set(keys)) == 6
+    again = {k for k in keys if keys.count(k) > 1}
+    assert len({t for _, t in again}) <= 1, again  # only the figure target's episodes
