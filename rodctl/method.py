@@ -194,6 +194,11 @@ class Method:
         try:
             self.J = fit_jacobian(np.array(dS), np.array(dR))
         except ValueError as exc:
+            if len(dR) < Q + 1:
+                # A lost frame merged two probing moves (the last one undoes the others, so
+                # e.g. +x with -(x+y+theta) leaves only 2 axes): the camera, not the set-up.
+                self.failure = "lost_tracking"
+                return
             raise UserError(
                 f"probing: {exc}. The workspace clipped or refused the probing moves; make "
                 "run.probe_size smaller or start further inside rod.workspace"
