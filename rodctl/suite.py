@@ -24,7 +24,7 @@ import html
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -146,6 +146,11 @@ def run_suite(
     else:
         run = RunDir.create(out, cfg, command="compare (suite)")
     folders: dict[str, str] = dict(run.meta.get("scenarios", {}))
+    before = float(run.meta.get("wall_s", 0.0))  # earlier invocations' share (--resume)
+
+    def wall() -> float:
+        return before + time.perf_counter() - wall0
+
     status = "failed"
     try:
         (run.path / "scenarios").mkdir(exist_ok=True)
@@ -166,9 +171,9 @@ def run_suite(
                 executor=executor,
                 address=address,
                 resume=earlier,
-                on_start=functools.partial(_record_scenario, run, folders, name),
+                on_start=functools.partial(_record_scenario, run, folders, name, wall),
             )
-        report = write_suite_outputs(cfg, run.path, folders, time.perf_counter() - wall0)
+        report = write_suite_outputs(cfg, run.path, folders, wall())
         if progress:
             from rodctl.display import stderr
 
@@ -182,12 +187,15 @@ def run_suite(
         done = sum(_completed(Path(f)) for f in folders.values())
         raise RunInterrupted(run.path, reason, done, len(scenarios), "scenarios") from None
     finally:
-        run.finish(status)
+        run.finish(status, wall_s=wall())
 
 
-def _record_scenario(run: RunDir, folders: dict[str, str], name: str, folder: Path) -> None:
+def _record_scenario(
+    run: RunDir, folders: dict[str, str], name: str, wall: Callable[[], float], folder: Path
+) -> None:
     folders[name] = str(folder)
     run.meta["scenarios"] = folders
+    run.meta["wall_s"] = wall()  # what a killed suite's --resume adds to
     run.write_meta()
 
 
@@ -297,8 +305,9 @@ def write_suite_outputs(
         f"# rodctl benchmark suite: {cfg.name}",
         "",
         f"{len(folders)} scenarios x {len(methods)} methods; reference method **{ref}**; "
-        f"wall time {wall:.0f} s. Every scenario is an ordinary compare run under "
-        "`scenarios/<name>/` (its own results, figures and summary).",
+        f"wall time {wall:.0f} s (summed over the runs a `--resume` continued). Every scenario "
+        "is an ordinary compare run under `scenarios/<name>/` (its own results, figures and "
+        "summary).",
         "",
         "Paired differences are *method minus reference* over the targets both converged on: "
         "the mean, its bootstrap 95 % confidence interval, the Wilcoxon signed-rank p-value and "

@@ -177,6 +177,8 @@ def test_a_killed_suite_resumes_its_cut_scenario_in_the_same_folder(tmp_path):
     meta = json.loads((suite / "meta.json").read_text())
     assert meta["status"] == "running", meta  # nobody could say otherwise
     (cut,) = [Path(f) for f in meta["scenarios"].values()]  # recorded when it started
+    killed_wall = meta["wall_s"]  # the killed run's time up to then, which --resume adds to
+    assert killed_wall > 0
     before = {(r["method"], r["target"]) for r in journal(cut) if r["outcome"] != "interrupted"}
     assert len(before) >= 2
     res = CliRunner().invoke(app, ["compare", SMOKE, "-q", "--resume", str(suite)])
@@ -185,5 +187,9 @@ def test_a_killed_suite_resumes_its_cut_scenario_in_the_same_folder(tmp_path):
     assert len([p for p in (suite / "scenarios").iterdir() if p.is_dir()]) == 3
     keys = [(r["method"], r["target"]) for r in journal(cut) if r["outcome"] != "interrupted"]
     assert set(keys) >= before and len(set(keys)) == 6
+    resumed = json.loads((suite / "meta.json").read_text())["wall_s"]
+    assert resumed > killed_wall
+    said = re.search(r"wall time (\d+) s", (suite / "summary.md").read_text())
+    assert said and abs(int(said.group(1)) - resumed) <= 1
     again = {k for k in keys if keys.count(k) > 1}
     assert len({t for _, t in again}) <= 1, again  # only the figure target's episodes
