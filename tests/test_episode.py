@@ -35,14 +35,9 @@ class _Spying(Method):
         self.estimator.update = spy
 
 
-def test_a_lost_frame_pairs_the_next_feature_change_with_both_moves():
-    """When the camera loses the rod for a step, the next good frame's Delta s was caused by
-    two moves: the estimator must get their sum, not the last move alone."""
-    cfg = load_config(REPO / "configs/default.yaml", [*FAST, "run.max_steps=12"])
-    env = ShapeServoEnv(cfg)
-    method = _Spying.from_config(cfg)
+def _lose_frame(env: ShapeServoEnv, call: int) -> None:
+    """Make the env's camera lose the rod on its `call`-th extraction (counted from 1)."""
     calls = {"n": 0}
-
     real_new_camera = env._new_camera
 
     def new_camera(seed):
@@ -51,15 +46,24 @@ def test_a_lost_frame_pairs_the_next_feature_change_with_both_moves():
 
         def flaky(image, gripper_pose=None):
             calls["n"] += 1
-            # Call 1 is the initial frame, 2-5 the probes (the target is seen by the clean
-            # camera's own extractor); lose control step 7.
-            if calls["n"] == 1 + 4 + 3:
+            if calls["n"] == call:
                 return Extraction(np.full((100, 2), np.nan), ok=False, note="occluded (test)")
             return extract(image, gripper_pose)
 
         env.extractor.extract = flaky
 
     env._new_camera = new_camera
+
+
+def test_a_lost_frame_pairs_the_next_feature_change_with_both_moves():
+    """When the camera loses the rod for a step, the next good frame's Delta s was caused by
+    two moves: the estimator must get their sum, not the last move alone."""
+    cfg = load_config(REPO / "configs/default.yaml", [*FAST, "run.max_steps=12"])
+    env = ShapeServoEnv(cfg)
+    method = _Spying.from_config(cfg)
+    # Call 1 is the initial frame, 2-5 the probes (the target is seen by the clean camera's
+    # own extractor); lose control step 7.
+    _lose_frame(env, 1 + 4 + 3)
     recs = run_episode(env, method).records
     seen = method.seen
     lost = [r.step for r in recs if not r.extraction_ok]
@@ -83,22 +87,7 @@ def test_a_frame_lost_while_probing_ends_as_lost_tracking_not_a_setup_error():
     cfg = load_config(REPO / "configs/default.yaml", [*FAST, "run.max_steps=12"])
     env = ShapeServoEnv(cfg)
     method = Method.from_config(cfg)
-    calls = {"n": 0}
-    real_new_camera = env._new_camera
-
-    def new_camera(seed):
-        real_new_camera(seed)
-        extract = env.extractor.extract
-
-        def flaky(image, gripper_pose=None):
-            calls["n"] += 1
-            if calls["n"] == 1 + 2:  # the second probing move's frame
-                return Extraction(np.full((100, 2), np.nan), ok=False, note="occluded (test)")
-            return extract(image, gripper_pose)
-
-        env.extractor.extract = flaky
-
-    env._new_camera = new_camera
+    _lose_frame(env, 1 + 2)  # the second probing move's frame
     result = run_episode(env, method)
     assert result.outcome == Outcome.LOST_TRACKING
     assert [r.step for r in result.records if not r.extraction_ok] == [2]  # a probing step

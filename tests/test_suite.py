@@ -5,6 +5,9 @@ from __future__ import annotations
 import csv
 import json
 import re
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 from paths import REPO
@@ -98,29 +101,35 @@ def test_a_scenario_may_set_a_material_over_the_resolved_default_rod():
     assert sc["loose-limit"]["base"]["rod"]["material"] == {"name": "nitinol_wire"}
 
 
-def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
-    """SIGTERM during a suite: the suite's meta.json says `interrupted` (not `failed`), the
-    scenarios done so far are kept, and `--resume` runs the rest to a complete suite."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
+def _suite_with_two_episodes_done(
+    out: Path, workers: int, stdout: int | None, stderr: int = subprocess.PIPE
+) -> subprocess.Popen:
+    """Start the smoke suite into `out` in a subprocess; return once two episodes are in its
+    journals (or it ended, or 240 s passed)."""
     from batch_helpers import journal
 
-    out = tmp_path / "runs"
     out.mkdir()
-    args = [sys.executable, "-m", "rodctl", "compare", SMOKE, "--workers", "2", "-q"]
-    proc = subprocess.Popen(
-        [*args, "--out", str(out)], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE
-    )
+    args = [sys.executable, "-m", "rodctl", "compare", SMOKE, "--workers", str(workers), "-q"]
+    proc = subprocess.Popen([*args, "--out", str(out)], cwd=REPO, stdout=stdout, stderr=stderr)
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline and proc.poll() is None:
         done = [journal(p) for p in out.glob("*/scenarios/*") if p.is_dir()]
         if sum(len(j) for j in done) >= 2:
             break
-        time.sleep(0.1)
+        time.sleep(0.05)
+    return proc
+
+
+def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
+    """SIGTERM during a suite: the suite's meta.json says `interrupted` (not `failed`), the
+    scenarios done so far are kept, and `--resume` runs the rest to a complete suite."""
+    import os
+    import signal
+
+    from batch_helpers import journal
+
+    out = tmp_path / "runs"
+    proc = _suite_with_two_episodes_done(out, workers=2, stdout=subprocess.PIPE)
     assert proc.poll() is None, "the suite finished before the signal"
     os.kill(proc.pid, signal.SIGTERM)
     printed, err = proc.communicate(timeout=120)
@@ -154,22 +163,11 @@ def test_a_killed_suite_resumes_its_cut_scenario_in_the_same_folder(tmp_path):
     episodes, instead of starting that scenario again in a new one."""
     import os
     import signal
-    import subprocess
-    import sys
-    import time
 
     from batch_helpers import journal
 
     out = tmp_path / "runs"
-    out.mkdir()
-    args = [sys.executable, "-m", "rodctl", "compare", SMOKE, "--workers", "1", "-q"]
-    proc = subprocess.Popen([*args, "--out", str(out)], cwd=REPO, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and proc.poll() is None:
-        done = [journal(p) for p in out.glob("*/scenarios/*") if p.is_dir()]
-        if sum(len(j) for j in done) >= 2:
-            break
-        time.sleep(0.05)
+    proc = _suite_with_two_episodes_done(out, workers=1, stdout=None, stderr=subprocess.DEVNULL)
     assert proc.poll() is None, "the suite finished before the kill"
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=60)
