@@ -67,6 +67,7 @@ OUTCOMES = ("converged", "stalled", "pinned", "step_limit", "diverged", "lost_tr
 #: Columns of results.csv, in order.
 CSV_COLUMNS = (
     "scenario",
+    "seed",
     "method",
     "target",
     "band",
@@ -86,26 +87,28 @@ CSV_COLUMNS = (
     "saturated_steps",
     "clipped_steps",
     "probe_steps",
-    "step_bound",
+    "pose_steps",
     "excess_steps",
     "smoothness_translation",
     "smoothness_rotation",
     "near_origin_steps",
     "event_peak_error",
     "event_steps_to_converge",
+    "finished_before_event",
     "wall_time_s",
     "error",
 )
 
 #: The per-episode comparison metrics of `rodctl.metrics`, copied from the summary into a row.
 METRIC_COLUMNS = (
-    "step_bound",
+    "pose_steps",
     "excess_steps",
     "smoothness_translation",
     "smoothness_rotation",
     "near_origin_steps",
     "event_peak_error",
     "event_steps_to_converge",
+    "finished_before_event",
 )
 
 #: Candidate poses tried per sampled target before giving up (a candidate can fail to settle).
@@ -909,6 +912,7 @@ def _report(
         t = by_index[r["target"]]
         r.update(
             scenario=cfg.scenario,
+            seed=cfg.seed,
             band=t.band(cfg.targets.bands),
             difficulty=round(t.difficulty, 6),
             target_x=float(t.pose[0]),
