@@ -86,3 +86,11 @@ def test_no_progress_with_a_vanished_descent_direction_is_a_stall():
     rule = _rule()
     out = [rule.check(rec(k, px=3.0), method) for k in range(1, 7)]
     assert all(o is None for o in out)
+
+
+def test_an_episode_no_event_reached_is_flagged():
+    recs = [rec(i + 1) for i in range(5)]
+    assert metrics.finished_before_event(recs, has_events=True) is True
+    assert metrics.finished_before_event(recs, has_events=False) is None
+    recs[3].events = ["stiffness x 0.5"]
+    assert metrics.finished_before_event(recs, has_events=True) is False
