@@ -95,6 +95,7 @@ CSV_COLUMNS = (
     "event_peak_error",
     "event_steps_to_converge",
     "finished_before_event",
+    "diagnosis",
     "wall_time_s",
     "error",
 )
@@ -361,8 +362,9 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
             log_dir.mkdir(parents=True, exist_ok=True)
             (log_dir / "config.yaml").write_text(dump_config(cfg), encoding="utf-8")
             sinks = make_sinks(cfg, log_dir)
+        env = ShapeServoEnv(cfg)
         result = run_episode(
-            ShapeServoEnv(cfg),
+            env,
             Method.from_config(cfg),
             sinks=sinks,
             run_id=run_id,
@@ -381,6 +383,14 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
     if result is not None:
         summary = result.summary
         extra = summary.extra
+        if task.get("diagnose") and summary.outcome in ("stalled", "pinned"):
+            # Why it failed, from its final state, with the simulator's model (rodctl.diagnosis).
+            from rodctl.diagnosis import diagnose
+
+            try:
+                extra["diagnosis"] = diagnose(env, cfg, summary.outcome)
+            except Exception as exc:  # noqa: BLE001 - the episode's own result stands
+                row["error"] = f"diagnosis failed: {type(exc).__name__}: {exc}"
         row.update(
             outcome=summary.outcome,
             steps=summary.steps,
@@ -394,10 +404,11 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
             clipped_steps=extra.get("clipped_steps"),
             probe_steps=extra.get("probe_steps"),
             **{k: extra.get(k) for k in METRIC_COLUMNS},
+            diagnosis=extra.get("diagnosis"),
             wall_time_s=summary.wall_time_s,
             error=f"interrupted by {stop_reason() or 'SIGINT'}"
             if summary.outcome == Outcome.INTERRUPTED
-            else "",
+            else row.get("error", ""),
         )
         if log_dir is not None:
             write_json_atomic(log_dir / "summary.json", summary.to_json())
@@ -885,6 +896,8 @@ def _episode_tasks(
                     "seed": t.seed,
                     "want_records": t.index == fig_target,
                     "log_dir": str(log_dir) if log_dir else None,
+                    # A stalled or pinned episode is examined for why (rodctl.diagnosis).
+                    "diagnose": True,
                 }
             )
     return tasks

@@ -473,6 +473,7 @@ def statistics_json(
                 m: sum(bool(r.get("finished_before_event")) for r in mine if r["method"] == m)
                 for m in methods
             },
+            "diagnosis": diagnosis_counts(mine, methods),
             "methods": {},
         }
         for m in methods:
@@ -569,6 +570,7 @@ def write_suite_outputs(
                 + " episodes.",
                 "",
             ]
+        md += _diagnosis_markdown(mine, methods)
         mine_c = [c for c in comparisons if c.scenario == name]
         md += _paired_markdown(mine, methods, ref, mine_c, seeds)
         tables.append(
@@ -582,6 +584,43 @@ def write_suite_outputs(
     from rich.console import Group
 
     return Group(*(t for _, t in tables))
+
+
+def diagnosis_counts(rows: Sequence[dict[str, Any]], methods: Sequence[str]) -> dict[str, Any]:
+    """Per method, how many of its stalled or pinned episodes got each diagnosis (and how many
+    got none: an older run, or a diagnosis that failed)."""
+    from rodctl.diagnosis import DIAGNOSES
+
+    out = {}
+    for m in methods:
+        failed = [r for r in rows if r["method"] == m and r.get("outcome") in ("stalled", "pinned")]
+        counts = {d: sum(r.get("diagnosis") == d for r in failed) for d in DIAGNOSES}
+        counts["none"] = len(failed) - sum(counts.values())
+        out[m] = counts
+    return out
+
+
+def _diagnosis_markdown(rows: Sequence[dict[str, Any]], methods: Sequence[str]) -> list[str]:
+    from rodctl.compare import markdown_table
+    from rodctl.diagnosis import DIAGNOSES
+
+    counts = diagnosis_counts(rows, methods)
+    if not any(sum(c.values()) for c in counts.values()):
+        return []
+    header = ["method", "stalled or pinned", *DIAGNOSES, "not diagnosed"]
+    lines = [
+        [m, str(sum(c.values())), *(str(c[d]) for d in DIAGNOSES), str(c["none"])]
+        for m, c in counts.items()
+    ]
+    return [
+        "Why episodes stalled or got pinned (`diagnosis`, rodctl/diagnosis.py): *workspace* "
+        "pinned or walled in; *estimator* the true Jacobian converges from the same state; "
+        "*unreachable* a pose search with the true model cannot meet the tolerance; *other* "
+        "reachable, yet the true Jacobian does not help the method's law.",
+        "",
+        markdown_table(header, lines),
+        "",
+    ]
 
 
 def _method_text(n_seeds: int, comparisons: Sequence[Comparison]) -> list[str]:

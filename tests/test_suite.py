@@ -197,7 +197,8 @@ def test_a_killed_suite_resumes_its_cut_scenario_in_the_same_folder(tmp_path):
 
 def _synthetic_suite(tmp_path: Path, seeds=(0, 1, 2), n=30):
     """Results of the smoke suite's config written without running it: on every seed ma2022
-    converges a step or two faster than the reference; aghajanzadeh2022 is two steps faster on
+    converges a step or two faster than the reference (but stalls on target 0, unreachable);
+    aghajanzadeh2022 is two steps faster on
     seeds 0 and 1 and one slower on seed 2. On event-camera-bump the reference finishes three
     targets of seed 0 before the event (the fastest ones)."""
     import numpy as np
@@ -217,9 +218,12 @@ def _synthetic_suite(tmp_path: Path, seeds=(0, 1, 2), n=30):
                 for m, k in steps.items():
                     early = scenario == "event-camera-bump" and s == 0 and m == "paper-bezier"
                     early = early and t < 3
+                    stalled = scenario == "nominal" and m == "ma2022" and t == 0
                     episodes.append(
                         {
-                            "method": m, "target": t, "band": "easy", "outcome": "converged",
+                            "method": m, "target": t, "band": "easy",
+                            "outcome": "stalled" if stalled else "converged",
+                            "diagnosis": "unreachable" if stalled else None,
                             "steps": k, "steps_to_converge": k, "smoothness": 0.1,
                             "path_length": 0.1, "final_pixel_error": 0.5,
                             "finished_before_event": (
@@ -274,6 +278,9 @@ def test_a_finding_is_replicated_only_when_every_seed_agrees(tmp_path):
     assert bump["methods"]["ma2022"]["metrics"]["steps_to_converge"]["n"] == 3 * 30 - 3
     assert bump["methods"]["ma2022"]["success_per_seed"]["0"]["both"] == 30 - 3
     assert "Finished before the event" in summary
+    diag = stats["scenarios"]["nominal"]["diagnosis"]["ma2022"]
+    assert diag["unreachable"] == len(stats["seeds"]) and diag["estimator"] == diag["none"] == 0
+    assert "| ma2022 | 3 | 0 | 0 | 3 | 0 | 0 |" in summary  # the per-scenario diagnosis table
     with open(tmp_path / "results.csv", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
     assert {r["seed"] for r in rows} == {"0", "1", "2"} and len(rows) == 3 * 3 * 3 * 30
