@@ -11,8 +11,11 @@ A suite is a compare config with `scenarios`: each scenario is `base` with some 
 (as with `--set`) and optionally its own target set. Each scenario runs as an ordinary
 `rodctl compare` into `scenarios/<name>/` (its own results, figures, resume), from a config file
 written beside it (`scenarios/<name>.yaml`), so any one of them can be rerun alone. The suite
-then writes `results.csv` (every episode, with a `scenario` column), `summary.md` (per-scenario
-tables and paired statistics) and `report.html` (self-contained: figures embedded).
+then writes `results.csv` (every episode, with `scenario` and `seed` columns), `summary.md`
+(per-scenario tables, paired statistics and the findings' verdicts), `statistics.json` and
+`report.html` (self-contained: figures embedded). With `seeds: [...]` every scenario runs once
+per target seed; p-values are Holm-adjusted over the suite and a finding is replicated only
+when every seed agrees (docs/statistics.md).
 """
 
 from __future__ import annotations
