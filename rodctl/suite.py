@@ -114,6 +114,8 @@ def scenario_configs(cfg: CompareConfig, config_dir: Path, source: str) -> dict[
     out: dict[str, dict] = {}
     for key, name, seed in run_keys(cfg):
         out[key] = {**json.loads(json.dumps(by_scenario[name])), "seed": seed}
+        if key != name:  # several seeds: the run folders' names say which
+            out[key]["name"] = f"{cfg.name}-{key}"[:64]
     return out
 
 

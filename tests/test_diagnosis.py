@@ -25,9 +25,21 @@ def _env_at_home(shift_px: float):
     return env, cfg
 
 
-def test_a_target_no_pose_can_make_is_unreachable():
+def test_a_compare_episode_on_a_target_no_pose_can_make_stalls_and_is_unreachable():
+    """Through the compare worker: the episode stalls, then its row says why."""
+    from rodctl.compare import _episode
+
     env, cfg = _env_at_home(shift_px=15.0)
-    assert diagnose(env, cfg, "stalled", estimator_steps=4, search_iterations=6) == "unreachable"
+    t = env.target
+    task = {
+        "config": cfg.model_dump(mode="json"), "method": "m", "target": 0,
+        "pose": [float(v) for v in t.pose], "target_difficulty": t.difficulty, "seed": 0,
+        "target_view": {"centerline": t.centerline, "pixels": t.pixels},
+        "want_records": False, "log_dir": None, "diagnose": True,
+    }  # fmt: skip
+    row = _episode(task)
+    assert row["outcome"] == "stalled" and row["diagnosis"] == "unreachable", row
+    assert row["error"] == ""
 
 
 def test_a_target_the_true_jacobian_reaches_blames_the_estimator_and_pinned_the_workspace():
