@@ -67,6 +67,7 @@ OUTCOMES = ("converged", "stalled", "pinned", "step_limit", "diverged", "lost_tr
 #: Columns of results.csv, in order.
 CSV_COLUMNS = (
     "scenario",
+    "seed",
     "method",
     "target",
     "band",
@@ -86,26 +87,29 @@ CSV_COLUMNS = (
     "saturated_steps",
     "clipped_steps",
     "probe_steps",
-    "step_bound",
+    "pose_steps",
     "excess_steps",
     "smoothness_translation",
     "smoothness_rotation",
     "near_origin_steps",
     "event_peak_error",
     "event_steps_to_converge",
+    "finished_before_event",
+    "diagnosis",
     "wall_time_s",
     "error",
 )
 
 #: The per-episode comparison metrics of `rodctl.metrics`, copied from the summary into a row.
 METRIC_COLUMNS = (
-    "step_bound",
+    "pose_steps",
     "excess_steps",
     "smoothness_translation",
     "smoothness_rotation",
     "near_origin_steps",
     "event_peak_error",
     "event_steps_to_converge",
+    "finished_before_event",
 )
 
 #: Candidate poses tried per sampled target before giving up (a candidate can fail to settle).
@@ -358,8 +362,9 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
             log_dir.mkdir(parents=True, exist_ok=True)
             (log_dir / "config.yaml").write_text(dump_config(cfg), encoding="utf-8")
             sinks = make_sinks(cfg, log_dir)
+        env = ShapeServoEnv(cfg)
         result = run_episode(
-            ShapeServoEnv(cfg),
+            env,
             Method.from_config(cfg),
             sinks=sinks,
             run_id=run_id,
@@ -378,6 +383,14 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
     if result is not None:
         summary = result.summary
         extra = summary.extra
+        if task.get("diagnose") and summary.outcome in ("stalled", "pinned"):
+            # Why it failed, from its final state, with the simulator's model (rodctl.diagnosis).
+            from rodctl.diagnosis import diagnose
+
+            try:
+                extra["diagnosis"] = diagnose(env, cfg, summary.outcome)
+            except Exception as exc:  # noqa: BLE001 - the episode's own result stands
+                row["error"] = f"diagnosis failed: {type(exc).__name__}: {exc}"
         row.update(
             outcome=summary.outcome,
             steps=summary.steps,
@@ -391,10 +404,11 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
             clipped_steps=extra.get("clipped_steps"),
             probe_steps=extra.get("probe_steps"),
             **{k: extra.get(k) for k in METRIC_COLUMNS},
+            diagnosis=extra.get("diagnosis"),
             wall_time_s=summary.wall_time_s,
             error=f"interrupted by {stop_reason() or 'SIGINT'}"
             if summary.outcome == Outcome.INTERRUPTED
-            else "",
+            else row.get("error", ""),
         )
         if log_dir is not None:
             write_json_atomic(log_dir / "summary.json", summary.to_json())
@@ -882,6 +896,8 @@ def _episode_tasks(
                     "seed": t.seed,
                     "want_records": t.index == fig_target,
                     "log_dir": str(log_dir) if log_dir else None,
+                    # A stalled or pinned episode is examined for why (rodctl.diagnosis).
+                    "diagnose": True,
                 }
             )
     return tasks
@@ -909,6 +925,7 @@ def _report(
         t = by_index[r["target"]]
         r.update(
             scenario=cfg.scenario,
+            seed=cfg.seed,
             band=t.band(cfg.targets.bands),
             difficulty=round(t.difficulty, 6),
             target_x=float(t.pose[0]),

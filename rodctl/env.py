@@ -313,7 +313,7 @@ class ShapeServoEnv(gym.Env):
         put back (`RodSim.snapshot` / `restore`). Six settles a call.
 
         This is what no method on a real robot can know: the `oracle` reference uses it to
-        show the best any Jacobian-based law can do on a scenario.
+        show what the paper's law does when told the true Jacobian (a reference, not a ceiling).
 
         Args:
             encode: the feature map, (N, 2) pixels -> (p,).

@@ -407,13 +407,13 @@ class _Loop:
     def _benchmark_metrics(self, outcome: Outcome) -> dict[str, Any]:
         """The comparison metrics of `rodctl.metrics` for this episode."""
         env, recs = self.env, self.records
-        bound = metrics.step_bound(env.home_pose, env.target.pose, env.max_step)
+        pose_steps = metrics.pose_steps(env.home_pose, env.target.pose, env.max_step)
         trans, rot = metrics.smoothness(recs, env.max_step)
         converged = outcome is Outcome.CONVERGED
         peak, reconverge = metrics.after_event(recs, converged)
         return {
-            "step_bound": bound,
-            "excess_steps": recs[-1].step - bound if converged else None,
+            "pose_steps": pose_steps,
+            "excess_steps": recs[-1].step - pose_steps if converged else None,
             "smoothness_translation": trans,
             "smoothness_rotation": rot,
             "near_origin_steps": (
@@ -421,6 +421,7 @@ class _Loop:
             ),
             "event_peak_error": peak,
             "event_steps_to_converge": reconverge,
+            "finished_before_event": metrics.finished_before_event(recs, bool(env.cfg.run.events)),
         }
 
     def summary(self, outcome: Outcome) -> RunSummary:

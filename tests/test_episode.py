@@ -219,3 +219,17 @@ def test_a_compare_config_given_to_simulate_says_so(tmp_path):
         app, ["simulate", str(REPO / "configs/compare-smoke.yaml"), "--out", str(tmp_path)]
     )
     assert res.exit_code == 2 and "rodctl compare" in res.output
+
+
+def test_an_episode_that_converges_before_its_event_never_sees_it_and_says_so():
+    """The event is due at step 40; the default target converges long before. The event must
+    never fire (no record carries it, no event metric) and the summary flags the episode, so
+    a suite leaves it out of the event's comparisons."""
+    event = "run.events=[{at_step: 40, type: stiffness, factor: 0.5}]"
+    cfg = load_config(REPO / "configs/default.yaml", [*FAST, "run.max_steps=45", event])
+    result = run_episode(ShapeServoEnv(cfg), Method.from_config(cfg))
+    assert result.outcome is Outcome.CONVERGED and result.records[-1].step < 40
+    assert not any(r.events for r in result.records)
+    extra = result.summary.extra
+    assert extra["finished_before_event"] is True
+    assert extra["event_peak_error"] is None and extra["event_steps_to_converge"] is None

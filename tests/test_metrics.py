@@ -1,4 +1,4 @@
-"""Comparison metrics and stop rules on constructed episodes: the bound, excess steps, probing
+"""Comparison metrics and stop rules on constructed episodes: pose steps, excess steps, probing
 left out of smoothness, the final approach, and a pinned gripper told apart from a stall."""
 
 from __future__ import annotations
@@ -27,10 +27,10 @@ def rec(step, phase="control", u=(0.0, 0.0, 0.0), px=5.0, clipped=False, J=None,
     )  # fmt: skip
 
 
-def test_step_bound_is_the_slowest_axis_under_the_speed_limit():
-    assert metrics.step_bound([0, 0, 0], [0.035, -0.01, 0.1], MAX) == 4
-    assert metrics.step_bound([0.4, 0.1, 0.5], [0.4, 0.1, 0.5], MAX) == 0
-    assert metrics.step_bound([0, 0, 0], [0.0, 0.0, 0.3], MAX) == 6  # exactly 6 full steps
+def test_pose_steps_is_the_slowest_axis_under_the_speed_limit():
+    assert metrics.pose_steps([0, 0, 0], [0.035, -0.01, 0.1], MAX) == 4
+    assert metrics.pose_steps([0.4, 0.1, 0.5], [0.4, 0.1, 0.5], MAX) == 0
+    assert metrics.pose_steps([0, 0, 0], [0.0, 0.0, 0.3], MAX) == 6  # exactly 6 full steps
 
 
 def test_smoothness_leaves_out_probing_and_starts_from_rest():
@@ -86,3 +86,11 @@ def test_no_progress_with_a_vanished_descent_direction_is_a_stall():
     rule = _rule()
     out = [rule.check(rec(k, px=3.0), method) for k in range(1, 7)]
     assert all(o is None for o in out)
+
+
+def test_an_episode_no_event_reached_is_flagged():
+    recs = [rec(i + 1) for i in range(5)]
+    assert metrics.finished_before_event(recs, has_events=True) is True
+    assert metrics.finished_before_event(recs, has_events=False) is None
+    recs[3].events = ["stiffness x 0.5"]
+    assert metrics.finished_before_event(recs, has_events=True) is False

@@ -26,7 +26,7 @@ def test_smoke_suite_runs_every_scenario_and_reports_paired_statistics(tmp_path)
         rows = list(csv.DictReader(fh))
     assert {r["scenario"] for r in rows} == {"nominal", "loose-limit", "event-camera-bump"}
     assert len(rows) == 3 * 3 * 2
-    for col in ("excess_steps", "smoothness_translation", "smoothness_rotation", "step_bound"):
+    for col in ("excess_steps", "smoothness_translation", "smoothness_rotation", "pose_steps"):
         assert all(r[col] != "" for r in rows if r["outcome"] == "converged"), col
     # The event metrics exist exactly where the event happened.
     for r in rows:
@@ -37,11 +37,13 @@ def test_smoke_suite_runs_every_scenario_and_reports_paired_statistics(tmp_path)
     # The scenario's change really reached its episodes: the loose limit is in its config.
     loose = tmp_path / next(iter(tmp_path.iterdir())).name / "scenarios" / "loose-limit.yaml"
     assert "0.25" in loose.read_text()
-    stats = json.loads(open(f"{folder}/statistics.json", encoding="utf-8").read())
+    assert {r["finished_before_event"] for r in rows} == {"", "False"}  # the event reached all
+    assert {r["seed"] for r in rows} == {"0"}
+    stats = json.loads(open(f"{folder}/statistics.json", encoding="utf-8").read())["scenarios"]
     assert set(stats) == {"nominal", "loose-limit", "event-camera-bump"}
-    assert "event_peak_error" in stats["event-camera-bump"]["ma2022"]
-    assert "event_peak_error" not in stats["nominal"]["ma2022"]
-    assert set(stats["nominal"]) == {"ma2022", "aghajanzadeh2022"}  # all but the reference
+    assert "event_peak_error" in stats["event-camera-bump"]["methods"]["ma2022"]["metrics"]
+    assert "event_peak_error" not in stats["nominal"]["methods"]["ma2022"]["metrics"]
+    assert set(stats["nominal"]["methods"]) == {"ma2022", "aghajanzadeh2022"}  # but the reference
     summary = open(f"{folder}/summary.md", encoding="utf-8").read()
     assert "Paired against **paper-bezier**" in summary and "## loose-limit" in summary
     page = open(f"{folder}/report.html", encoding="utf-8").read()
@@ -192,3 +194,120 @@ def test_a_killed_suite_resumes_its_cut_scenario_in_the_same_folder(tmp_path):
     assert said and killed_wall < int(said.group(1)) + 1 and int(said.group(1)) <= resumed + 1
     again = {k for k in keys if keys.count(k) > 1}
     assert len({t for _, t in again}) <= 1, again  # only the figure target's episodes
+
+
+def _synthetic_suite(tmp_path: Path, seeds=(0, 1, 2), n=30):
+    """Results of the smoke suite's config written without running it: on every seed ma2022
+    converges a step or two faster than the reference (but stalls on target 0, unreachable);
+    aghajanzadeh2022 is two steps faster on
+    seeds 0 and 1 and one slower on seed 2. On event-camera-bump the reference finishes three
+    targets of seed 0 before the event (the fastest ones)."""
+    import numpy as np
+
+    rng = np.random.default_rng(5)
+    folders = {}
+    for scenario in ("nominal", "loose-limit", "event-camera-bump"):
+        for s in seeds:
+            episodes = []
+            for t in range(n):
+                ref = float(rng.integers(10, 20))
+                steps = {
+                    "paper-bezier": ref,
+                    "ma2022": ref - float(rng.choice([0, 1, 2], p=[0.2, 0.5, 0.3])),
+                    "aghajanzadeh2022": ref + (1.0 if s == 2 else -2.0) * float(rng.random() < 0.9),
+                }
+                for m, k in steps.items():
+                    early = scenario == "event-camera-bump" and s == 0 and m == "paper-bezier"
+                    early = early and t < 3
+                    stalled = scenario == "nominal" and m == "ma2022" and t == 0
+                    episodes.append(
+                        {
+                            "method": m, "target": t, "band": "easy",
+                            "outcome": "stalled" if stalled else "converged",
+                            "diagnosis": "unreachable" if stalled else None,
+                            "steps": k, "steps_to_converge": k, "smoothness": 0.1,
+                            "path_length": 0.1, "final_pixel_error": 0.5,
+                            "finished_before_event": (
+                                early if scenario == "event-camera-bump" else None
+                            ),
+                        }
+                    )  # fmt: skip
+            folder = tmp_path / f"{scenario}-seed{s}"
+            folder.mkdir()
+            data = {"seed": s, "config": {"scenario": scenario}, "episodes": episodes}
+            (folder / "results.json").write_text(json.dumps(data))
+            folders[f"{scenario}-seed{s}"] = str(folder)
+    return folders
+
+
+def test_a_finding_is_replicated_only_when_every_seed_agrees(tmp_path):
+    from rodctl.compare import load_compare_config
+    from rodctl.suite import write_suite_outputs
+
+    cfg = load_compare_config(SMOKE, ["seeds=[0, 1, 2]"])
+    folders = _synthetic_suite(tmp_path)
+    write_suite_outputs(cfg, tmp_path, folders, wall=1.0)
+    stats = json.loads((tmp_path / "statistics.json").read_text())
+    assert stats["seeds"] == [0, 1, 2] and stats["correction"]["method"] == "holm"
+    ma = stats["scenarios"]["nominal"]["methods"]["ma2022"]["metrics"]["steps_to_converge"]
+    ag = stats["scenarios"]["nominal"]["methods"]["aghajanzadeh2022"]["metrics"][
+        "steps_to_converge"
+    ]
+    assert ma["significant"] and ma["replicated"] and ma["verdict"] == "replicated"
+    assert all(v["mean"] < 0 for v in ma["per_seed"].values())
+    # Pooled, aghajanzadeh2022 is faster (seeds 0 and 1 outweigh 2), and significantly so:
+    # but seed 2 says the opposite, so the finding does not replicate.
+    assert ag["significant"] and ag["mean"] < 0 and ag["per_seed"]["2"]["mean"] > 0
+    assert not ag["replicated"] and "seed 2" in ag["verdict"]
+    # Raw and adjusted p are both kept; Holm never lowers a p.
+    tests = stats["correction"]["pooled_tests"]
+    assert tests == 3 * 2  # 3 scenarios x 2 methods x 1 metric with values
+    assert ma["p_adjusted"] >= ma["p_value"] and ag["p_adjusted"] >= ag["p_value"]
+    assert ag["p_adjusted"] == min(1.0, ag["p_adjusted"])
+    assert {(f["scenario"], f["method"], f["replicated"]) for f in stats["findings"]} >= {
+        ("nominal", "ma2022", True),
+        ("nominal", "aghajanzadeh2022", False),
+    }
+    summary = (tmp_path / "summary.md").read_text()
+    assert "## Findings" in summary and "| nominal | ma2022 |" in summary
+    assert "not replicated (seed 2 disagrees in direction)" in summary
+    assert "**replicated**" in summary and "Per seed" in summary
+    assert "replicated" in (tmp_path / "report.html").read_text()
+    # The episodes the event never reached are counted apart and left out of the pairs.
+    bump = stats["scenarios"]["event-camera-bump"]
+    assert bump["finished_before_event"]["paper-bezier"] == 3
+    assert bump["methods"]["ma2022"]["metrics"]["steps_to_converge"]["n"] == 3 * 30 - 3
+    assert bump["methods"]["ma2022"]["success_per_seed"]["0"]["both"] == 30 - 3
+    assert "Finished before the event" in summary
+    diag = stats["scenarios"]["nominal"]["diagnosis"]["ma2022"]
+    assert diag["unreachable"] == len(stats["seeds"]) and diag["estimator"] == diag["none"] == 0
+    assert "| ma2022 | 3 | 0 | 0 | 3 | 0 | 0 |" in summary  # the per-scenario diagnosis table
+    with open(tmp_path / "results.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["seed"] for r in rows} == {"0", "1", "2"} and len(rows) == 3 * 3 * 3 * 30
+
+
+def test_one_seed_replicates_nothing(tmp_path):
+    from rodctl.compare import load_compare_config
+    from rodctl.suite import write_suite_outputs
+
+    cfg = load_compare_config(SMOKE)
+    write_suite_outputs(cfg, tmp_path, _synthetic_suite(tmp_path, seeds=(0,)), wall=1.0)
+    stats = json.loads((tmp_path / "statistics.json").read_text())
+    ma = stats["scenarios"]["nominal"]["methods"]["ma2022"]["metrics"]["steps_to_converge"]
+    assert ma["significant"] and not ma["replicated"]
+    assert ma["verdict"] == "not replicated (one seed)"
+
+
+def test_seeds_make_one_compare_run_per_scenario_and_seed():
+    sc = _scenarios(["seeds=[3, 4]"])
+    assert set(sc) == {f"{n}-seed{s}" for n in ("nominal", "loose-limit", "event-camera-bump")
+                       for s in (3, 4)}  # fmt: skip
+    assert sc["nominal-seed4"]["seed"] == 4 and sc["nominal-seed4"]["scenario"] == "nominal"
+    assert "seeds" not in sc["nominal-seed3"]
+    assert set(_scenarios([])) == {"nominal", "loose-limit", "event-camera-bump"}
+
+
+def test_seeds_without_scenarios_or_repeated_are_refused(tmp_path):
+    res = CliRunner().invoke(app, ["compare", SMOKE, "-o", str(tmp_path), "--set", "seeds=[1, 1]"])
+    assert res.exit_code == 2 and "seeds" in res.output

@@ -138,6 +138,15 @@ class CompareConfig(StrictModel):
         description="Seeds the targets ('targets' stream) and each target's camera noise "
         "('compare' stream); every method sees the same start, targets and noise.",
     )
+    seeds: list[int] | None = Field(
+        None,
+        min_length=1,
+        max_length=100,
+        description="A suite only: run every scenario once per seed (each its own target set "
+        "and camera noise, replacing `seed`), report each comparison per seed and pooled, and "
+        "call a finding replicated only when every seed agrees (docs/statistics.md). None: "
+        "`seed` alone.",
+    )
     base: ExperimentConfig = Field(
         default_factory=ExperimentConfig,
         description="The experiment every method shares: rod, camera, speed limits (rod.max_step),"
@@ -179,6 +188,14 @@ class CompareConfig(StrictModel):
         bad = [k for k in self.scenarios or {} if not re.match(_NAME, k) or len(k) > 64]
         if bad:
             raise ValueError(f"scenario names must be letters, digits, . _ - ; got {bad}")
+        if self.seeds is not None:
+            if self.scenarios is None:
+                raise ValueError(
+                    "seeds: only a suite (with `scenarios`) runs several target seeds; one "
+                    "comparison takes `seed`"
+                )
+            if any(s < 0 for s in self.seeds) or len(set(self.seeds)) < len(self.seeds):
+                raise ValueError(f"seeds must be distinct and >= 0, got {self.seeds}")
         if self.reference is not None and self.reference not in self.methods:
             raise ValueError(
                 f"reference {self.reference!r} is not one of the methods {list(self.methods)}"

@@ -3,8 +3,9 @@
 Why: a benchmark needs a reference that separates "the Jacobian estimate was wrong" from "the
 law or the task is hard". This estimator is told the true d s / d r at every step, by finite
 differences of the simulator itself (`ShapeServoEnv.true_jacobian`): with the paper's law it
-shows the best any Jacobian-based method can do on a scenario. No robot can run it — it moves
-a copy of the world — so it is labelled as not realisable wherever it appears.
+is the paper's law told the true Jacobian. It is not a ceiling: it skips the probing every
+estimating method pays for, and other methods beat it on some targets. No robot can run it (it
+moves a copy of the world), so it is labelled as not realisable wherever it appears.
 """
 
 from __future__ import annotations

@@ -1,0 +1,155 @@
+"""Why an episode failed: the `diagnosis` of a stalled or pinned episode, from its final state.
+
+A stall is easily blamed on the wrong stage: on the benchmark's event-stiffness scenario every
+autoencoder method, the oracle included, stalled on the same targets, and a direct search over
+gripper poses reached the tolerance on some of them and not on others. So each stalled or
+pinned episode of a compare run is examined, in its worker, right after it ended, with the
+simulator's own model (what no real robot has), and gets one of:
+
+- `workspace`: the episode ended pinned (every command clipped by the workspace), or the pose
+  search below could not reach the tolerance and was clipped by the workspace on the way.
+- `estimator`: the method's own feature and law, told the true Jacobian (the `oracle`
+  estimator, `ShapeServoEnv.true_jacobian`), converge from the same state within
+  `ESTIMATOR_STEPS` steps: the Jacobian estimate was at fault.
+- `unreachable`: a pose search with the true model cannot bring the rod within the pixel
+  tolerance of the target: from this state, no nearby gripper pose makes the target shape
+  (after a mid-run event, or with a tolerance tighter than what the rod can show).
+- `other`: the target is reachable and the true Jacobian does not help the method's law: the
+  feature (its minimum is not the shape's) or the law itself.
+
+The pose search is Gauss-Newton on the clean pixel residual (the simulated centerline through
+the camera model minus the target's pixels), its Jacobian by central differences of the
+simulator (as `true_jacobian`, six settles an iteration), each move within the speed limit and
+halved until the error falls; it stops at the tolerance or after `SEARCH_ITERATIONS`. Cost: at
+most about `ESTIMATOR_STEPS` oracle steps plus `SEARCH_ITERATIONS` x 7 settles per diagnosed
+episode; converged episodes are never diagnosed. Mid-run events do not fire during it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rodctl.config import ExperimentConfig
+from rodctl.env import Q, ShapeServoEnv, pixel_error
+from rodctl.geometry import resample_polyline
+
+#: The values of the `diagnosis` column (None for episodes that did not stall or get pinned).
+DIAGNOSES = ("workspace", "estimator", "unreachable", "other")
+
+#: Steps the method's law gets with the true Jacobian from the failed episode's final state.
+ESTIMATOR_STEPS = 30
+
+#: Gauss-Newton iterations of the pose search.
+SEARCH_ITERATIONS = 20
+
+#: Finite-difference step per axis [m, m, rad] (as `ShapeServoEnv.true_jacobian`).
+_FD = (1e-3, 1e-3, 5e-3)
+
+
+def diagnose(
+    env: ShapeServoEnv,
+    cfg: ExperimentConfig,
+    outcome: str,
+    *,
+    estimator_steps: int = ESTIMATOR_STEPS,
+    search_iterations: int = SEARCH_ITERATIONS,
+) -> str | None:
+    """The diagnosis of an episode that ended `outcome` in `env` (left in its final state).
+
+    Args:
+        env: the episode's environment, as the episode left it (it is moved further here).
+        cfg: the episode's experiment config (its feature and controller are reused).
+        outcome: the episode's outcome; only "stalled" and "pinned" are diagnosed.
+
+    Returns:
+        One of `DIAGNOSES`, or None when the outcome is not diagnosed.
+    """
+    if outcome not in ("stalled", "pinned"):
+        return None
+    if outcome == "pinned":
+        return "workspace"
+    # No mid-run event fires while diagnosing: the state being examined is the episode's.
+    env.cfg = env.cfg.model_copy(update={"run": env.cfg.run.model_copy(update={"events": []})})
+    snap = env.sim.snapshot()
+    if true_jacobian_converges(env, cfg, estimator_steps):
+        return "estimator"
+    env.sim.restore(snap)
+    best, clipped = pose_search(env, search_iterations)
+    if best < cfg.run.pixel_tolerance:
+        return "other"
+    return "workspace" if clipped else "unreachable"
+
+
+def true_jacobian_converges(env: ShapeServoEnv, cfg: ExperimentConfig, steps: int) -> bool:
+    """The method's feature and controller with the oracle estimator, from the env's current
+    state (the last frame), reach the pixel tolerance within `steps` moves."""
+    from rodctl.estimation.oracle import OracleEstimatorConfig
+    from rodctl.method import Method
+
+    method = Method(cfg.feature, OracleEstimatorConfig(), cfg.controller, experiment=cfg)
+    method.start(env.task)
+    obs: dict[str, Any] = env._observation(np.zeros(Q))
+    if not obs["extraction_ok"]:
+        return False
+    tol, t1 = cfg.run.pixel_tolerance, cfg.run.t1_tolerance
+    u = method.act(obs)
+    for _ in range(steps):
+        if not np.all(np.isfinite(u)):
+            return False
+        obs, _, _, _, info = env.step(u)
+        if info["diverged"]:
+            return False
+        u = method.act(obs)
+        if obs["extraction_ok"] and info["pixel_error"] < tol and (t1 is None or method.T1 < t1):
+            return True
+    return False
+
+
+def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool]:
+    """(best clean pixel error reached, whether the workspace clipped a move): Gauss-Newton
+    over gripper poses on the simulated rod, from its current state, towards the target."""
+    sim, camera = env.sim, env.camera
+    n = env.cfg.camera.points
+    target = np.asarray(env.target.pixels, dtype=float)
+    max_step = np.asarray(env.max_step, dtype=float)
+    tol = env.cfg.run.pixel_tolerance
+
+    def residual() -> np.ndarray:
+        return camera.project(resample_polyline(sim.centerline(), n)) - target
+
+    r = residual()
+    best, clipped = pixel_error(r + target, target), False
+    for _ in range(iterations):
+        if best < tol:
+            break
+        snap = sim.snapshot()
+        cols = []
+        for axis, h in enumerate(_FD):
+            values = []
+            for sign in (1.0, -1.0):
+                du = np.zeros(Q)
+                du[axis] = sign * h
+                sim.apply(du)
+                values.append(residual().ravel())
+                sim.restore(snap)
+            cols.append((values[0] - values[1]) / (2.0 * h))
+        jac = np.stack(cols, axis=1)
+        step = -np.linalg.lstsq(jac, r.ravel(), rcond=None)[0]
+        step /= max(1.0, float(np.max(np.abs(step) / max_step)))  # within the speed limit
+        improved = False
+        for _ in range(4):  # halve the move until the error falls
+            res = sim.apply(step)
+            r_new = residual()
+            err = pixel_error(r_new + target, target)
+            if err < best and not res.diverged:
+                clipped = clipped or bool(res.clipped or res.refused)
+                r, best, improved = r_new, err, True
+                break
+            clipped = clipped or bool(res.clipped or res.refused)
+            sim.restore(snap)
+            step = step / 2.0
+        if not improved:
+            break  # a local minimum of the pixel error (or the workspace edge)
+    return best, clipped

@@ -1,0 +1,49 @@
+"""The diagnosis of a failed episode: a target no pose can make is `unreachable`; one the true
+Jacobian reaches from the same state is the `estimator`'s fault; pinned is the workspace."""
+
+from __future__ import annotations
+
+import numpy as np
+from paths import REPO
+
+from rodctl.config import load_config
+from rodctl.diagnosis import diagnose
+from rodctl.env import ShapeServoEnv, Target
+
+FAST = ["feature.type=bezier", "logging.mcap=false", "logging.rerun=false", "logging.figures=false"]
+
+
+def _env_at_home(shift_px: float):
+    cfg = load_config(REPO / "configs/default.yaml", [*FAST, "run.max_steps=40"])
+    env = ShapeServoEnv(cfg)
+    env.reset()
+    t = env.target
+    # The whole target shape moved sideways in the image, clamp end included: the clamp does
+    # not move, so no gripper pose can make it.
+    moved = Target(t.pose, t.centerline, t.pixels + np.array([shift_px, 0.0]), t.difficulty)
+    env.reset(options={"target": moved})
+    return env, cfg
+
+
+def test_a_compare_episode_on_a_target_no_pose_can_make_stalls_and_is_unreachable():
+    """Through the compare worker: the episode stalls, then its row says why."""
+    from rodctl.compare import _episode
+
+    env, cfg = _env_at_home(shift_px=15.0)
+    t = env.target
+    task = {
+        "config": cfg.model_dump(mode="json"), "method": "m", "target": 0,
+        "pose": [float(v) for v in t.pose], "target_difficulty": t.difficulty, "seed": 0,
+        "target_view": {"centerline": t.centerline, "pixels": t.pixels},
+        "want_records": False, "log_dir": None, "diagnose": True,
+    }  # fmt: skip
+    row = _episode(task)
+    assert row["outcome"] == "stalled" and row["diagnosis"] == "unreachable", row
+    assert row["error"] == ""
+
+
+def test_a_target_the_true_jacobian_reaches_blames_the_estimator_and_pinned_the_workspace():
+    env, cfg = _env_at_home(shift_px=0.0)
+    assert diagnose(env, cfg, "stalled", estimator_steps=30) == "estimator"
+    assert diagnose(env, cfg, "pinned") == "workspace"
+    assert diagnose(env, cfg, "converged") is None
