@@ -37,7 +37,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from pydantic import ValidationError
 
 from rodctl.config import ExperimentConfig, dump_config
@@ -196,18 +195,22 @@ def read_target_file(path: str | Path) -> list[list[float]]:
     Raises:
         ConfigError: missing file, not YAML, or not a non-empty list of 3-number poses.
     """
+    from rodctl.config.loading import parse_yaml, read_yaml_text
+
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"targets.file {path}: no such file")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ConfigError(f"targets.file {path}: cannot read it as YAML/JSON: {exc}") from None
+    # The rules of config files: size, nesting, duplicate keys and alias bombs refused.
+    data = parse_yaml(read_yaml_text(path, f"targets.file {path}"), f"targets.file {path}")
     if isinstance(data, dict) and "targets" in data:
         data = data["targets"]
     if not isinstance(data, list) or not data:
         raise ConfigError(
             f"targets.file {path}: expected a non-empty list of gripper poses [[x, y, theta], ...]"
+        )
+    from rodctl.config.compare import MAX_TARGETS
+
+    if len(data) > MAX_TARGETS:
+        raise ConfigError(
+            f"targets.file {path}: {len(data)} poses, more than the {MAX_TARGETS} a compare takes"
         )
     poses = []
     for i, item in enumerate(data):
