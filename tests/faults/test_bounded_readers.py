@@ -152,7 +152,9 @@ def test_deeply_nested_json_in_a_log_is_refused_naming_the_topic(tmp_path, topic
 def _compare_with_targets(tmp_path: Path, text: str) -> Path:
     (tmp_path / "targets.yaml").write_text(text)
     cfg = tmp_path / "compare.yaml"
-    cfg.write_text(SMOKE.read_text().replace("targets: {count: 2,", "targets: {file: targets.yaml,"))
+    cfg.write_text(
+        SMOKE.read_text().replace("targets: {count: 2,", "targets: {file: targets.yaml,")
+    )
     return cfg
 
 
