@@ -46,8 +46,9 @@ def _bomb(path: Path, compression: str, declared: int | None) -> Path:
         data = lz4.frame.compress(zeros, store_size=False)
     b = RecordBuilder()
     Header(profile="", library="rodctl").write(b)
+    size = len(zeros) if declared is None else declared
     Chunk(message_start_time=0, message_end_time=0, uncompressed_crc=0, compression=compression,
-          uncompressed_size=len(zeros) if declared is None else declared, data=data).write(b)  # fmt: skip
+          uncompressed_size=size, data=data).write(b)  # fmt: skip
     DataEnd(data_section_crc=0).write(b)
     Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(b)
     path.write_bytes(MAGIC + b.end() + MAGIC)
@@ -203,7 +204,7 @@ def test_a_400_byte_alias_bomb_is_refused_before_it_is_expanded(tmp_path):
     # Ten copies of the previous level, eight levels deep: 10**7 poses once expanded.
     names = "abcdefgh"
     levels = ["&a [0.4,0.1,0.5]"]
-    for prev, name in zip(names, names[1:]):
+    for prev, name in zip(names, names[1:], strict=False):
         levels.append(f"&{name} [" + ",".join([f"*{prev}"] * 10) + "]")
     text = (
         "name: bomb\nfeature: {type: bezier}\ncontroller:\n  type: scripted\n  waypoints: "
