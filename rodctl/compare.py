@@ -48,7 +48,7 @@ from rodctl.config.loading import (
     load_config,
 )
 from rodctl.episode import Outcome
-from rodctl.errors import UserError
+from rodctl.errors import RunFailed, UserError, describe_os_error
 from rodctl.executors.base import (
     Executor,
     clear_stop,
@@ -803,6 +803,7 @@ def run_compare(
         on_start(run.path)
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
+    failure: str | None = None
     try:
         # Handlers before the executor starts (a signal during start-up counts) and again
         # after it: ray.init replaces SIGTERM's handler.
@@ -830,10 +831,26 @@ def run_compare(
     except KeyboardInterrupt as exc:
         status, reason = "interrupted", str(exc) or "SIGINT"
         raise RunInterrupted(run.path, reason, len(rows), total) from None
+    except Exception as exc:
+        failure = failure_reason(exc, run.path)
+        if isinstance(exc, OSError):  # a full or read-only disk: one line, exit 1
+            raise RunFailed(failure) from None
+        raise
     finally:
         extra = {"episodes": {"finished": len(rows), "total": total}}
-        run.finish(status, **({"error": f"interrupted by {reason}"} if reason else {}), **extra)
+        why = f"interrupted by {reason}" if reason else failure
+        run.finish(status, **({"error": why} if why else {}), **extra)
         clear_stop()
+
+
+def failure_reason(exc: BaseException, folder: Path) -> str:
+    """One line saying why a compare or sweep failed, for the terminal and meta.json: an OS
+    error with its path (the run folder when the library writing did not say which file)."""
+    if isinstance(exc, OSError):
+        if exc.filename is None:
+            return f"{exc.strerror or exc}: while writing in {folder}"
+        return describe_os_error(exc)
+    return str(exc) if isinstance(exc, UserError) else f"{type(exc).__name__}: {exc}"
 
 
 def _row_key(item: dict[str, Any]) -> tuple:
