@@ -389,6 +389,12 @@ def train_encoder(
         typer.echo(f"error: interrupted; what was written is in {run.path}", err=True)
         typer.echo(str(run.path))
         raise typer.Exit(code=1) from None
+    except UserError as exc:
+        # Bad input found once the folder existed (a file that is not a dataset): if nothing
+        # was written yet, nothing is left behind.
+        if not run.discard_if_empty():
+            run.finish("failed", error=str(exc))
+        raise
     except BaseException as exc:
         run.finish("failed", error=f"{type(exc).__name__}: {exc}")
         raise

@@ -266,6 +266,18 @@ class RunDir:
         """Rewrite meta.json from `self.meta` (keeping `META_RESERVE` bytes on disk for it)."""
         write_json_atomic(self.path / "meta.json", self.meta, reserve=META_RESERVE)
 
+    def discard_if_empty(self) -> bool:
+        """Remove the run directory if it holds only what `create` wrote: bad input found after
+        it was made (an unreachable target, a file that is not a dataset) leaves nothing, as
+        bad input found before does. True when it was removed."""
+        try:
+            if {p.name for p in self.path.iterdir()} <= {"config.yaml", "meta.json"}:
+                shutil.rmtree(self.path)
+                return True
+        except OSError:
+            pass
+        return False
+
     def finish(self, status: str, **extra: Any) -> str | None:
         """Record the terminal status (completed, failed or interrupted) and the end time.
 

@@ -133,8 +133,9 @@ def simulate(
             result = exc.result
             _best_effort(lambda: (run.path / "error.txt").write_text(result.traceback or ""))
         except UserError as exc:
-            # Bad input found before the first step: nothing to keep but the config.
-            run.finish("failed", error=str(exc))
+            # Bad input found before the first step: nothing to keep, nothing left behind.
+            if not run.discard_if_empty():
+                run.finish("failed", error=str(exc))
             raise
         error = (
             result.error
