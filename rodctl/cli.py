@@ -445,7 +445,8 @@ def _finish_batch(runner: Callable[..., Any], config: str, **kwargs: Any) -> Non
         with sigterm_as_interrupt():
             folder = runner(config, **kwargs)
     except RunInterrupted as exc:
-        typer.echo(f"interrupted: {exc}; partial results kept, resume with --resume", err=True)
+        kept = "partial results kept" if exc.done else "no episode had finished"
+        typer.echo(f"interrupted: {exc}; {kept}, resume with --resume", err=True)
         typer.echo(str(exc.folder))
         raise typer.Exit(code=1) from None
     typer.echo(str(folder))

@@ -448,6 +448,7 @@ class RunInterrupted(Exception):
         super().__init__(f"interrupted by {reason}: {done} of {total} {unit} finished")
         self.folder = folder
         self.reason = reason
+        self.done = done
 
 
 def config_hash(data: Any) -> str:
@@ -575,7 +576,9 @@ def stream_episodes(
             else:
                 row = done.value
             if row["outcome"] == Outcome.INTERRUPTED:
-                request_stop(row.get("error") or "a worker was stopped")
+                # The row says "interrupted by SIGTERM"; the stop reason is the signal alone.
+                why = str(row.get("error") or "").removeprefix("interrupted by ")
+                request_stop(why or "a worker was stopped")
             log.append(row)
             rows[done.key] = row
             advance(describe(row))
