@@ -151,10 +151,11 @@ def parse_yaml(text: str, what: str) -> Any:
 
 
 def read_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a YAML mapping from `path` with `yaml.safe_load`.
+    """Read a YAML mapping from `path` with `safe_load` (the strict loader).
 
     Raises:
-        ConfigError: the file is missing, unreadable, not YAML or not a mapping.
+        ConfigError: the file is missing, unreadable, larger than `MAX_YAML_BYTES`, not YAML
+            (or refused by `safe_load`), empty, or not a mapping.
     """
     path = Path(path)
     data = parse_yaml(read_yaml_text(path, str(path)), str(path))
