@@ -389,6 +389,12 @@ def train_encoder(
         typer.echo(f"error: interrupted; what was written is in {run.path}", err=True)
         typer.echo(str(run.path))
         raise typer.Exit(code=1) from None
+    except UserError as exc:
+        # Bad input found once the folder existed (a file that is not a dataset): if nothing
+        # was written yet, nothing is left behind.
+        if not run.discard_if_empty():
+            run.finish("failed", error=str(exc))
+        raise
     except BaseException as exc:
         run.finish("failed", error=f"{type(exc).__name__}: {exc}")
         raise
@@ -439,7 +445,8 @@ def _finish_batch(runner: Callable[..., Any], config: str, **kwargs: Any) -> Non
         with sigterm_as_interrupt():
             folder = runner(config, **kwargs)
     except RunInterrupted as exc:
-        typer.echo(f"interrupted: {exc}; partial results kept, resume with --resume", err=True)
+        kept = "partial results kept" if exc.done else "no episode had finished"
+        typer.echo(f"interrupted: {exc}; {kept}, resume with --resume", err=True)
         typer.echo(str(exc.folder))
         raise typer.Exit(code=1) from None
     typer.echo(str(folder))

@@ -37,7 +37,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from pydantic import ValidationError
 
 from rodctl.config import ExperimentConfig, dump_config
@@ -49,7 +48,7 @@ from rodctl.config.loading import (
     load_config,
 )
 from rodctl.episode import Outcome
-from rodctl.errors import UserError
+from rodctl.errors import RunFailed, UserError, describe_os_error
 from rodctl.executors.base import (
     Executor,
     clear_stop,
@@ -200,18 +199,22 @@ def read_target_file(path: str | Path) -> list[list[float]]:
     Raises:
         ConfigError: missing file, not YAML, or not a non-empty list of 3-number poses.
     """
+    from rodctl.config.loading import parse_yaml, read_yaml_text
+
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"targets.file {path}: no such file")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ConfigError(f"targets.file {path}: cannot read it as YAML/JSON: {exc}") from None
+    # The rules of config files: size, nesting, duplicate keys and alias bombs refused.
+    data = parse_yaml(read_yaml_text(path, f"targets.file {path}"), f"targets.file {path}")
     if isinstance(data, dict) and "targets" in data:
         data = data["targets"]
     if not isinstance(data, list) or not data:
         raise ConfigError(
             f"targets.file {path}: expected a non-empty list of gripper poses [[x, y, theta], ...]"
+        )
+    from rodctl.config.compare import MAX_TARGETS
+
+    if len(data) > MAX_TARGETS:
+        raise ConfigError(
+            f"targets.file {path}: {len(data)} poses, more than the {MAX_TARGETS} a compare takes"
         )
     poses = []
     for i, item in enumerate(data):
@@ -459,6 +462,7 @@ class RunInterrupted(Exception):
         super().__init__(f"interrupted by {reason}: {done} of {total} {unit} finished")
         self.folder = folder
         self.reason = reason
+        self.done = done
 
 
 def config_hash(data: Any) -> str:
@@ -586,7 +590,9 @@ def stream_episodes(
             else:
                 row = done.value
             if row["outcome"] == Outcome.INTERRUPTED:
-                request_stop(row.get("error") or "a worker was stopped")
+                # The row says "interrupted by SIGTERM"; the stop reason is the signal alone.
+                why = str(row.get("error") or "").removeprefix("interrupted by ")
+                request_stop(why or "a worker was stopped")
             log.append(row)
             rows[done.key] = row
             advance(describe(row))
@@ -814,6 +820,7 @@ def run_compare(
         on_start(run.path)
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
+    failure: str | None = None
     try:
         # Handlers before the executor starts (a signal during start-up counts) and again
         # after it: ray.init replaces SIGTERM's handler.
@@ -841,10 +848,26 @@ def run_compare(
     except KeyboardInterrupt as exc:
         status, reason = "interrupted", str(exc) or "SIGINT"
         raise RunInterrupted(run.path, reason, len(rows), total) from None
+    except Exception as exc:
+        failure = failure_reason(exc, run.path)
+        if isinstance(exc, OSError):  # a full or read-only disk: one line, exit 1
+            raise RunFailed(failure) from None
+        raise
     finally:
         extra = {"episodes": {"finished": len(rows), "total": total}}
-        run.finish(status, **({"error": f"interrupted by {reason}"} if reason else {}), **extra)
+        why = f"interrupted by {reason}" if reason else failure
+        run.finish(status, **({"error": why} if why else {}), **extra)
         clear_stop()
+
+
+def failure_reason(exc: BaseException, folder: Path) -> str:
+    """One line saying why a compare or sweep failed, for the terminal and meta.json: an OS
+    error with its path (the run folder when the library writing did not say which file)."""
+    if isinstance(exc, OSError):
+        if exc.filename is None:
+            return f"{exc.strerror or exc}: while writing in {folder}"
+        return describe_os_error(exc)
+    return str(exc) if isinstance(exc, UserError) else f"{type(exc).__name__}: {exc}"
 
 
 def _row_key(item: dict[str, Any]) -> tuple:

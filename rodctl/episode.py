@@ -174,6 +174,8 @@ class EpisodeResult:
     records: list[StepRecord]
     error: str | None = None
     traceback: str | None = None
+    #: why a diverged episode diverged: the quantity and the step (`divergence`), else None.
+    reason: str | None = None
 
     @property
     def status(self) -> str:
@@ -241,8 +243,10 @@ def run_episode(
             phase = method.phase
             if not np.all(np.isfinite(u)):
                 # A NaN estimate or feature: the method has broken down; do not move the robot.
-                loop.emit(loop.record(loop.info, u=np.zeros(Q), u_raw=u, phase=phase, moved=False))
+                rec = loop.record(loop.info, u=np.zeros(Q), u_raw=u, phase=phase, moved=False)
+                loop.emit(rec)
                 outcome = Outcome.DIVERGED
+                loop.reason = divergence(rec, False)
                 break
             obs, _, _, _, info = env.step(u)
             u_raw = u
@@ -250,6 +254,8 @@ def run_episode(
             rec = loop.record(info, u=obs["applied"], u_raw=u_raw, phase=phase)
             loop.emit(rec)
             outcome = stop_rule.check(rec, method, diverged=info["diverged"])
+            if outcome is Outcome.DIVERGED:
+                loop.reason = divergence(rec, info["diverged"])
         outcome = outcome or Outcome.STEP_LIMIT
     except (Interrupted, KeyboardInterrupt) as exc:
         outcome = Outcome.INTERRUPTED
@@ -264,6 +270,35 @@ def run_episode(
     if result.error is not None:  # the logs could not be finalised
         raise EpisodeFailed(result)
     return result
+
+
+def _numbers(v: np.ndarray) -> str:
+    return "[" + ", ".join(f"{float(x):.6g}" for x in np.ravel(v)) + "]"
+
+
+def divergence(rec: StepRecord, simulator: bool) -> str:
+    """What diverged at `rec`'s step, in words: the first non-finite quantity, or the simulator's
+    own verdict (a NaN in the rod or a joint gap past `rod.gap_limit`)."""
+    where = f"diverged at step {rec.step}"
+    if not np.all(np.isfinite(rec.u_raw)):
+        return (
+            f"{where}: the controller's command u = {_numbers(rec.u_raw)} is not finite (a NaN "
+            "or infinite feature, Jacobian estimate or gain); the robot was not moved"
+        )
+    if simulator or not np.all(np.isfinite(rec.gripper)) or not np.all(np.isfinite(rec.centerline)):
+        if not np.all(np.isfinite(rec.gripper)):
+            return f"{where}: the gripper pose {_numbers(rec.gripper)} is not finite"
+        if not np.all(np.isfinite(rec.centerline)):
+            return f"{where}: the rod's state (its centerline) holds NaN or infinite values"
+        return (
+            f"{where}: the rod simulation broke down: its largest joint gap is "
+            f"{float(rec.max_joint_gap):.3g} m, past rod.gap_limit (or a NaN in the solver)"
+        )
+    for name in ("T1", "s", "J"):
+        value = np.asarray(getattr(rec, name), dtype=float)
+        if not np.all(np.isfinite(value)):
+            return f"{where}: the {name} of the method is not finite ({_numbers(value)[:80]})"
+    return f"{where}: the method reported that it diverged"
 
 
 class _Loop:
@@ -283,6 +318,7 @@ class _Loop:
         self.header: RunHeader | None = None
         self.logging = 0.0
         self.note: str | None = None
+        self.reason: str | None = None
         self.setup_time = 0.0
 
     @property
@@ -402,7 +438,8 @@ class _Loop:
             elif not isinstance(error, UserError):
                 message = f"{type(error).__name__}: {error}"
             tb = "".join(traceback.format_exception(error))
-        return EpisodeResult(outcome, summary, self.header, self.records, message, tb)
+        reason = self.reason if outcome is Outcome.DIVERGED else None
+        return EpisodeResult(outcome, summary, self.header, self.records, message, tb, reason)
 
     def _benchmark_metrics(self, outcome: Outcome) -> dict[str, Any]:
         """The comparison metrics of `rodctl.metrics` for this episode."""

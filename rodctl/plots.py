@@ -91,7 +91,13 @@ RUN_FIGURES = ("shapes.png", "t1.png", "commands.png")
 
 def _save(fig: Figure, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, **_SAVE)
+    try:
+        fig.savefig(path, **_SAVE)
+    except OSError as exc:
+        if exc.filename is not None:
+            raise
+        # PIL reports a full disk without the file it was writing.
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
     return path
 
 

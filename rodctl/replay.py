@@ -82,7 +82,7 @@ def read_run(path: str | Path, *, recover: bool = False, images: bool = True) ->
 def _logging_config(config_yaml: str) -> LoggingConfig:
     """The run's logging settings from its resolved config; defaults if they do not parse."""
     try:
-        data = yaml.safe_load(config_yaml)
+        data = safe_load(config_yaml)
         return LoggingConfig.model_validate((data or {}).get("logging", {}))
     except Exception:  # noqa: BLE001 - a replay must not fail on an old or foreign config
         return LoggingConfig()
@@ -277,7 +277,7 @@ def config_file_differences(run: ReadRun) -> list[str]:
         on_disk = safe_load(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         return [f"{path}: unreadable ({str(exc).splitlines()[0]})"]
-    logged = yaml.safe_load(run.header.config_yaml)
+    logged = safe_load(run.header.config_yaml)
     if not isinstance(on_disk, dict):
         return [f"{path}: not a config mapping"]
     return [f"{path}: {d}" for d in _dict_differences(logged, on_disk)]
@@ -575,7 +575,7 @@ def verify(run: ReadRun, *, tolerance: float = 0.0, progress: bool = False) -> V
     """
     from rodctl.config import validate_config
 
-    data = yaml.safe_load(run.header.config_yaml)
+    data = safe_load(run.header.config_yaml)
     logged = run.records
     ended = run.complete and run.status == "completed"
     if not ended and logged:

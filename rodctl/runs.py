@@ -7,6 +7,7 @@ atomically (write to a temporary file, then rename) so a crash never leaves it h
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -189,6 +190,19 @@ _BULKY = ("numeric_env", "versions", "argv")
 META_RESERVE = 16_384
 
 
+#: OS errors that mean the `--out` path the user gave is wrong (a file in the way, a name too
+#: long), not that the system refused: exit 2. Every other (full disk, no inodes, read-only,
+#: permission, I/O) means the run could not go on: exit 1.
+_BAD_PATH = (errno.ENOTDIR, errno.EEXIST, errno.ENAMETOOLONG, errno.ELOOP, errno.EINVAL)
+
+
+def _out_error(parent: Path, what: str, exc: OSError) -> Exception:
+    """The one-line error of an `--out` that cannot hold a run: `UserError` for a wrong path,
+    `RunFailed` for a full, read-only or forbidden disk (the rule in README "Exit codes")."""
+    message = f"--out {parent}: {what}: {describe_os_error(exc)}"
+    return UserError(message) if exc.errno in _BAD_PATH else RunFailed(message)
+
+
 @dataclass
 class RunDir:
     """One run's output folder and its meta.json."""
@@ -213,7 +227,7 @@ class RunDir:
         try:
             parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise UserError(f"--out {parent}: cannot create the output folder: {exc}") from None
+            raise _out_error(parent, "cannot create the output folder", exc) from None
         stamp = time.strftime("%Y%m%d-%H%M%S")
         base = f"{stamp}_{cfg.name}"
         for n in range(1, 10_000):
@@ -224,7 +238,7 @@ class RunDir:
             except FileExistsError:
                 continue
             except OSError as exc:
-                raise UserError(f"--out {parent}: cannot create a run directory: {exc}") from None
+                raise _out_error(parent, "cannot create a run directory", exc) from None
         else:  # pragma: no cover - 10k runs in one second
             raise UserError(f"{parent}: too many runs named {base!r}")
         run = cls(path=path)
@@ -251,6 +265,18 @@ class RunDir:
     def write_meta(self) -> None:
         """Rewrite meta.json from `self.meta` (keeping `META_RESERVE` bytes on disk for it)."""
         write_json_atomic(self.path / "meta.json", self.meta, reserve=META_RESERVE)
+
+    def discard_if_empty(self) -> bool:
+        """Remove the run directory if it holds only what `create` wrote: bad input found after
+        it was made (an unreachable target, a file that is not a dataset) leaves nothing, as
+        bad input found before does. True when it was removed."""
+        try:
+            if {p.name for p in self.path.iterdir()} <= {"config.yaml", "meta.json"}:
+                shutil.rmtree(self.path)
+                return True
+        except OSError:
+            pass
+        return False
 
     def finish(self, status: str, **extra: Any) -> str | None:
         """Record the terminal status (completed, failed or interrupted) and the end time.

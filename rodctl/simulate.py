@@ -133,14 +133,21 @@ def simulate(
             result = exc.result
             _best_effort(lambda: (run.path / "error.txt").write_text(result.traceback or ""))
         except UserError as exc:
-            # Bad input found before the first step: nothing to keep but the config.
-            run.finish("failed", error=str(exc))
+            # Bad input found before the first step: nothing to keep, nothing left behind.
+            if not run.discard_if_empty():
+                run.finish("failed", error=str(exc))
             raise
-        error = result.error or (
-            f"interrupted by {stops.reason() or 'SIGINT'}"
-            if result.outcome is Outcome.INTERRUPTED
-            else None
+        error = (
+            result.error
+            or result.reason
+            or (
+                f"interrupted by {stops.reason() or 'SIGINT'}"
+                if result.outcome is Outcome.INTERRUPTED
+                else None
+            )
         )
+        if result.reason and not result.error:  # diverged: no traceback, the reason says it
+            _best_effort(lambda: (run.path / "error.txt").write_text(result.reason + "\n"))
         summary = result.summary
         problems = [write_json_best_effort(run.path / "summary.json", summary.to_json())]
         shown: Exception | None = None  # a display error waits until meta.json is final

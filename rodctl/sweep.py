@@ -35,6 +35,7 @@ from rodctl.compare import (
     RunInterrupted,
     _quantiles,
     _row_key,
+    failure_reason,
     finished_rows,
     given_target_poses,
     make_targets,
@@ -54,7 +55,7 @@ from rodctl.config.loading import (
     load_config,
 )
 from rodctl.config.sweep import MAX_POINTS, METRICS, SweepConfig
-from rodctl.errors import UserError
+from rodctl.errors import RunFailed, UserError
 from rodctl.executors.base import clear_stop, make_executor, stop_handlers, stop_reason
 from rodctl.runs import jsonable, write_json_atomic
 
@@ -236,6 +237,7 @@ def run_sweep(
     run = start_run(out, cfg, "sweep", hashed, resume)
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
+    failure: str | None = None
     try:
         with stop_handlers(), pool, stop_handlers():  # as in run_compare
             targets = {}
@@ -266,9 +268,15 @@ def run_sweep(
     except KeyboardInterrupt as exc:
         status, reason = "interrupted", str(exc) or "SIGINT"
         raise RunInterrupted(run.path, reason, len(rows), total) from None
+    except Exception as exc:
+        failure = failure_reason(exc, run.path)
+        if isinstance(exc, OSError):  # a full or read-only disk: one line, exit 1
+            raise RunFailed(failure) from None
+        raise
     finally:
         extra = {"episodes": {"finished": len(rows), "total": total}}
-        run.finish(status, **({"error": f"interrupted by {reason}"} if reason else {}), **extra)
+        why = f"interrupted by {reason}" if reason else failure
+        run.finish(status, **({"error": why} if why else {}), **extra)
         clear_stop()
 
 

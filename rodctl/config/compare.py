@@ -41,11 +41,19 @@ class MethodConfig(StrictModel):
     controller: ControllerConfig = Field(..., description="The control law.")
 
 
+#: Most targets a compare or sweep may have: each is an episode per method (10,000 is days).
+MAX_TARGETS = 10_000
+#: Largest seed, the same for every command (`seed` of an experiment config).
+MAX_SEED = 2**63 - 1
+
+
 class CompareTargetsConfig(StrictModel):
     """The shared target set: sampled (seeded, spread from easy to hard) or read from a file."""
 
     count: PositiveInt = Field(
-        100, description="Number of sampled targets K (ignored when `file` is given)."
+        100,
+        le=MAX_TARGETS,
+        description="Number of sampled targets K (ignored when `file` is given).",
     )
     min_offset: float = Field(
         0.1, ge=0.0, description="Easiest target: normalised distance from home (rodctl.targets)."
@@ -60,7 +68,9 @@ class CompareTargetsConfig(StrictModel):
         "the compare config's folder. Every compare run writes its targets as targets.yaml.",
     )
     poses: list[Pose] | None = Field(
-        None, description="Target gripper poses given inline (alternative to `file`)."
+        None,
+        max_length=MAX_TARGETS,
+        description="Target gripper poses given inline (alternative to `file`).",
     )
     bands: list[float] = Field(
         [0.4, 0.7],
@@ -135,6 +145,7 @@ class CompareConfig(StrictModel):
     seed: int = Field(
         0,
         ge=0,
+        le=MAX_SEED,
         description="Seeds the targets ('targets' stream) and each target's camera noise "
         "('compare' stream); every method sees the same start, targets and noise.",
     )

@@ -24,6 +24,11 @@ class ConfigError(UserError):
 
 #: Deepest nesting a config may have (the real ones have 4): a guard against hostile files.
 MAX_DEPTH = 32
+#: Largest YAML file read (configs are a few kB; a file of 10,000 target poses about 0.5 MB).
+MAX_YAML_BYTES = 8 << 20
+#: Most values a YAML document may hold with every alias expanded (a 10,000-pose targets file
+#: holds 40,000): a guard against alias bombs, which are tiny until expanded.
+MAX_YAML_NODES = 200_000
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -43,6 +48,10 @@ class _StrictLoader(yaml.SafeLoader):
         finally:
             self._depth -= 1
 
+    def construct_document(self, node: Any) -> Any:
+        _check_expanded_size(node)
+        return super().construct_document(node)
+
     def construct_mapping(self, node: Any, deep: bool = False) -> Any:
         seen: dict[Any, Any] = {}
         for key_node, _ in node.value:
@@ -57,37 +66,105 @@ class _StrictLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+def _check_expanded_size(root: Any) -> None:
+    """Refuse a document holding more than `MAX_YAML_NODES` values once its aliases are
+    expanded, or an alias to itself. Aliases share their node, so the count is memoised by node
+    (iteratively, in post-order) and costs one visit per distinct node."""
+    sizes: dict[int, int] = {}
+    stack: list[tuple[Any, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if done:
+            children = _children(node)
+            sizes[key] = 1 + sum(sizes[id(c)] for c in children)
+            if sizes[key] > MAX_YAML_NODES:
+                mark = node.start_mark
+                raise yaml.YAMLError(
+                    f"more than {MAX_YAML_NODES} values once its aliases are expanded (line "
+                    f"{mark.line + 1}, column {mark.column + 1}): an alias bomb?"
+                )
+            continue
+        if key in sizes:
+            if sizes[key] < 0:
+                raise yaml.YAMLError("an alias that refers to itself")
+            continue
+        sizes[key] = -1  # in progress
+        stack.append((node, True))
+        stack.extend((c, False) for c in _children(node) if sizes.get(id(c), 0) <= 0)
+
+
+def _children(node: Any) -> list[Any]:
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    return []
+
+
 def safe_load(text: str) -> Any:
-    """`yaml.safe_load` with duplicate keys and excessive nesting refused (`yaml.YAMLError`)."""
+    """`yaml.safe_load` with duplicate keys, excessive nesting, alias bombs and texts over
+    `MAX_YAML_BYTES` refused (`yaml.YAMLError`)."""
+    if len(text) > MAX_YAML_BYTES:
+        raise yaml.YAMLError(f"larger than {MAX_YAML_BYTES >> 20} MiB")
     return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
 
 
-def read_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a YAML mapping from `path` with `yaml.safe_load`.
+def read_yaml_text(path: Path, what: str) -> str:
+    """The text of a YAML file, refused by size before anything is read or parsed.
 
     Raises:
-        ConfigError: the file is missing, unreadable, not YAML or not a mapping.
+        ConfigError: missing, not a regular file, larger than `MAX_YAML_BYTES`, unreadable or
+            not UTF-8; the message starts with `what` (how the user named the file).
     """
-    path = Path(path)
     if not path.exists():
-        raise ConfigError(f"{path}: no such file")
+        raise ConfigError(f"{what}: no such file")
     if not path.is_file():
-        raise ConfigError(f"{path}: not a file")
+        raise ConfigError(f"{what}: not a file")
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read: {exc}") from None
+        with open(path, "rb") as f:
+            raw = f.read(MAX_YAML_BYTES + 1)
+    except OSError as exc:
+        raise ConfigError(f"{what}: cannot read: {exc}") from None
+    if len(raw) > MAX_YAML_BYTES:
+        raise ConfigError(
+            f"{what}: larger than {MAX_YAML_BYTES >> 20} MiB, too large to be a config; refused "
+            "before parsing"
+        )
     try:
-        data = safe_load(text)
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{what}: cannot read: {exc}") from None
+
+
+def parse_yaml(text: str, what: str) -> Any:
+    """`safe_load(text)`, every refusal a `ConfigError` starting with `what`."""
+    try:
+        return safe_load(text)
     except RecursionError:
-        raise ConfigError(f"{path}: nested too deeply to be a config") from None
+        raise ConfigError(f"{what}: nested too deeply to be a config") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"{path}: YAML syntax error{where}: {problem}") from None
+        raise ConfigError(f"{what}: YAML syntax error{where}: {problem}") from None
+
+
+def read_yaml(path: str | Path) -> dict[str, Any]:
+    """Read a YAML mapping from `path` with `safe_load` (the strict loader).
+
+    Raises:
+        ConfigError: the file is missing, unreadable, larger than `MAX_YAML_BYTES`, not YAML
+            (or refused by `safe_load`), empty, or not a mapping.
+    """
+    path = Path(path)
+    data = parse_yaml(read_yaml_text(path, str(path)), str(path))
     if data is None:
-        return {}
+        # Most likely a file emptied by mistake; `{}` says "the defaults" on purpose.
+        raise ConfigError(
+            f"{path}: the file is empty (no config keys); to run every default on purpose, "
+            "write `{}` in it"
+        )
     if not isinstance(data, dict):
         raise ConfigError(
             f"{path}: expected a mapping of config keys at the top level, got {type(data).__name__}"

@@ -11,12 +11,12 @@ noise), so points differ only by the swept values.
 from __future__ import annotations
 
 import re
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import ConfigDict, Field, PositiveInt, field_validator, model_validator
 
 from rodctl.config.base import StrictModel
-from rodctl.config.compare import CompareTargetsConfig, MethodConfig
+from rodctl.config.compare import MAX_SEED, MAX_TARGETS, CompareTargetsConfig, MethodConfig
 from rodctl.config.experiment import ExperimentConfig
 from rodctl.registry import depends_on_stages
 
@@ -77,7 +77,7 @@ class SweepConfig(StrictModel):
     name: str = Field(
         "sweep", pattern=_NAME, max_length=64, description="Used in the output folder's name."
     )
-    seed: int = Field(0, ge=0, description="Seeds the random search's draws.")
+    seed: int = Field(0, ge=0, le=MAX_SEED, description="Seeds the random search's draws.")
     base: ExperimentConfig = Field(
         default_factory=ExperimentConfig,
         description="The experiment every point shares before its swept values are applied. "
@@ -97,9 +97,10 @@ class SweepConfig(StrictModel):
         "grid", description="grid: every combination of `values`; random: `samples` draws."
     )
     samples: PositiveInt | None = Field(None, description="Random search: number of points.")
-    seeds: list[int] = Field(
+    seeds: list[Annotated[int, Field(ge=0, le=MAX_SEED)]] = Field(
         [0],
         min_length=1,
+        max_length=MAX_TARGETS,
         description="Compare seeds: each gives its own target set (sampled as `targets` says) "
         "and camera noise; every point runs on every seed.",
     )

@@ -99,7 +99,8 @@ class LocalExecutor(Executor):
         """
         pool, self.pool = self.pool, None
         if pool is not None:
-            procs = list((pool._processes or {}).values())  # noqa: SLF001 - to join/kill them
+            # To join/kill them; a cancelled pool has forgotten its processes, `cancel` kept them.
+            procs = list((pool._processes or {}).values()) or list(self._procs)  # noqa: SLF001
             pool.shutdown(wait=False, cancel_futures=True)
             grace = min(timeout, STOP_GRACE) if self._cancelled else timeout
             deadline = time.monotonic() + grace
@@ -139,9 +140,15 @@ class LocalExecutor(Executor):
         self._queue.clear()
         if self.pool is None:
             return
-        for fut in self._futures:
-            fut.cancel()  # only those no worker has taken yet
-        for pid in list((self.pool._processes or {}).keys()):  # noqa: SLF001
+        processes = dict(self.pool._processes or {})  # noqa: SLF001
+        self._procs = list(processes.values())  # `shutdown` below forgets them; ours joins them
+        pids = list(processes.keys())
+        # Drop the tasks no worker has taken yet. Through the pool, not `Future.cancel()`: a
+        # future cancelled behind the pool's back stays in its pending items, and if a worker
+        # then dies (a SIGTERM before its handler is in place) the pool's thread fails it with
+        # `InvalidStateError: CANCELLED` and prints that traceback (CPython 3.11).
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        for pid in pids:
             try:
                 os.kill(pid, signal.SIGTERM)
             except ProcessLookupError:
@@ -162,6 +169,8 @@ class LocalExecutor(Executor):
                 self._futures.clear()  # shutdown() kills what is left
                 return
             done, _ = wait(list(self._futures), timeout=poll, return_when=FIRST_COMPLETED)
+            # A cancelled future counts as done for `wait` only once the pool has noticed it.
+            done = set(done) | {f for f in self._futures if f.cancelled()}
             broken = False
             for fut in done:
                 key, fn, task, attempt = self._futures.pop(fut)

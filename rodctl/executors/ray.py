@@ -205,7 +205,9 @@ class RayExecutor(Executor):
                 except Exception:  # noqa: BLE001
                     pass
             self._pending.clear()
-        if self._owns_ray and self.ray.is_initialized():
+        if self._owns_ray:
+            # Not only once initialised: a signal while ray.init runs leaves a node that is
+            # started but not connected (is_initialized() False), and ray.shutdown stops it.
             # ray.shutdown has no timeout of its own; never let it hang the command.
             t = threading.Thread(target=self.ray.shutdown, daemon=True)
             t.start()

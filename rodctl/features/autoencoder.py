@@ -254,9 +254,11 @@ def config_key_differences(
     """
     import yaml
 
+    from rodctl.config.loading import safe_load  # size, nesting and alias bombs refused
+
     try:
-        trained = yaml.safe_load(checkpoint.config_yaml) if checkpoint.config_yaml else None
-    except yaml.YAMLError:
+        trained = safe_load(checkpoint.config_yaml) if checkpoint.config_yaml else None
+    except (yaml.YAMLError, RecursionError):
         trained = None
     current = experiment.model_dump(mode="json") if experiment is not None else None
     out: list[str] = []

@@ -92,6 +92,16 @@ class CenterlineDataset:
         if not path.is_file():
             raise UserError(f"{path}: dataset not found")
         try:
+            with open(path, "rb") as f:
+                zipped = f.read(4) == b"PK\x03\x04"
+        except OSError as exc:
+            raise UserError(f"{path}: not a readable centerline dataset ({exc})") from None
+        if not zipped:  # np.load would try it as a pickle and say so
+            raise UserError(
+                f"{path}: not a centerline dataset (not a NumPy .npz archive; expected the "
+                "dataset.npz of a train-encoder run)"
+            )
+        try:
             with np.load(path, allow_pickle=False) as npz:
                 data = {k: npz[k] for k in ("centerlines", "poses", "chunk", "attempts", "setup")}
             setup = json.loads(str(data["setup"]))

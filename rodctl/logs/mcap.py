@@ -54,7 +54,7 @@ import orjson
 import yaml
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Channel, Message, Metadata
+from mcap.records import Attachment, Channel, Chunk, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
@@ -532,6 +532,97 @@ class McapSink:
 # ---------------------------------------------------------------------------------- reading
 _Raw = tuple[str, int, int, bytes]  # topic, sequence, log_time, data
 
+#: Largest inflation a chunk may claim: uncompressed <= MAX_CHUNK_RATIO x compressed + 1 MiB.
+#: rodctl's chunks inflate about 4.5x (JSON and base64 PNG frames); zeros inflate 30,000x.
+MAX_CHUNK_RATIO = 1000
+_MIB = 1 << 20
+
+
+def chunk_ceiling(config: dict[str, str] | None) -> int:
+    """The most uncompressed bytes a chunk of a run may hold, from its `rodctl.config` metadata
+    (the logging defaults and a 640x480 camera when it has none): a chunk closes once it passes
+    `logging.mcap_chunk_size`, so it holds at most that plus one message, the largest of which is
+    a camera frame (an RGB PNG barely larger than the raw pixels, base64 in JSON)."""
+
+    def get(key: str, default: int) -> int:
+        try:
+            value = json.loads((config or {}).get(key, "null"))
+        except (ValueError, RecursionError):
+            value = None
+        ok = isinstance(value, int) and not isinstance(value, bool) and 0 < value <= 1 << 30
+        return value if ok else default
+
+    chunk = get("logging.mcap_chunk_size", LoggingConfig().mcap_chunk_size)
+    width, height = get("camera.width", 640), get("camera.height", 480)
+    frame = (width * height * 3 * 101 // 100 + height + 4096) * 4 // 3
+    return chunk + frame + _MIB
+
+
+def check_sizes(f: IO[bytes], path: Path, size: int) -> None:
+    """Refuse a file whose records or chunks are bigger than the run can have written, before
+    anything is decompressed (a zstd or lz4 "bomb" inflating to gigabytes of zeros).
+
+    Every record must fit in the file; each chunk's declared uncompressed size must stay under
+    `chunk_ceiling` (from the run's own metadata, which precedes its chunks) and under
+    `MAX_CHUNK_RATIO` times its compressed size; a zstd frame must declare the same size as its
+    chunk, and an lz4 chunk is inflated at most one byte past its declared size to check it.
+    Damage that stops the scan is left to the reader, which reports it.
+
+    Raises:
+        UserError: naming the file, the chunk's offset and the sizes.
+    """
+    import lz4.frame
+    import zstandard
+
+    ceiling = chunk_ceiling(None)
+    stream = StreamReader(f, emit_chunks=True, record_size_limit=size)
+    records = stream.records
+    chunks = 0
+    while True:
+        try:
+            rec = next(records)
+        except StopIteration:
+            break
+        except Exception:  # noqa: BLE001 - damage: the reader says what and where
+            break
+        if isinstance(rec, Metadata) and rec.name == "rodctl.config":
+            ceiling = chunk_ceiling(dict(rec.metadata))
+        if isinstance(rec, Attachment) and len(rec.data) > ceiling:
+            raise UserError(
+                f"{path}: attachment {rec.name!r} holds {len(rec.data)} bytes, more than a "
+                f"rodctl run writes ({ceiling}); refused"
+            )
+        if not isinstance(rec, Chunk):
+            continue
+        chunks += 1
+        where = f"{path}: chunk {chunks}"
+        declared, compressed = rec.uncompressed_size, len(rec.data)
+        limit = min(ceiling, MAX_CHUNK_RATIO * compressed + _MIB)
+        if declared > limit:
+            raise UserError(
+                f"{where} declares {declared} bytes uncompressed from {compressed}, more than "
+                f"this run can have written ({limit}); refused without decompressing it"
+            )
+        if rec.compression == "zstd":
+            framed = zstandard.frame_content_size(rec.data[:18]) if compressed >= 4 else -1
+            if framed not in (-1, declared):
+                raise UserError(
+                    f"{where} declares {declared} bytes but its zstd frame {framed}; refused "
+                    "without decompressing it"
+                )
+        elif rec.compression == "lz4":
+            out = 0
+            data = rec.data
+            try:
+                while data and out <= declared:
+                    dec = lz4.frame.LZ4FrameDecompressor()
+                    out += len(dec.decompress(data, max_length=declared + 1 - out))
+                    data = dec.unused_data if dec.eof else b""
+            except RuntimeError as exc:
+                raise UserError(f"{where}: damaged lz4 data ({exc})") from None
+            if out > declared:
+                raise UserError(f"{where} inflates past the {declared} bytes it declares; refused")
+
 
 def _read_indexed(f: IO[bytes]) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
     """Messages (file order) and metadata of a finished file, via its summary and indexes."""
@@ -582,6 +673,10 @@ def _json(path: Path, topic: str, data: bytes) -> dict[str, Any]:
         msg = json.loads(data)
     except (ValueError, UnicodeDecodeError) as exc:
         raise UserError(f"{path}: malformed JSON message on {topic}: {exc}") from None
+    except RecursionError:  # rodctl's messages nest 6 deep; the parser stops near 1000
+        raise UserError(
+            f"{path}: JSON message on {topic} nested too deeply to be a rodctl message; refused"
+        ) from None
     if not isinstance(msg, dict):
         raise UserError(f"{path}: message on {topic} is not a JSON object")
     return msg
@@ -618,6 +713,8 @@ def read_mcap(path: str | Path, *, recover: bool = False, images: bool = True) -
                 f"bytes); expected a run.mcap written by rodctl"
             )
         size = f.seek(0, os.SEEK_END)
+        f.seek(0)
+        check_sizes(f, path, size)
         f.seek(max(0, size - len(MAGIC)))
         complete = size >= 2 * len(MAGIC) and f.read(len(MAGIC)) == MAGIC
         reason = "it has no footer"
@@ -662,8 +759,17 @@ def _assemble(
         )
     except codec.FormatVersionError as exc:
         raise UserError(f"{path}: {exc}") from None
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, RecursionError) as exc:
         raise UserError(f"{path}: malformed run header: {exc!r}") from None
+    from rodctl.config.loading import safe_load as strict_load
+
+    try:  # replay and --verify parse it: the rules of config files (nesting, size, aliases)
+        strict_load(header.config_yaml)
+    except (yaml.YAMLError, RecursionError) as exc:
+        why = str(exc).splitlines()[0] if str(exc) else "nested too deeply"
+        raise UserError(
+            f"{path}: the config embedded in {codec.TOPIC_HEADER} is unusable: {why}"
+        ) from None
 
     per_step: dict[int, dict[str, dict[str, Any]]] = {}
     order: list[int] = []

@@ -235,6 +235,10 @@ class RerunSink:
             batcher_config=rr.ChunkBatcherConfig.NEVER(),
         )
         rec.set_log_time_enabled(False)
+        # Rerun reports a file it cannot create as `RuntimeError: Failed to create file`, with
+        # no path or reason: open it first, so a read-only or full disk is an OSError that
+        # names both (one line from the CLI).
+        open(self.path, "ab").close()
         rec.save(self.path, default_blueprint=blueprint(header))
         self._rec = rec
         # No recording name: it would only repeat the id, and the id (which carries the start
