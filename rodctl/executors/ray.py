@@ -36,6 +36,7 @@ from rodctl.executors.base import (
     stop_reason,
 )
 from rodctl.executors.local import CANCELLED
+from rodctl.registry import ALLOW_OVERRIDE_ENV, override_allowed
 
 #: Object store of a Ray started for the run: results are small rows, not arrays.
 _OBJECT_STORE_BYTES = 128 * 2**20
@@ -95,6 +96,8 @@ class RayExecutor(Executor):
         ray = _import_ray(local=self.address is None)
         self.ray = ray
         env = {k: "1" for k in THREAD_ENV}
+        if override_allowed():
+            env[ALLOW_OVERRIDE_ENV] = "1"  # a cluster's workers do not have our environment
         if ray.is_initialized():
             pass  # a Ray the caller started (a notebook, a test): use it, leave it running
         else:
