@@ -25,6 +25,7 @@ from pydantic import BaseModel
 
 from rodctl.config import dump_config
 from rodctl.errors import RunFailed, UserError, describe_os_error
+from rodctl.journal import unlock_run_folder
 from rodctl.registry import plugin_provenance, stage_provenance
 
 #: Every consumer of randomness, in a fixed order. Each gets its own independent stream derived
@@ -271,4 +272,7 @@ class RunDir:
         if status not in STATUSES[1:]:
             raise ValueError(f"terminal status must be one of {STATUSES[1:]}, got {status!r}")
         self.meta.update(status=status, ended_at=_now(), **extra)
-        return write_json_best_effort(self.path / "meta.json", self.meta, reserve=META_RESERVE)
+        try:
+            return write_json_best_effort(self.path / "meta.json", self.meta, reserve=META_RESERVE)
+        finally:
+            unlock_run_folder(self.path)  # the run's journal lock, if it took one

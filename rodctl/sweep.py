@@ -267,6 +267,7 @@ def run_sweep(
         status, reason = "interrupted", str(exc) or "SIGINT"
         raise RunInterrupted(run.path, reason, len(rows), total) from None
     finally:
+        log.compact()
         extra = {"episodes": {"finished": len(rows), "total": total}}
         run.finish(status, **({"error": f"interrupted by {reason}"} if reason else {}), **extra)
         clear_stop()
