@@ -114,26 +114,26 @@ class Registry(Generic[T]):
                     f"{self.kind} type {name!r} is already registered by "
                     f"{self._entries[name].source}"
                 )
-            builtin = (self.kind, name) in _BUILTIN
-            if builtin and not _is_builtin_code(factory):
-                # A plug-in replacing one of rodctl's own types: only when the user says so.
-                if not override_allowed():
-                    raise OverrideRefused(
-                        f"it replaces the built-in {self.kind} type {name!r}, which needs "
-                        f"`rodctl --allow-override` ({ALLOW_OVERRIDE_ENV}=1)"
-                    )
+            # Once rodctl's own types are registered, registering one of their names again
+            # replaces the paper's method (another factory, or the same factory with another
+            # config model and so other defaults): only when the user says so.
+            override = (self.kind, name) in _ORIGINAL
+            if override and not override_allowed():
+                raise OverrideRefused(
+                    f"it replaces the built-in {self.kind} type {name!r}, which needs "
+                    f"`rodctl --allow-override` ({ALLOW_OVERRIDE_ENV}=1)"
+                )
             doc = (config.__doc__ or "").strip().splitlines()
             self._entries[name] = Registration(
                 kind=self.kind,
                 type=name,
                 config=config,
                 factory=factory,
-                source=_source_of(factory),
+                source=_override_source(factory) if override else _source_of(factory),
                 summary=doc[0] if doc else "",
             )
-            if builtin and not _is_builtin_code(factory):
+            if override:
                 _record_override(self.kind, name, "registered with replace=True")
-            if builtin:
                 _TRUSTED[(self.kind, name)] = _fingerprint(self._entries[name])
             _invalidate_models()
             return factory
@@ -190,14 +190,15 @@ class Registry(Generic[T]):
         fn = reg.factory
         module = getattr(fn, "__module__", None) or "?"
         attr = getattr(fn, "__qualname__", None) or getattr(fn, "__name__", None) or repr(fn)
-        builtin = _is_builtin_code(fn)
+        original = _ORIGINAL.get((self.kind, name))
+        overridden = original is not None and not _same(_fingerprint(reg), original)
         return {
             "type": name,
             "factory": f"{module}:{attr}",
             "file": _code_file(fn),
-            "origin": "built-in" if builtin else "plug-in",
+            "origin": "built-in" if _is_builtin_code(fn) and not overridden else "plug-in",
             "source": reg.source,
-            "overrides_builtin": (self.kind, name) in _BUILTIN and not builtin,
+            "overrides_builtin": overridden,
         }
 
 
@@ -214,6 +215,12 @@ def _source_of(fn: Callable[..., Any]) -> str:
     if _is_builtin_code(fn):
         return "rodctl (built-in)"
     return f"plug-in {_LOADING or top} ({module})"
+
+
+def _override_source(fn: Callable[..., Any]) -> str:
+    """The `source` of a registration that replaced a built-in type."""
+    module = getattr(fn, "__module__", "") or ""
+    return f"plug-in {_LOADING or 'unknown (after the plug-ins were loaded)'} ({module})"
 
 
 def _code_file(fn: Any) -> str | None:
@@ -252,10 +259,18 @@ def _fingerprint(reg: Registration) -> tuple[Any, ...]:
     return (reg, fn, reg.config, getattr(fn, "__code__", None), reg.source)
 
 
+def _same(a: tuple[Any, ...], b: tuple[Any, ...]) -> bool:
+    return all(x is y for x, y in zip(a, b, strict=True))
+
+
 def _restore(registry: Registry, name: str, trusted: tuple[Any, ...]) -> None:
-    reg, fn, _config, code, _source = trusted
+    """Put the trusted registration back, undoing in-place edits of it too."""
+    reg, fn, config, code, source = trusted
     if code is not None and getattr(fn, "__code__", None) is not code:
         fn.__code__ = code
+    for attr, value in (("factory", fn), ("config", config), ("source", source)):
+        if getattr(reg, attr) is not value:
+            object.__setattr__(reg, attr, value)  # a frozen dataclass edited the same way
     registry._entries[name] = reg
     _invalidate_models()
 
@@ -288,7 +303,7 @@ def _tampered(registry: Registry, name: str) -> bool:
     if trusted is None:
         return False
     reg = registry._entries.get(name)
-    return reg is None or not all(a is b for a, b in zip(_fingerprint(reg), trusted, strict=True))
+    return reg is None or not _same(_fingerprint(reg), trusted)
 
 
 def _check_builtin(registry: Registry, name: str, culprit: str | None) -> str | None:
@@ -309,7 +324,7 @@ def _check_builtin(registry: Registry, name: str, culprit: str | None) -> str | 
             type=reg.type,
             config=reg.config,
             factory=reg.factory,
-            source=_source_of(reg.factory),
+            source=_override_source(reg.factory),
             summary=reg.summary,
         )
         registry._entries[name] = honest
@@ -347,8 +362,9 @@ STAGES: dict[str, Registry] = {
 _DEPENDENT_MODELS: list[type[BaseModel]] = []
 _LOADING: str | None = None  # the plug-in entry point being loaded (for `source`)
 _IN_WORKER = False  # a worker process: the parent has already warned
-#: (kind, type) of rodctl's own types, and the fingerprint of the registration allowed for each.
-_BUILTIN: set[tuple[str, str]] = set()
+#: (kind, type) of rodctl's own types: the fingerprint of each as rodctl registered it, and of
+#: the registration allowed now (the same, or an override the user allowed).
+_ORIGINAL: dict[tuple[str, str], tuple[Any, ...]] = {}
 _TRUSTED: dict[tuple[str, str], tuple[Any, ...]] = {}
 #: Plug-ins loaded by this process (`plugin_provenance`), and the overrides allowed.
 LOADED: list[dict[str, Any]] = []
@@ -404,8 +420,7 @@ def load_builtins() -> None:
     for kind, registry in STAGES.items():
         for reg in registry:
             if _is_builtin_code(reg.factory):
-                _BUILTIN.add((kind, reg.type))
-                _TRUSTED[(kind, reg.type)] = _fingerprint(reg)
+                _ORIGINAL[(kind, reg.type)] = _TRUSTED[(kind, reg.type)] = _fingerprint(reg)
     _invalidate_models()
 
 
@@ -458,7 +473,7 @@ def load_plugins(*, strict: bool = True) -> list[PluginError]:
             LOADED.append(_loaded_record(ep, dist))
         finally:
             for kind, registry in STAGES.items():
-                for name in sorted(t for k, t in _BUILTIN if k == kind):
+                for name in sorted(t for k, t in _ORIGINAL if k == kind):
                     refused = _check_builtin(registry, name, culprit=_LOADING)
                     if refused:
                         failures.append(

@@ -201,3 +201,27 @@ def test_a_registry_patched_after_loading_is_refused_when_the_method_is_built(pa
         CONTROLLERS._entries.clear()
         CONTROLLERS._entries.update(saved[0])
     assert CONTROLLERS.provenance("mfac")["origin"] == "built-in"
+
+
+def test_the_builtin_factory_with_another_config_model_is_an_override_too(monkeypatch):
+    """The same factory registered again with a config model of other defaults (other MFAC
+    weights) changes the result as much as another factory: refused unless allowed."""
+    from typing import Literal
+
+    from rodctl import registry
+    from rodctl.control.mfac import MfacControllerConfig, _build
+    from rodctl.registry import CONTROLLERS, load_plugins
+
+    load_plugins()
+    monkeypatch.delenv(registry.ALLOW_OVERRIDE_ENV, raising=False)
+
+    class OtherDefaults(MfacControllerConfig):
+        """MFAC with other weights."""
+
+        type: Literal["mfac"] = "mfac"
+
+    before = CONTROLLERS.get("mfac")
+    with pytest.raises(registry.OverrideRefused, match="built-in controller type 'mfac'"):
+        CONTROLLERS.register(OtherDefaults, replace=True)(_build)
+    assert CONTROLLERS.get("mfac") is before
+    assert CONTROLLERS.provenance("mfac")["overrides_builtin"] is False
