@@ -75,16 +75,32 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _startup(
+    ctx: typer.Context,
     version: Annotated[
         bool,
         typer.Option(
             "--version", callback=_version, is_eager=True, help="Print the version and exit."
         ),
     ] = False,
+    allow_override: Annotated[
+        bool,
+        typer.Option(
+            "--allow-override",
+            help="Let plug-ins replace built-in stage types (warned on stderr and recorded in "
+            "meta.json and run.mcap); also RODCTL_ALLOW_OVERRIDE=1. Off: such a plug-in is "
+            "refused (exit 2).",
+        ),
+    ] = False,
 ) -> None:
     """Experiment runner for vision-based shape servoing of elastic rods."""
-    from rodctl.registry import load_plugins
+    import os
 
+    from rodctl.registry import ALLOW_OVERRIDE_ENV, load_plugins
+
+    if allow_override:
+        os.environ[ALLOW_OVERRIDE_ENV] = "1"  # worker processes inherit it
+    if ctx.invoked_subcommand == "plugins":
+        return  # it lists every plug-in, the failed ones too, and then exits 2 for them
     try:
         load_plugins()
     except UserError as exc:
@@ -95,16 +111,25 @@ def _startup(
 @app.command()
 def plugins() -> None:
     """List every registered feature, estimator and controller type, and where it comes from."""
-    from rodctl.registry import STAGES, load_plugins
+    from rodctl.registry import STAGES, load_plugins, plugin_provenance
 
     failures = load_plugins(strict=False)
+    provenance = plugin_provenance()
+    overridden = {(o["kind"], o["type"]) for o in provenance["overrides"]}
     for kind, registry in STAGES.items():
         typer.echo(f"{kind}:")
         for reg in registry:
             default = " (default)" if reg.type == registry.default else ""
+            if (kind, reg.type) in overridden:
+                default += " (REPLACES the built-in: --allow-override)"
             typer.echo(f"  {reg.type:<14} {reg.source}{default}")
             if reg.summary:
                 typer.echo(f"  {'':<14} {reg.summary}")
+    if provenance["loaded"]:
+        typer.echo("plug-ins loaded:")
+    for p in provenance["loaded"]:
+        typer.echo(f"  {p['distribution']} {p['version']} ({p['value']}): {p['file']}")
+        typer.echo(f"  {'':<14} sha256 {p['sha256']}")
     for f in failures:
         typer.echo(f"failed plug-in {f.name} ({f.value}): {f.error}", err=True)
     if failures:

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
+from rodctl import journal
 from rodctl.config import ExperimentConfig, dump_config
 from rodctl.config.compare import CompareConfig
 from rodctl.config.loading import (
@@ -428,20 +429,42 @@ class ResultsLog:
 
     The crash-safe record of a run: whatever stops it (SIGKILL, power loss), every episode that
     finished is on disk, and `--resume` reads them back. A line cut by a crash is ignored.
+    One final row per episode key (`rodctl.journal`): a final row for a key that already has
+    one is not written again, and `read` dedupes (the last final row per key wins).
     """
 
     def __init__(self, path: Path) -> None:
         self.path = path
+        self._final: dict[tuple, dict[str, Any]] | None = None
+        self._tail_checked = False
 
-    def append(self, row: dict[str, Any]) -> None:
-        line = json.dumps(jsonable({k: v for k, v in row.items() if not k.startswith("_")}))
+    def append(self, row: dict[str, Any]) -> dict[str, Any]:
+        """Write `row`; returns the journal's row for its episode (an earlier final row of the
+        same key, which stays the record, with `row`'s in-memory `_` fields)."""
+        if self._final is None:
+            self._final = {_row_key(r): r for r in self.read() if journal.is_final(r)}
+        clean = {k: v for k, v in row.items() if not k.startswith("_")}
+        key = _row_key(row)
+        if journal.is_final(row) and key in self._final:
+            return {**self._final[key], **{k: v for k, v in row.items() if k.startswith("_")}}
+        line = json.dumps(jsonable(clean))
         with self.path.open("a", encoding="utf-8") as fh:
+            if not self._tail_checked and fh.tell() > 0 and not self._ends_with_newline():
+                fh.write("\n")  # after a line a crash cut: this row must not be glued to it
+            self._tail_checked = True
             fh.write(line + "\n")
             fh.flush()
             os.fsync(fh.fileno())
+        if journal.is_final(row):
+            self._final[key] = json.loads(line)
+        return row
 
-    def read(self) -> list[dict[str, Any]]:
-        """Every whole row written so far (a torn last line is skipped)."""
+    def _ends_with_newline(self) -> bool:
+        with self.path.open("rb") as fh:
+            fh.seek(-1, os.SEEK_END)
+            return fh.read(1) == b"\n"
+
+    def _read_all(self) -> list[dict[str, Any]]:
         if not self.path.is_file():
             return []
         rows = []
@@ -451,6 +474,17 @@ class ResultsLog:
             except json.JSONDecodeError:
                 continue
         return rows
+
+    def read(self) -> list[dict[str, Any]]:
+        """Every whole row written so far (a torn last line is skipped), one per episode key."""
+        return journal.dedupe(self._read_all(), _row_key)
+
+    def compact(self) -> None:
+        """Drop the rows later ones superseded (an interrupted episode run again to its end)."""
+        try:
+            journal.compact(self.path, self._read_all(), _row_key)
+        except OSError:
+            pass  # left as it is: every reader dedupes the same way
 
 
 class RunInterrupted(Exception):
@@ -510,6 +544,7 @@ def open_resumed_run(folder: str | Path, command: str, hashed: dict[str, Any]) -
             f"config; workers and executor may differ): {', '.join(changed[:10])}"
             + (f" and {len(changed) - 10} more" if len(changed) > 10 else "")
         )
+    journal.lock_run_folder(path, command)  # held until run.finish; refused if in use
     run = RunDir(path=path, meta=meta)
     run.meta.update(status="running", ended_at=None)
     run.meta.pop("error", None)
@@ -529,6 +564,7 @@ def start_run(
     if resume is not None:
         return open_resumed_run(resume, command, hashed)
     run = RunDir.create(out, cfg, command=command)
+    journal.lock_run_folder(run.path, command)  # held until run.finish
     run.meta["resume"] = {"config_hash": config_hash(hashed), "hashed": jsonable(hashed)}
     run.write_meta()
     return run
@@ -593,7 +629,7 @@ def stream_episodes(
                 # The row says "interrupted by SIGTERM"; the stop reason is the signal alone.
                 why = str(row.get("error") or "").removeprefix("interrupted by ")
                 request_stop(why or "a worker was stopped")
-            log.append(row)
+            row = log.append(row)  # an episode's first final row stays its record
             rows[done.key] = row
             advance(describe(row))
     return rows
@@ -854,6 +890,7 @@ def run_compare(
             raise RunFailed(failure) from None
         raise
     finally:
+        log.compact()
         extra = {"episodes": {"finished": len(rows), "total": total}}
         why = f"interrupted by {reason}" if reason else failure
         run.finish(status, **({"error": why} if why else {}), **extra)

@@ -38,6 +38,7 @@ from rodctl.logs.base import Sink
 from rodctl.method import CONTROL, INITIAL, Method
 from rodctl.numenv import numeric_environment
 from rodctl.records import RunHeader, RunSummary, StepRecord
+from rodctl.registry import plugin_provenance
 
 
 class Outcome(enum.StrEnum):
@@ -341,6 +342,10 @@ class _Loop:
             target_pose=target.pose,
             rod_length=cfg.rod.length,
             numeric_env=numeric_environment(),
+            provenance={
+                "plugins": plugin_provenance(),
+                "stages": dict(getattr(method, "stages", {})),
+            },
         )
         self.setup_time = time.perf_counter() - self.wall0
         opened: list[Sink] = []

@@ -70,6 +70,8 @@ class Method:
         self.feature = FEATURES.build(
             feature, BuildContext(points=self.points, experiment=experiment)
         )
+        #: Which registered factory built each stage (module:attr, file, built-in or plug-in).
+        self.stages: dict[str, Any] = {"feature": FEATURES.provenance(feature.type)}
         self.times = StageTimes()
         self.task: Task | None = None
 
@@ -102,6 +104,8 @@ class Method:
         )
         self.estimator = ESTIMATORS.build(self.configs["estimator"], ctx)
         self.controller = CONTROLLERS.build(self.configs["controller"], ctx)
+        for kind, registry in (("estimator", ESTIMATORS), ("controller", CONTROLLERS)):
+            self.stages[kind] = registry.provenance(self.configs[kind].type)
         self.J = np.zeros((self.p, Q))
         self.s: np.ndarray | None = None
         self.phase = INITIAL

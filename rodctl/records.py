@@ -36,6 +36,7 @@ class RunHeader:
         numeric_env: the numeric environment the run computed in (CPU model, BLAS vendor,
             numpy/OpenCV builds, ...), JSON-able values; logged in /run/header and read back
             as is, so a `replay --verify` mismatch can be traced to a different machine.
+        provenance: {"plugins": ..., "stages": ...}, see `rodctl.registry.plugin_provenance`.
     """
 
     run_id: str
@@ -50,6 +51,9 @@ class RunHeader:
     target_pose: np.ndarray
     rod_length: float
     numeric_env: dict[str, Any] = field(default_factory=dict)
+    #: The plug-ins loaded and the factory of each stage (`rodctl.registry`): written as the
+    #: MCAP metadata record `rodctl.provenance`; empty when read back from a log.
+    provenance: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass

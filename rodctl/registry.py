@@ -21,11 +21,14 @@ Usage, next to an implementation::
 
 from __future__ import annotations
 
+import hashlib
 import importlib
+import os
 import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from importlib import metadata
+from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 import numpy as np
@@ -35,6 +38,11 @@ from rodctl.errors import UserError
 
 #: The entry-point group outside packages use to add stage types.
 PLUGIN_GROUP = "rodctl.plugins"
+
+#: Set to 1 (what `rodctl --allow-override` does) to let a plug-in replace a built-in type.
+ALLOW_OVERRIDE_ENV = "RODCTL_ALLOW_OVERRIDE"
+
+_PACKAGE_DIR = Path(__file__).resolve().parent
 
 C = TypeVar("C", bound=BaseModel)
 T = TypeVar("T")
@@ -106,15 +114,27 @@ class Registry(Generic[T]):
                     f"{self.kind} type {name!r} is already registered by "
                     f"{self._entries[name].source}"
                 )
+            # Once rodctl's own types are registered, registering one of their names again
+            # replaces the paper's method (another factory, or the same factory with another
+            # config model and so other defaults): only when the user says so.
+            override = (self.kind, name) in _ORIGINAL
+            if override and not override_allowed():
+                raise OverrideRefused(
+                    f"it replaces the built-in {self.kind} type {name!r}, which needs "
+                    f"`rodctl --allow-override` ({ALLOW_OVERRIDE_ENV}=1)"
+                )
             doc = (config.__doc__ or "").strip().splitlines()
             self._entries[name] = Registration(
                 kind=self.kind,
                 type=name,
                 config=config,
                 factory=factory,
-                source=_source_of(factory),
+                source=_override_source(factory) if override else _source_of(factory),
                 summary=doc[0] if doc else "",
             )
+            if override:
+                _record_override(self.kind, name, "registered with replace=True")
+                _TRUSTED[(self.kind, name)] = _fingerprint(self._entries[name])
             _invalidate_models()
             return factory
 
@@ -152,8 +172,34 @@ class Registry(Generic[T]):
         return [e.config for e in self._entries.values()]
 
     def build(self, cfg: BaseModel, ctx: BuildContext) -> T:
-        """The object `cfg` describes, made by its registered factory."""
-        return self.get(cfg.type).factory(cfg, ctx)  # type: ignore[attr-defined]
+        """The object `cfg` describes, made by its registered factory.
+
+        Raises:
+            UserError: the registration of a built-in type was changed outside `register`
+                (a plug-in patched the registry) and overrides are not allowed.
+        """
+        name = cfg.type  # type: ignore[attr-defined]
+        _check_builtin(self, name, culprit=None)
+        return self.get(name).factory(cfg, ctx)
+
+    def provenance(self, name: str) -> dict[str, Any]:
+        """Which factory builds type `name`: `module:attr`, its file and its origin (built-in,
+        or the plug-in that registered it), and whether it overrides a built-in type."""
+        _check_builtin(self, name, culprit=None)
+        reg = self.get(name)
+        fn = reg.factory
+        module = getattr(fn, "__module__", None) or "?"
+        attr = getattr(fn, "__qualname__", None) or getattr(fn, "__name__", None) or repr(fn)
+        original = _ORIGINAL.get((self.kind, name))
+        overridden = original is not None and not _same(_fingerprint(reg), original)
+        return {
+            "type": name,
+            "factory": f"{module}:{attr}",
+            "file": _code_file(fn),
+            "origin": "built-in" if _is_builtin_code(fn) and not overridden else "plug-in",
+            "source": reg.source,
+            "overrides_builtin": overridden,
+        }
 
 
 def _type_name(config: type[BaseModel]) -> str:
@@ -166,9 +212,139 @@ def _type_name(config: type[BaseModel]) -> str:
 def _source_of(fn: Callable[..., Any]) -> str:
     module = getattr(fn, "__module__", "") or ""
     top = module.split(".")[0]
-    if top == "rodctl":
+    if _is_builtin_code(fn):
         return "rodctl (built-in)"
     return f"plug-in {_LOADING or top} ({module})"
+
+
+def _override_source(fn: Callable[..., Any]) -> str:
+    """The `source` of a registration that replaced a built-in type."""
+    module = getattr(fn, "__module__", "") or ""
+    return f"plug-in {_LOADING or 'unknown (after the plug-ins were loaded)'} ({module})"
+
+
+def _code_file(fn: Any) -> str | None:
+    """The source file of a factory: its code object's, else its module's."""
+    code = getattr(fn, "__code__", None)
+    if code is not None:
+        return str(code.co_filename)
+    module = sys.modules.get(getattr(fn, "__module__", "") or "")
+    return getattr(module, "__file__", None)
+
+
+def _is_builtin_code(fn: Any) -> bool:
+    """True when the factory's code lives in rodctl's own package folder (its module name is
+    not enough: a plug-in can name its function's module anything)."""
+    path = _code_file(fn)
+    if not path:
+        return False
+    try:
+        return Path(path).resolve().is_relative_to(_PACKAGE_DIR)
+    except (OSError, ValueError):
+        return False
+
+
+def override_allowed() -> bool:
+    """The user allowed plug-ins to replace built-in types (`--allow-override`)."""
+    return os.environ.get(ALLOW_OVERRIDE_ENV, "").strip().lower() in {"1", "true", "yes", "on"}
+
+
+class OverrideRefused(ValueError):
+    """A plug-in tried to replace a built-in type without `--allow-override`."""
+
+
+def _fingerprint(reg: Registration) -> tuple[Any, ...]:
+    """What must stay identical for a registration to be the one `register` made."""
+    fn = reg.factory
+    return (reg, fn, reg.config, getattr(fn, "__code__", None), reg.source)
+
+
+def _same(a: tuple[Any, ...], b: tuple[Any, ...]) -> bool:
+    return all(x is y for x, y in zip(a, b, strict=True))
+
+
+def _restore(registry: Registry, name: str, trusted: tuple[Any, ...]) -> None:
+    """Put the trusted registration back, undoing in-place edits of it too."""
+    reg, fn, config, code, source = trusted
+    if code is not None and getattr(fn, "__code__", None) is not code:
+        fn.__code__ = code
+    for attr, value in (("factory", fn), ("config", config), ("source", source)):
+        if getattr(reg, attr) is not value:
+            object.__setattr__(reg, attr, value)  # a frozen dataclass edited the same way
+    registry._entries[name] = reg
+    _invalidate_models()
+
+
+def _record_override(kind: str, name: str, how: str) -> None:
+    """An allowed override: warned about on stderr (once, by the main process) and recorded
+    for meta.json and the MCAP provenance."""
+    reg = STAGES[kind]._entries.get(name)
+    fn = reg.factory if reg is not None else None
+    entry = {
+        "kind": kind,
+        "type": name,
+        "by": _LOADING or "unknown (after the plug-ins were loaded)",
+        "how": how,
+        "factory": f"{getattr(fn, '__module__', '?')}:{getattr(fn, '__qualname__', '?')}",
+        "file": _code_file(fn),
+    }
+    OVERRIDES.append(entry)
+    if not _IN_WORKER:
+        print(
+            f"warning: the built-in {kind} type {name!r} is REPLACED by {entry['by']} "
+            f"({entry['factory']}, {entry['file']}): allowed by --allow-override "
+            f"({ALLOW_OVERRIDE_ENV}); results of this run are not the built-in method's",
+            file=sys.stderr,
+        )
+
+
+def _tampered(registry: Registry, name: str) -> bool:
+    trusted = _TRUSTED.get((registry.kind, name))
+    if trusted is None:
+        return False
+    reg = registry._entries.get(name)
+    return reg is None or not _same(_fingerprint(reg), trusted)
+
+
+def _check_builtin(registry: Registry, name: str, culprit: str | None) -> str | None:
+    """Refuse (or, when allowed, record) a built-in registration changed outside `register`.
+
+    Returns the refusal message when `culprit` names the plug-in being loaded (the
+    registration is then restored); raises `UserError` otherwise.
+    """
+    if not _tampered(registry, name):
+        return None
+    if override_allowed():
+        reg = registry._entries.get(name)
+        if reg is None:
+            _restore(registry, name, _TRUSTED[(registry.kind, name)])
+            return None
+        honest = Registration(
+            kind=reg.kind,
+            type=reg.type,
+            config=reg.config,
+            factory=reg.factory,
+            source=_override_source(reg.factory),
+            summary=reg.summary,
+        )
+        registry._entries[name] = honest
+        _record_override(registry.kind, name, "patched the registry")
+        _TRUSTED[(registry.kind, name)] = _fingerprint(honest)
+        return None
+    reg = registry._entries.get(name)
+    fn = reg.factory if reg is not None else None
+    what = (
+        f"the built-in {registry.kind} type {name!r} was replaced by patching the registry "
+        f"(its factory is now {getattr(fn, '__module__', '?')}:{getattr(fn, '__qualname__', '?')}"
+        f" from {_code_file(fn)})"
+    )
+    if culprit is not None:
+        _restore(registry, name, _TRUSTED[(registry.kind, name)])
+        return what
+    raise UserError(
+        f"{what}; refusing to run it. Uninstall the plug-in that did it, or allow it with "
+        f"`rodctl --allow-override` ({ALLOW_OVERRIDE_ENV}=1)"
+    )
 
 
 FEATURES: Registry = Registry("feature", default="autoencoder")
@@ -185,6 +361,14 @@ STAGES: dict[str, Registry] = {
 #: Config models whose schema embeds the stage unions; rebuilt when a type is registered.
 _DEPENDENT_MODELS: list[type[BaseModel]] = []
 _LOADING: str | None = None  # the plug-in entry point being loaded (for `source`)
+_IN_WORKER = False  # a worker process: the parent has already warned
+#: (kind, type) of rodctl's own types: the fingerprint of each as rodctl registered it, and of
+#: the registration allowed now (the same, or an override the user allowed).
+_ORIGINAL: dict[tuple[str, str], tuple[Any, ...]] = {}
+_TRUSTED: dict[tuple[str, str], tuple[Any, ...]] = {}
+#: Plug-ins loaded by this process (`plugin_provenance`), and the overrides allowed.
+LOADED: list[dict[str, Any]] = []
+OVERRIDES: list[dict[str, Any]] = []
 _BUILTINS_LOADED = False
 _PLUGINS_LOADED = False
 _QUIET = False  # registering built-ins: the models are built once, afterwards
@@ -233,6 +417,10 @@ def load_builtins() -> None:
             importlib.import_module(name)
     finally:
         _QUIET = False
+    for kind, registry in STAGES.items():
+        for reg in registry:
+            if _is_builtin_code(reg.factory):
+                _ORIGINAL[(kind, reg.type)] = _TRUSTED[(kind, reg.type)] = _fingerprint(reg)
     _invalidate_models()
 
 
@@ -272,9 +460,30 @@ def load_plugins(*, strict: bool = True) -> list[PluginError]:
             obj = ep.load()
             if callable(obj) and not isinstance(obj, type(sys)):
                 obj()
+        except OverrideRefused as exc:
+            failures.append(PluginError(ep.name, ep.value, str(exc)))
         except Exception as exc:  # noqa: BLE001 - a broken plug-in is reported, not a traceback
             failures.append(PluginError(ep.name, ep.value, f"{type(exc).__name__}: {exc}"))
+        except BaseException as exc:  # noqa: BLE001 - sys.exit or Ctrl-C at import: named, exit 2
+            what = "it called sys.exit" if isinstance(exc, SystemExit) else "it raised"
+            failures.append(
+                PluginError(ep.name, ep.value, f"{what} at import: {type(exc).__name__}({exc})")
+            )
+        else:
+            LOADED.append(_loaded_record(ep, dist))
         finally:
+            for kind, registry in STAGES.items():
+                for name in sorted(t for k, t in _ORIGINAL if k == kind):
+                    refused = _check_builtin(registry, name, culprit=_LOADING)
+                    if refused:
+                        failures.append(
+                            PluginError(
+                                ep.name,
+                                ep.value,
+                                f"{refused}, which needs `rodctl --allow-override` "
+                                f"({ALLOW_OVERRIDE_ENV}=1)",
+                            )
+                        )
             _LOADING = None
     if failures and strict:
         f = failures[0]
@@ -283,3 +492,49 @@ def load_plugins(*, strict: bool = True) -> list[PluginError]:
             f"{f.error}. Fix or uninstall it (`pip uninstall` its package)"
         )
     return failures
+
+
+def _loaded_record(ep: Any, dist: Any) -> dict[str, Any]:
+    """What meta.json and the MCAP header say of one loaded plug-in."""
+    module = ep.value.split(":")[0].strip()
+    path = getattr(sys.modules.get(module), "__file__", None)
+    digest = None
+    if path:
+        try:
+            digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+        except OSError:
+            digest = None
+    return {
+        "entry_point": ep.name,
+        "value": ep.value,
+        "distribution": dist.name if dist is not None else None,
+        "version": dist.version if dist is not None else None,
+        "module": module,
+        "file": path,
+        "sha256": digest,
+    }
+
+
+def plugin_provenance() -> dict[str, Any]:
+    """The plug-ins this process loaded and the built-in types they were allowed to replace."""
+    return {"loaded": [dict(p) for p in LOADED], "overrides": [dict(o) for o in OVERRIDES]}
+
+
+def stage_provenance(cfg: Any) -> dict[str, Any]:
+    """Which registered factory builds each stage of `cfg` (a config with `feature`,
+    `estimator` and `controller` sections; a compare config: one entry per method)."""
+    load_plugins()
+
+    def one(section: Any) -> dict[str, Any]:
+        return {
+            kind: STAGES[kind].provenance(getattr(section, kind).type)
+            for kind in STAGES
+            if getattr(section, kind, None) is not None
+        }
+
+    methods = getattr(cfg, "methods", None)
+    if isinstance(methods, dict):
+        return {name: one(m) for name, m in methods.items()}
+    if getattr(cfg, "feature", None) is None and getattr(cfg, "base", None) is not None:
+        return {"base": one(cfg.base)}  # a sweep of its base's stages
+    return one(cfg)

@@ -26,6 +26,8 @@ from pydantic import BaseModel
 
 from rodctl.config import dump_config
 from rodctl.errors import RunFailed, UserError, describe_os_error
+from rodctl.journal import unlock_run_folder
+from rodctl.registry import plugin_provenance, stage_provenance
 
 #: Every consumer of randomness, in a fixed order. Each gets its own independent stream derived
 #: from the config's one seed; append new names at the end so existing streams stay unchanged.
@@ -87,17 +89,22 @@ def package_versions() -> dict[str, str | None]:
     return out
 
 
-def git_sha() -> str | None:
-    """The source tree's commit (with a ``-dirty`` suffix for uncommitted changes), if any."""
-    here = Path(__file__).resolve().parent
+def git_sha(here: Path | None = None) -> str | None:
+    """The source tree's commit (with a ``-dirty`` suffix for uncommitted changes), if any.
+
+    Read-only: `--no-optional-locks` keeps `git status` from refreshing the index, which
+    would create `.git/index.lock` in the user's checkout and race with their own git commands.
+    """
+    here = here or Path(__file__).resolve().parent
+    git = ["git", "--no-optional-locks"]
     try:
         sha = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5
+            [*git, "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5
         )
         if sha.returncode != 0:
             return None
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
+            [*git, "status", "--porcelain", "--untracked-files=no"],
             cwd=here,
             capture_output=True,
             text=True,
@@ -184,7 +191,7 @@ def write_json_best_effort(path: Path, data: Any, *, reserve: int = 0) -> str | 
 
 
 #: meta.json keys a full disk may have to go without (descriptive, also in the MCAP header).
-_BULKY = ("numeric_env", "versions", "argv")
+_BULKY = ("numeric_env", "versions", "argv", "plugins", "stages")
 
 #: Bytes meta.json keeps on disk so that its final status can be written on a full disk.
 META_RESERVE = 16_384
@@ -250,6 +257,10 @@ class RunDir:
             "seed": cfg.seed,
             "versions": package_versions(),
             "git_sha": git_sha(),
+            # Who built the method: every plug-in loaded, every built-in it was allowed to
+            # replace, and the registered factory of each stage (docs/reliability.md).
+            "plugins": plugin_provenance(),
+            "stages": stage_provenance(cfg),
             "started_at": _now(),
             "ended_at": None,
         }
@@ -287,4 +298,7 @@ class RunDir:
         if status not in STATUSES[1:]:
             raise ValueError(f"terminal status must be one of {STATUSES[1:]}, got {status!r}")
         self.meta.update(status=status, ended_at=_now(), **extra)
-        return write_json_best_effort(self.path / "meta.json", self.meta, reserve=META_RESERVE)
+        try:
+            return write_json_best_effort(self.path / "meta.json", self.meta, reserve=META_RESERVE)
+        finally:
+            unlock_run_folder(self.path)  # the run's journal lock, if it took one

@@ -37,6 +37,7 @@ import yaml
 from rodctl.config.compare import CompareConfig
 from rodctl.config.loading import ConfigError, apply_override, validate_config
 from rodctl.errors import UserError
+from rodctl.journal import lock_run_folder
 from rodctl.runs import RunDir, write_json_atomic
 from rodctl.statistics import PairedDifference, adjust, paired_difference
 
@@ -169,6 +170,7 @@ def run_suite(
         run = _reopen(resume)
     else:
         run = RunDir.create(out, cfg, command="compare (suite)")
+        lock_run_folder(run.path, "compare (suite)")  # held until run.finish
     folders: dict[str, str] = dict(run.meta.get("scenarios", {}))
     before = float(run.meta.get("wall_s", 0.0))  # earlier invocations' share (--resume)
 
@@ -240,6 +242,7 @@ def _reopen(folder: str) -> RunDir:
         raise UserError(
             f"--resume {folder}: not a suite run folder (command {meta.get('command')})"
         )
+    lock_run_folder(path, "compare (suite)")  # held until run.finish; refused if in use
     run = RunDir(path=path, meta=meta)
     run.meta.update(status="running", ended_at=None)
     run.write_meta()

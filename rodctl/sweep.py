@@ -274,6 +274,7 @@ def run_sweep(
             raise RunFailed(failure) from None
         raise
     finally:
+        log.compact()
         extra = {"episodes": {"finished": len(rows), "total": total}}
         why = f"interrupted by {reason}" if reason else failure
         run.finish(status, **({"error": why} if why else {}), **extra)

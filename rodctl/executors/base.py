@@ -103,9 +103,10 @@ def prepare_worker() -> None:
     registered as in the parent, and one torch thread if a plug-in already imported torch.
     torch itself is not imported (1.2 s a worker, and most tasks never use it): the executors
     start workers with `THREAD_ENV` set to 1, which torch reads when a task imports it."""
-    from rodctl.registry import load_plugins
+    from rodctl import registry
 
-    load_plugins()
+    registry._IN_WORKER = True  # the parent has warned of any allowed override
+    registry.load_plugins()
     torch = sys.modules.get("torch")
     if torch is not None:
         torch.set_num_threads(1)

@@ -17,7 +17,9 @@ task; Ray delivers it to a running task as a SIGINT in its worker, which the tas
 from __future__ import annotations
 
 import os
+import shutil
 import signal
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -36,6 +38,7 @@ from rodctl.executors.base import (
     stop_reason,
 )
 from rodctl.executors.local import CANCELLED
+from rodctl.registry import ALLOW_OVERRIDE_ENV, override_allowed
 
 #: Object store of a Ray started for the run: results are small rows, not arrays.
 _OBJECT_STORE_BYTES = 128 * 2**20
@@ -87,6 +90,7 @@ class RayExecutor(Executor):
         self.ray: Any = None
         self._remote: Any = None
         self._owns_ray = False
+        self._temp_dir: str | None = None  # the session folder of a Ray started for the run
         self._pending: dict[Any, tuple[Any, Any]] = {}  # ObjectRef -> (key, attempts)
         self._queue: list[tuple[Callable[[Any], Any], Any, Any]] = []
         self._cancelled = False
@@ -95,6 +99,8 @@ class RayExecutor(Executor):
         ray = _import_ray(local=self.address is None)
         self.ray = ray
         env = {k: "1" for k in THREAD_ENV}
+        if override_allowed():
+            env[ALLOW_OVERRIDE_ENV] = "1"  # a cluster's workers do not have our environment
         if ray.is_initialized():
             pass  # a Ray the caller started (a notebook, a test): use it, leave it running
         else:
@@ -113,7 +119,11 @@ class RayExecutor(Executor):
 
     def _init(self, ray: Any, env: dict[str, str]) -> None:
         if self.address is None:
+            # Ray's session folder (logs, sockets, spilled objects) goes into a temporary
+            # folder of the run's own, removed at shutdown, not into <tmp>/ray/session_*.
+            self._temp_dir = tempfile.mkdtemp(prefix="rodctl-ray-")
             ray.init(
+                _temp_dir=self._temp_dir,
                 num_cpus=self.workers,
                 include_dashboard=False,
                 _node_ip_address="127.0.0.1",
@@ -213,3 +223,6 @@ class RayExecutor(Executor):
             t.start()
             t.join(timeout)
         self._owns_ray = False
+        if self._temp_dir is not None:
+            shutil.rmtree(self._temp_dir, ignore_errors=True)
+            self._temp_dir = None

@@ -14,7 +14,12 @@ consecutive shapes of one walk are near-duplicates and would flatter a random sp
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +38,25 @@ from rodctl.features.autoencoder import (
 from rodctl.features.autoencoder_config import AutoencoderFeatureConfig, EncoderTrainingConfig
 from rodctl.features.collection import CenterlineDataset, collect_dataset
 from rodctl.runs import RunDir, rng, torch_seed, write_json_atomic
+
+
+@contextmanager
+def private_compile_cache() -> Iterator[None]:
+    """torch.optim imports torch._dynamo, which makes its compile cache folder
+    (`torchinductor_<user>`) in the system temp folder at import, although nothing is compiled
+    here: point it into a temporary folder of our own for the duration, and remove that.
+    A `TORCHINDUCTOR_CACHE_DIR` the user set is left alone."""
+    if "TORCHINDUCTOR_CACHE_DIR" in os.environ:
+        yield
+        return
+    folder = tempfile.mkdtemp(prefix="rodctl-torch-")
+    os.environ["TORCHINDUCTOR_CACHE_DIR"] = folder
+    try:
+        yield
+    finally:
+        if os.environ.get("TORCHINDUCTOR_CACHE_DIR") == folder:
+            del os.environ["TORCHINDUCTOR_CACHE_DIR"]
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def pixel_errors(recon: np.ndarray, truth: np.ndarray) -> dict[str, float]:
@@ -96,7 +120,8 @@ def fit_autoencoder(
         torch.manual_seed(torch_seed(seed))  # nn.Linear init draws from the default generator
         net = AutoencoderNet(2 * points, list(feature.hidden), feature.latent_dim)
         x = torch.as_tensor((flat - mean) / scale, dtype=torch.float32)
-        opt = torch.optim.Adam(net.parameters(), lr=tcfg.lr)
+        with private_compile_cache():
+            opt = torch.optim.Adam(net.parameters(), lr=tcfg.lr)
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(
             opt, T_max=tcfg.epochs, eta_min=tcfg.lr_final
         )

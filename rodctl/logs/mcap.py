@@ -350,6 +350,12 @@ class McapSink:
             },
         )
         w.add_metadata("rodctl.config", config_metadata(header.config_yaml))
+        if header.provenance:
+            # Plug-ins loaded and the factory of each stage: a result is traceable to its code.
+            w.add_metadata(
+                "rodctl.provenance",
+                {k: json.dumps(v, sort_keys=True) for k, v in header.provenance.items()},
+            )
         w.add_attachment(
             create_time=0,
             log_time=0,
