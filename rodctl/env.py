@@ -288,6 +288,11 @@ class ShapeServoEnv(gym.Env):
         self.steps += 1
         self.frame = self._look()
         info = self._info(res)
+        take = getattr(self.sim, "take_snap_notes", None)
+        if take is not None:  # the quasi-static engine reports its snap-throughs
+            notes = take()
+            info["snap"] = bool(notes)
+            events = [*events, *notes]
         info["events"] = events
         self._last_info = info
         err = info["pixel_error"]
@@ -323,6 +328,8 @@ class ShapeServoEnv(gym.Env):
             (p, 3) Jacobian in feature units per [m, m, rad].
         """
         n = self.cfg.camera.points
+        if hasattr(self.sim, "centerline_jacobian"):
+            return self._analytic_jacobian(encode, steps)
         snap = self.sim.snapshot()
         cols = []
         for axis, h in enumerate(steps):
@@ -335,6 +342,27 @@ class ShapeServoEnv(gym.Env):
                 values.append(np.asarray(encode(pixels), dtype=float))
                 self.sim.restore(snap)
             cols.append((values[0] - values[1]) / (2.0 * h))
+        return np.stack(cols, axis=1)
+
+    def _analytic_jacobian(self, encode: Any, steps: tuple[float, float, float]) -> np.ndarray:
+        """`true_jacobian` on the quasi-static engine: d(centerline)/dr exactly, by the
+        implicit-function theorem on the equilibrium's KKT system (`rodctl/sim/quasistatic.py`),
+        through the arc-length resampling (a fixed linear map for an inextensible chain) and the
+        camera's projection Jacobian; the feature map by central differences along each
+        column's pixel direction (pixels ± h dpix/dr, h the axis' step): no settles."""
+        from rodctl.sim.quasistatic import resample_matrix
+
+        n = self.cfg.camera.points
+        w = resample_matrix(self.sim.chain.segments, n)
+        points = w @ self.sim.centerline()
+        dpoints = np.einsum("ij,jkq->ikq", w, self.sim.centerline_jacobian())
+        dpix = np.einsum("ikl,ilq->ikq", self.camera.projection_jacobian(points), dpoints)
+        pixels = self.camera.project(points)
+        cols = []
+        for axis, h in enumerate(steps):
+            plus = np.asarray(encode(pixels + h * dpix[:, :, axis]), dtype=float)
+            minus = np.asarray(encode(pixels - h * dpix[:, :, axis]), dtype=float)
+            cols.append((plus - minus) / (2.0 * h))
         return np.stack(cols, axis=1)
 
     def make_target(self, pose: Any = None, *, seed: int | None = None) -> Target:

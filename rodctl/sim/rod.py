@@ -63,6 +63,8 @@ class ApplyResult:
     settle_time: float
     saturated: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
     sim_steps: int = 0
+    #: Snap-throughs on the way (the quasi-static engine reports them; pymunk's always 0).
+    snaps: int = 0
 
 
 @dataclass
@@ -90,6 +92,10 @@ class RodSim:
     driven quasi-statically to the home pose (`move_to`), then settled. Two `RodSim`s built from
     the same config and fed the same commands give bit-identical centerlines.
 
+    `RodSim(cfg)` with `cfg.engine == "quasistatic"` builds a `QuasiStaticSim`
+    (`rodctl/sim/quasistatic.py`): the same policy layer (this class) on the chain's equilibrium
+    solved directly instead of the pymunk dynamics.
+
     Args:
         cfg: the rod config.
 
@@ -97,8 +103,46 @@ class RodSim:
         UserError: the home pose is outside the workspace, or the rod failed to reach it.
     """
 
+    #: The chain class `_rebuild` builds (the quasi-static engine substitutes its own).
+    _chain_type = RodChain
+
+    def __new__(cls, cfg: RodConfig | None = None, *args: object, **kwargs: object) -> RodSim:
+        if cls is RodSim and getattr(cfg, "engine", "pymunk") == "quasistatic":
+            from rodctl.sim.quasistatic import QuasiStaticSim
+
+            cls = QuasiStaticSim
+        return super().__new__(cls)
+
     def __init__(self, cfg: RodConfig) -> None:
         self.cfg = cfg
+        self._build_chain(cfg)
+        self._diverged = False
+        #: Segments between the clamp and the grasp (all N until a grasp slip).
+        self._held = cfg.segments
+
+        if cfg.home_pose is not None:
+            home = np.asarray(cfg.home_pose, dtype=float)
+        else:
+            cx, cy, cth = cfg.clamp_pose
+            hx, hy, hth = DEFAULT_HOME_IN_CLAMP_FRAME
+            c, s = math.cos(cth), math.sin(cth)
+            x, y = hx * cfg.length, hy * cfg.length
+            home = np.array([cx + c * x - s * y, cy + s * x + c * y, cth + hth])
+            if self.clip_pose(home)[1]:
+                raise UserError(
+                    f"rod: the default home pose {list(np.round(home, 4))} is outside "
+                    "rod.workspace for this clamp_pose; set rod.home_pose"
+                )
+        self._home = home
+        result = self.move_to(home)
+        if result.diverged or not result.settled:
+            raise UserError(
+                f"rod: the simulated rod did not settle at the home pose {list(np.round(home, 4))}"
+                f" (diverged={result.diverged}); check rod.dt, rod.iterations, rod.segments"
+            )
+
+    def _build_chain(self, cfg: RodConfig) -> None:
+        """The pymunk chain, its time step and damping (the quasi-static engine overrides it)."""
         n = cfg.segments
         dt = cfg.dt
         if dt is None:
@@ -136,30 +180,6 @@ class RodSim:
             table_friction=cfg.table_friction,
             table_gravity=STANDARD_GRAVITY,
         )
-        self._diverged = False
-        #: Segments between the clamp and the grasp (all N until a grasp slip).
-        self._held = n
-
-        if cfg.home_pose is not None:
-            home = np.asarray(cfg.home_pose, dtype=float)
-        else:
-            cx, cy, cth = cfg.clamp_pose
-            hx, hy, hth = DEFAULT_HOME_IN_CLAMP_FRAME
-            c, s = math.cos(cth), math.sin(cth)
-            x, y = hx * cfg.length, hy * cfg.length
-            home = np.array([cx + c * x - s * y, cy + s * x + c * y, cth + hth])
-            if self.clip_pose(home)[1]:
-                raise UserError(
-                    f"rod: the default home pose {list(np.round(home, 4))} is outside "
-                    "rod.workspace for this clamp_pose; set rod.home_pose"
-                )
-        self._home = home
-        result = self.move_to(home)
-        if result.diverged or not result.settled:
-            raise UserError(
-                f"rod: the simulated rod did not settle at the home pose {list(np.round(home, 4))}"
-                f" (diverged={result.diverged}); check rod.dt, rod.iterations, rod.segments"
-            )
 
     # ------------------------------------------------------------------ state
     @property
@@ -616,7 +636,7 @@ class RodSim:
             )
             states = np.vstack([states, more])
             grip_pose = np.array([*(grip[:2] + extra * seg * u), grip[2]])
-        chain = RodChain(
+        chain = self._chain_type(
             length=held * seg,
             bending_stiffness=old.bending_stiffness,
             mass_per_length=old.mass_per_length,
