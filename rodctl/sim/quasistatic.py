@@ -19,7 +19,7 @@ The chain is the same as the pymunk one, term for term (module docstring of `cha
 Newton on the KKT system of the Lagrangian E + λ·h (N angles + 2 multipliers): the Hessian H of
 the Lagrangian in θ is tridiagonal (springs) plus a diagonal (gravity and the constraint's
 curvature), and the constraint Jacobian A is a 2-row border, so each Newton step is one banded
-solve with three right-hand sides (`scipy.linalg.solve_banded`) and a 2×2 Schur complement
+solve with three right-hand sides (LAPACK's tridiagonal gtsv) and a 2×2 Schur complement
 S = A H⁻¹ Aᵀ: O(N). A full step that does not reduce the residual is halved (backtracking line
 search).
 
@@ -50,8 +50,11 @@ from rodctl.config.rod import RodConfig
 from rodctl.sim.rod import ApplyResult, RodSim
 
 #: LAPACK's tridiagonal solver (Gaussian elimination with partial pivoting): the banded solve of
-#: `scipy.linalg.solve_banded` for one sub- and super-diagonal, without its per-call overhead.
+#: `scipy.linalg.solve_banded` with one sub- and super-diagonal, without its per-call overhead.
 _GTSV = get_lapack_funcs("gtsv", dtype=np.float64)
+#: LAPACK's L D Lᵀ of a symmetric tridiagonal matrix; fails (info > 0) unless it is positive
+#: definite.
+_PTTRF = get_lapack_funcs("pttrf", dtype=np.float64)
 
 #: Newton iterations allowed per solve before the sub-step is halved.
 MAX_NEWTON = 25
@@ -64,7 +67,10 @@ MIN_FRACTION = 1.0 / 512.0
 MAX_FLOW_STEPS = 4000
 #: Residual tolerances: torque residual relative to the chain's torque scale, and the gripper
 #: constraint relative to L.
-TORQUE_TOL = 1e-10
+TORQUE_TOL = 1e-9
+#: A full Newton step smaller than this times sqrt(tolerance) (rad) on every angle ends the
+#: iteration: the residual afterwards is of the order of the step's square.
+CONVERGED_STEP = 0.3
 POSITION_TOL = 1e-12
 
 
@@ -140,6 +146,8 @@ class QuasiStaticChain:
         self.snaps = 0
         self.snap_notes: list[str] = []
         self.newton_iterations = 0
+        #: Convergence tolerance on the torque residual, relative to the chain's torque scale.
+        self.torque_tol = TORQUE_TOL
         # Gravity weights: segment j's angle moves the centres of j (by l/2) and of all after it.
         self._weights = n - np.arange(n) - 0.5
 
@@ -163,62 +171,58 @@ class QuasiStaticChain:
 
     def _grad_hess(
         self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(∇_θ L, H banded (3, N), A (2, N), h (2,), main diagonal of H)."""
-        n, seg = self.segments, self.seg_length
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(∇_θ L, main diagonal of H, A (2, N), h (2,)); H's off-diagonal is the constant −k.
+
+        Few numpy calls on purpose: at N = 50 the algebra is cheaper than the call overhead."""
+        seg = self.seg_length
         k, ke = self._stiffness()
-        c, s = np.cos(theta), np.sin(theta)
-        # Springs: K θ − b.
-        grad = np.empty(n)
-        d = np.diff(theta)
-        grad[:] = 0.0
-        grad[1:] += k * d
-        grad[:-1] -= k * d
-        grad[0] += ke * (theta[0] - clamp[2])
-        diag = np.full(n, 2.0 * k)
+        cs = np.cos(theta), np.sin(theta)
+        c, s = cs
+        kd = np.diff(theta) * k
+        grad = np.zeros(self.segments)
+        grad[1:] = kd
+        grad[:-1] -= kd
+        diag = np.full(self.segments, 2.0 * k)
         diag[0] = k + ke
-        if self.gripped:
-            grad[-1] -= ke * (grip[2] - theta[-1])
-            diag[-1] = k + ke
-        else:
-            diag[-1] = k
+        grad[0] += ke * (theta[0] - clamp[2])
+        a = np.array(cs)[::-1]
+        a *= seg
+        a[0] *= -1.0  # A = l (−sin θ_j, cos θ_j)
+        # Body loads: gravity at the centres (weights N − j − 1/2) and a dead tip load.
         gx, gy = self.gravity
         if gx or gy:
-            w = self.segment_mass * seg * self._weights
-            grad -= w * (-gx * s + gy * c)
+            w = (self.segment_mass * seg) * self._weights
+            grad -= w * (gy * c - gx * s)
             diag += w * (gx * c + gy * s)
         if self.tip_force is not None:
             px, py = self.tip_force
-            grad -= seg * (-px * s + py * c)
+            grad -= seg * (py * c - px * s)
             diag += seg * (px * c + py * s)
-        a = np.empty((2, n))
-        a[0] = -seg * s
-        a[1] = seg * c
         if self.gripped:
-            grad += lam[0] * a[0] + lam[1] * a[1]
+            grad[-1] -= ke * (grip[2] - theta[-1])
+            diag[-1] = diag[-1] - k + ke
+            grad += lam @ a
             diag -= seg * (lam[0] * c + lam[1] * s)
-            h = np.array([seg * c.sum(), seg * s.sum()]) - (grip[:2] - clamp[:2])
+            h = a[::-1].sum(axis=1) * np.array([1.0, -1.0])
+            h[0] -= grip[0] - clamp[0]
+            h[1] -= grip[1] - clamp[1]
         else:
+            diag[-1] -= k
             h = np.zeros(2)
-        ab = np.empty((3, n))
-        ab[0, 0] = 0.0
-        ab[0, 1:] = -k
-        ab[1] = diag
-        ab[2, :-1] = -k
-        ab[2, -1] = 0.0
-        return grad, ab, a, h, diag
+        return grad, diag, a, h
 
     def _kkt_solve(
-        self, ab: np.ndarray, a: np.ndarray, rhs_theta: np.ndarray, rhs_h: np.ndarray
+        self, diag: np.ndarray, a: np.ndarray, rhs_theta: np.ndarray, rhs_h: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """Solve [H Aᵀ; A 0] [x; y] = [rhs_theta; rhs_h] (rhs_theta (N,) or (N, q)) with one
         tridiagonal solve of H against [rhs, Aᵀ] and the 2×2 Schur complement S = A H⁻¹ Aᵀ.
 
         Returns (x, y, S); y and S are None for a free-ended chain (no constraint)."""
         if not self.gripped:
-            return _tridiag_solve(ab, rhs_theta), None, None
+            return self._tridiag(diag, rhs_theta), None, None
         rhs = np.column_stack([rhs_theta.reshape(self.segments, -1), a.T])
-        sol = _tridiag_solve(ab, rhs)
+        sol = self._tridiag(diag, rhs)
         q = sol.shape[1] - 2
         hy, hinv_at = sol[:, :q], sol[:, q:]
         schur = a @ hinv_at
@@ -229,55 +233,57 @@ class QuasiStaticChain:
             return x[:, 0], y[:, 0], schur
         return x, y, schur
 
-    def _residual(self, grad: np.ndarray, h: np.ndarray) -> float:
-        return float(
-            max(
-                np.max(np.abs(grad)) / (TORQUE_TOL * self._torque_scale()),
-                np.max(np.abs(h)) / (POSITION_TOL * self.length),
-            )
-        )
+    def _tridiag(self, diag: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        """H⁻¹ rhs for H = tridiag(−k, diag, −k) (LAPACK gtsv, partial pivoting)."""
+        off = np.full(self.segments - 1, -self._stiffness()[0])
+        _, _, _, x, info = _GTSV(off, diag.copy(), off.copy(), rhs.copy())
+        if info != 0:
+            raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
+        return x
+
+    def _measures(self, grad: np.ndarray, h: np.ndarray) -> tuple[float, float]:
+        """(residual in units of the tolerance (<= 1: converged), merit for the line search)."""
+        scale = self._torque_scale()
+        g = float(np.abs(grad).max()) / (self.torque_tol * scale)
+        hh = float(abs(h[0]) + abs(h[1])) / (POSITION_TOL * self.length)
+        merit = float(grad @ grad) / scale**2 + float(h @ h) / self.seg_length**2
+        return max(g, hh), merit
 
     def _newton(
         self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, bool]:
-        """Newton with backtracking on the KKT residual; (θ, λ, converged)."""
-        grad, ab, a, h, _ = self._grad_hess(theta, lam, grip, clamp)
-        res = self._residual(grad, h)
+    ) -> tuple[np.ndarray, np.ndarray, bool, tuple]:
+        """Newton with backtracking on the KKT residual; (θ, λ, converged, (diag, A) at θ)."""
+        grad, diag, a, h = self._grad_hess(theta, lam, grip, clamp)
+        res, merit = self._measures(grad, h)
         for _ in range(MAX_NEWTON):
             if res <= 1.0:
-                return theta, lam, True
+                return theta, lam, True, (diag, a)
             self.newton_iterations += 1
             try:
-                dth, dlam, _ = self._kkt_solve(ab, a, -grad, -h)
+                dth, dlam, _ = self._kkt_solve(diag, a, -grad, -h)
             except (np.linalg.LinAlgError, ValueError):
-                return theta, lam, False
+                return theta, lam, False, (diag, a)
             if dlam is None:
                 dlam = np.zeros(2)
-            if not np.all(np.isfinite(dth)):
-                return theta, lam, False
-            merit = self._merit(grad, h)
+            if not np.isfinite(dth).all():
+                return theta, lam, False, (diag, a)
+            if float(np.abs(dth).max()) < CONVERGED_STEP * math.sqrt(self.torque_tol):
+                # Quadratic convergence: the residual after this step is O(step²), far below
+                # the tolerance; the Hessian at θ stands for the one at θ + dθ.
+                return theta + dth, lam + dlam, True, (diag, a)
             step = 1.0
             for _ in range(30):
                 th2 = theta + step * dth
                 lam2 = lam + step * dlam
-                grad2, ab2, a2, h2, _ = self._grad_hess(th2, lam2, grip, clamp)
-                if (
-                    self._merit(grad2, h2) < (1.0 - 1e-4 * step) * merit
-                    or step == 1.0
-                    and (self._residual(grad2, h2) <= 1.0)
-                ):
+                grad2, diag2, a2, h2 = self._grad_hess(th2, lam2, grip, clamp)
+                res2, merit2 = self._measures(grad2, h2)
+                if res2 <= 1.0 or merit2 < (1.0 - 1e-4 * step) * merit:
                     break
                 step *= 0.5
             else:
-                return theta, lam, False
-            theta, lam, grad, ab, a, h = th2, lam2, grad2, ab2, a2, h2
-            res = self._residual(grad, h)
-        return theta, lam, res <= 1.0
-
-    def _merit(self, grad: np.ndarray, h: np.ndarray) -> float:
-        return float(
-            np.sum((grad / self._torque_scale()) ** 2) + np.sum((h / self.seg_length) ** 2)
-        )
+                return theta, lam, False, (diag, a)
+            theta, lam, grad, diag, a, h, res, merit = th2, lam2, grad2, diag2, a2, h2, res2, merit2
+        return theta, lam, res <= 1.0, (diag, a)
 
     def stable(
         self,
@@ -285,17 +291,29 @@ class QuasiStaticChain:
         lam: np.ndarray | None = None,
         grip: np.ndarray | None = None,
         clamp: np.ndarray | None = None,
+        hessian: tuple | None = None,
     ) -> bool:
         """Whether the equilibrium (default: the current one) is stable: the Hessian reduced to
-        the tangent space of the end-position constraint is positive definite (inertia count)."""
-        theta = self.theta if theta is None else theta
-        lam = self.lam if lam is None else lam
-        grip = self._grip if grip is None else grip
-        clamp = self._clamp if clamp is None else clamp
-        _, ab, a, _, diag = self._grad_hess(theta, lam, grip, clamp)
-        # Negative pivots of H = L D Lᵀ (the tridiagonal recurrence; Sylvester: as many as
-        # negative eigenvalues). The off-diagonal is the constant −k.
-        off2 = float(ab[0, 1]) ** 2
+        the tangent space of the end-position constraint is positive definite.
+
+        By Sylvester's law of inertia on [H Aᵀ; A 0] = [I 0; A H⁻¹ I] [H 0; 0 −S] [...]ᵀ, that
+        is: (negative eigenvalues of H) + (positive eigenvalues of S = A H⁻¹ Aᵀ) = 2. H positive
+        definite (LAPACK pttrf succeeds) is the common case and settles it at once.
+        `hessian`: (diag, A) already computed at this state."""
+        if hessian is None:
+            theta = self.theta if theta is None else theta
+            lam = self.lam if lam is None else lam
+            grip = self._grip if grip is None else grip
+            clamp = self._clamp if clamp is None else clamp
+            _, diag, a, _ = self._grad_hess(theta, lam, grip, clamp)
+        else:
+            diag, a = hessian
+        k = self._stiffness()[0]
+        *_, info = _PTTRF(diag.copy(), np.full(self.segments - 1, -k))
+        if info == 0:
+            return True
+        # Negative pivots of H = L D Lᵀ (the tridiagonal recurrence counts them).
+        off2 = k * k
         negative = 0
         pivot = 1.0
         for i, di in enumerate(diag.tolist()):
@@ -307,7 +325,7 @@ class QuasiStaticChain:
         if not self.gripped:
             return negative == 0
         try:
-            hinv_at = _tridiag_solve(ab, a.T)
+            hinv_at = self._tridiag(diag, a.T)
         except (np.linalg.LinAlgError, ValueError):
             return False
         eig = np.linalg.eigvalsh(0.5 * (a @ hinv_at + (a @ hinv_at).T))
@@ -379,11 +397,11 @@ class QuasiStaticChain:
                 # (its Jacobian has rank 1), so Newton cannot start there; start from a smooth
                 # curve through both end poses instead.
                 start = self._hermite_guess(g, c)
-            theta, lam, conv = self._newton(start, self.lam.copy(), g, c)
+            theta, lam, conv, hess = self._newton(start, self.lam.copy(), g, c)
             good = (
                 conv
-                and float(np.max(np.abs(theta - self.theta))) <= MAX_BRANCH_STEP
-                and self.stable(theta, lam, g, c)
+                and float(np.abs(theta - self.theta).max()) <= MAX_BRANCH_STEP
+                and self.stable(hessian=hess)
             )
             if good:
                 self.theta, self.lam, self._grip, self._clamp = theta, lam, g, c
@@ -420,17 +438,15 @@ class QuasiStaticChain:
         k, _ = self._stiffness()
         rho = 1e3 * k / self.seg_length**2  # penalty on the end-position constraint in the merit
         tau = 1.0 / k
-        grad, ab, a, h, _ = self._grad_hess(theta, lam, grip, clamp)
+        grad, diag, a, h = self._grad_hess(theta, lam, grip, clamp)
 
         def merit(th: np.ndarray, hh: np.ndarray) -> float:
             return self.energy(th, grip, clamp) + 0.5 * rho * float(hh @ hh)
 
         m0 = merit(theta, h)
         for _ in range(MAX_FLOW_STEPS):
-            shifted = ab.copy()
-            shifted[1] += 1.0 / tau
             try:
-                dth, dlam, _ = self._kkt_solve(shifted, a, -grad, -h)
+                dth, dlam, _ = self._kkt_solve(diag + 1.0 / tau, a, -grad, -h)
             except (np.linalg.LinAlgError, ValueError):
                 tau *= 0.25
                 if tau * k < 1e-12:
@@ -439,14 +455,14 @@ class QuasiStaticChain:
             if dlam is None:
                 dlam = np.zeros(2)
             th2, lam2 = theta + dth, lam + dlam
-            grad2, ab2, a2, h2, _ = self._grad_hess(th2, lam2, grip, clamp)
+            grad2, diag2, a2, h2 = self._grad_hess(th2, lam2, grip, clamp)
             m2 = merit(th2, h2)
             if np.all(np.isfinite(th2)) and m2 <= m0 + 1e-15 * abs(m0):
-                theta, lam, grad, ab, a, h, m0 = th2, lam2, grad2, ab2, a2, h2, m2
+                theta, lam, grad, diag, a, h, m0 = th2, lam2, grad2, diag2, a2, h2, m2
                 tau *= 2.0
-                if self._residual(grad, h) < 1e6 and self.stable(theta, lam, grip, clamp):
-                    th3, lam3, conv = self._newton(theta.copy(), lam.copy(), grip, clamp)
-                    if conv and self.stable(th3, lam3, grip, clamp):
+                if self._measures(grad, h)[0] < 1e6 and self.stable(hessian=(diag, a)):
+                    th3, lam3, conv, hess = self._newton(theta.copy(), lam.copy(), grip, clamp)
+                    if conv and self.stable(hessian=hess):
                         return th3, lam3, True
             else:
                 tau *= 0.25
@@ -480,14 +496,14 @@ class QuasiStaticChain:
         """
         if not self.gripped:
             raise ValueError("a free-ended chain has no gripper pose")
-        _, ab, a, _, _ = self._grad_hess(self.theta, self.lam, self._grip, self._clamp)
+        _, diag, a, _ = self._grad_hess(self.theta, self.lam, self._grip, self._clamp)
         _, ke = self._stiffness()
         rhs_t = np.zeros((self.segments, 3))
         rhs_t[-1, 2] = ke
         rhs_h = np.zeros((2, 3))
         rhs_h[0, 0] = 1.0
         rhs_h[1, 1] = 1.0
-        dth, dlam, _ = self._kkt_solve(ab, a, rhs_t, rhs_h)
+        dth, dlam, _ = self._kkt_solve(diag, a, rhs_t, rhs_h)
         return dth, dlam
 
     def joint_points_jacobian(self) -> np.ndarray:
@@ -686,14 +702,6 @@ class QuasiStaticSim(RodSim):
     def centerline_jacobian(self) -> np.ndarray:
         """(N+1, 2, 3) d(joint points)/d(gripper pose [x, y, θ]) at the current equilibrium."""
         return self.chain.joint_points_jacobian()
-
-
-def _tridiag_solve(ab: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Solve the tridiagonal system in `solve_banded`'s (3, N) layout (LAPACK gtsv)."""
-    _, _, _, x, info = _GTSV(ab[2, :-1].copy(), ab[1].copy(), ab[0, 1:].copy(), rhs.copy())
-    if info != 0:
-        raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
-    return x
 
 
 def resample_matrix(segments: int, n: int) -> np.ndarray:
