@@ -251,7 +251,7 @@ class ShapeServoEnv(gym.Env):
         # A target made earlier (`make_target`) is reused as is: the clean camera that sees it
         # has no noise stream, so it is the same target this episode would make.
         self.target = given or self._make_target(options.get("target_pose"), seed)
-        self.sim = RodSim(rod)
+        self.sim = RodSim.at_home(rod)  # the home state is computed once per rod config
         self.home_pose = self.sim.home_pose
         self.steps = 0
         self.frame = self._look()
@@ -491,7 +491,7 @@ class ShapeServoEnv(gym.Env):
         """Drive a fresh rod to the target gripper pose (given or sampled) and look at it."""
         cfg = self.cfg
         given = pose if pose is not None else cfg.run.target.pose
-        sim = RodSim(self._rod_cfg)
+        sim = RodSim.at_home(self._rod_cfg)
         home = sim.home_pose
         tcfg = cfg.run.target
         if given is not None:
@@ -522,7 +522,7 @@ class ShapeServoEnv(gym.Env):
                 why = frame.note or ("diverged" if res.diverged else "did not settle")
                 if given is not None:
                     raise UserError(f"run.target.pose {list(given)}: unusable target ({why})")
-                sim = RodSim(self._rod_cfg)
+                sim = RodSim.at_home(self._rod_cfg)
                 continue
             return Target(
                 pose=sim.gripper_pose,

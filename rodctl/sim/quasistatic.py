@@ -693,6 +693,20 @@ class QuasiStaticSim(RodSim):
     def set_mass_per_length(self, mass_per_length: float) -> ApplyResult:
         return self._counted(super().set_mass_per_length, mass_per_length)
 
+    def _home_state(self) -> dict:
+        c = self.chain
+        return {
+            "home": self._home.copy(),
+            "state": (c.theta.copy(), c.lam.copy(), c._grip.copy()),
+            "steps": c.steps,
+        }
+
+    def _put_home_state(self, state: dict) -> None:
+        self._home = state["home"].copy()
+        theta, lam, grip = state["state"]
+        self.chain.theta, self.chain.lam, self.chain._grip = theta.copy(), lam.copy(), grip.copy()
+        self.chain.steps = state["steps"]
+
     def take_snap_notes(self) -> list[str]:
         """The snap notes since the last call (the env logs them with the step)."""
         notes = self.chain.snap_notes[self._snap_seen :]

@@ -30,6 +30,9 @@ from rodctl.sim.chain import RodChain, first_mode_rate, stable_dt_limit
 #: the symmetric buckling bifurcation of a straight push.
 DEFAULT_HOME_IN_CLAMP_FRAME = (0.8, 0.2, 0.5)
 
+#: Settled home states by rod configuration (`RodSim.at_home`).
+_HOME_STATES: dict[str, dict] = {}
+
 #: Steps between two speed checks while settling (a batch read costs about one step).
 SETTLE_CHECK_EVERY = 5
 
@@ -113,12 +116,14 @@ class RodSim:
             cls = QuasiStaticSim
         return super().__new__(cls)
 
-    def __init__(self, cfg: RodConfig) -> None:
+    def __init__(self, cfg: RodConfig, *, drive_home: bool = True) -> None:
         self.cfg = cfg
         self._build_chain(cfg)
         self._diverged = False
         #: Segments between the clamp and the grasp (all N until a grasp slip).
         self._held = cfg.segments
+        if not drive_home:  # `at_home` puts a stored home state in
+            return
 
         if cfg.home_pose is not None:
             home = np.asarray(cfg.home_pose, dtype=float)
@@ -140,6 +145,42 @@ class RodSim:
                 f"rod: the simulated rod did not settle at the home pose {list(np.round(home, 4))}"
                 f" (diverged={result.diverged}); check rod.dt, rod.iterations, rod.segments"
             )
+
+    @classmethod
+    def at_home(cls, cfg: RodConfig) -> RodSim:
+        """A rod settled at its home pose, without driving it there again.
+
+        The home state is computed once per rod configuration (per process, by the driven
+        build above) and stored; every call, the first included, builds a fresh chain and puts
+        that state in (`_home_state` / `_put_home_state`), so every episode starts from the
+        same state whichever came first. For pymunk the restored state has the bodies' poses at
+        rest and no solver warm-start impulses (a pymunk space cannot copy them), so its next
+        steps differ from those of the driven build by far less than the settle tolerance.
+        """
+        key = cfg.model_dump_json()
+        state = _HOME_STATES.get(key)
+        if state is None:
+            state = RodSim(cfg)._home_state()
+            if len(_HOME_STATES) >= 64:
+                _HOME_STATES.pop(next(iter(_HOME_STATES)))
+            _HOME_STATES[key] = state
+        sim = RodSim(cfg, drive_home=False)
+        sim._put_home_state(state)
+        return sim
+
+    def _home_state(self) -> dict:
+        """What `at_home` stores: the settled chain's segment poses, the gripper, the clock."""
+        return {
+            "home": self._home.copy(),
+            "states": self.chain.segment_states(),
+            "gripper": self.chain.gripper_pose(),
+            "steps": self.chain.steps,
+        }
+
+    def _put_home_state(self, state: dict) -> None:
+        self._home = state["home"].copy()
+        self.chain.place(state["states"], state["gripper"])
+        self.chain.steps = state["steps"]
 
     def _build_chain(self, cfg: RodConfig) -> None:
         """The pymunk chain, its time step and damping (the quasi-static engine overrides it)."""
