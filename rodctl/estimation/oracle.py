@@ -3,7 +3,9 @@
 Why: a benchmark needs a reference that separates "the Jacobian estimate was wrong" from "the
 law or the task is hard". This estimator is told the true d s / d r at every step, by finite
 differences of the simulator itself (`ShapeServoEnv.true_jacobian`): with the paper's law it
-shows the best any Jacobian-based method can do on a scenario. No robot can run it — it moves
+shows the best any Jacobian-based method can do on a scenario. With `rod.engine: quasistatic`
+the shape part is exact instead (the implicit-function theorem on the equilibrium, one linear
+solve, no settles; docs/engines.md). No robot can run it — it moves
 a copy of the world — so it is labelled as not realisable wherever it appears.
 """
 
