@@ -362,7 +362,7 @@ class ShapeServoEnv(gym.Env):
 
         n = self.cfg.camera.points
         w = resample_matrix(self.sim.chain.segments, n)
-        points = w @ self.sim.centerline()
+        points = np.einsum("ij,jk->ik", w, self.sim.centerline())  # no BLAS: kernel-independent
         dpoints = np.einsum("ij,jkq->ikq", w, self.sim.centerline_jacobian())
         dpix = np.einsum("ikl,ilq->ikq", self.camera.projection_jacobian(points), dpoints)
         pixels = self.camera.project(points)

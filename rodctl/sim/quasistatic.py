@@ -35,6 +35,9 @@ lost stability (a fold: snap-through). The engine then follows the overdamped gr
 I/τ added to H, τ growing as the flow settles — to the next stable equilibrium, counts a snap
 and keeps a note of it (`QuasiStaticChain.snap_notes`); it never jumps branches silently.
 
+No BLAS call in the solve (LAPACK's gtsv and pttrf are plain loops; the few products are
+elementwise), so results do not depend on the BLAS kernel.
+
 Not supported (refused at config validation, `rodctl/config/rod.py`): table friction.
 """
 
@@ -160,6 +163,14 @@ class QuasiStaticChain:
         k = self.bending_stiffness / self.seg_length
         return k, 2.0 * k
 
+    def _offdiag(self) -> np.ndarray:
+        """H's constant off-diagonal −k (N−1,), cached per EI (do not modify: copy)."""
+        cached = self.__dict__.get("_off_cache")
+        if cached is None or cached[0] != self.bending_stiffness:
+            cached = (self.bending_stiffness, np.full(self.segments - 1, -self._stiffness()[0]))
+            self._off_cache = cached
+        return cached[1]
+
     def _torque_scale(self) -> float:
         g = math.hypot(*self.gravity)
         tip = 0.0 if self.tip_force is None else float(np.hypot(*self.tip_force))
@@ -202,7 +213,7 @@ class QuasiStaticChain:
         if self.gripped:
             grad[-1] -= ke * (grip[2] - theta[-1])
             diag[-1] = diag[-1] - k + ke
-            grad += lam @ a
+            grad += lam[0] * a[0] + lam[1] * a[1]
             diag -= seg * (lam[0] * c + lam[1] * s)
             h = a[::-1].sum(axis=1) * np.array([1.0, -1.0])
             h[0] -= grip[0] - clamp[0]
@@ -225,18 +236,23 @@ class QuasiStaticChain:
         sol = self._tridiag(diag, rhs)
         q = sol.shape[1] - 2
         hy, hinv_at = sol[:, :q], sol[:, q:]
-        schur = a @ hinv_at
-        # A x = rhs_h with x = H⁻¹ (rhs − Aᵀ y)  ->  S y = A H⁻¹ rhs − rhs_h.
-        y = np.linalg.solve(schur, a @ hy - rhs_h.reshape(2, -1))
-        x = hy - hinv_at @ y
+        schur = _mat2(a, hinv_at)
+        # A x = rhs_h with x = H⁻¹ (rhs − Aᵀ y)  ->  S y = A H⁻¹ rhs − rhs_h (2×2, explicit).
+        b = _mat2(a, hy) - rhs_h.reshape(2, -1)
+        (s00, s01), (s10, s11) = schur.tolist()
+        det = s00 * s11 - s01 * s10
+        if det == 0.0 or det != det:
+            raise np.linalg.LinAlgError("singular Schur complement")
+        y = np.array([s11 * b[0] - s01 * b[1], s00 * b[1] - s10 * b[0]]) / det
+        x = hy - hinv_at[:, :1] * y[0] - hinv_at[:, 1:] * y[1]
         if rhs_theta.ndim == 1:
             return x[:, 0], y[:, 0], schur
         return x, y, schur
 
     def _tridiag(self, diag: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """H⁻¹ rhs for H = tridiag(−k, diag, −k) (LAPACK gtsv, partial pivoting)."""
-        off = np.full(self.segments - 1, -self._stiffness()[0])
-        _, _, _, x, info = _GTSV(off, diag.copy(), off.copy(), rhs.copy())
+        off = self._offdiag()
+        _, _, _, x, info = _GTSV(off.copy(), diag.copy(), off.copy(), rhs.copy())
         if info != 0:
             raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
         return x
@@ -246,7 +262,10 @@ class QuasiStaticChain:
         scale = self._torque_scale()
         g = float(np.abs(grad).max()) / (self.torque_tol * scale)
         hh = float(abs(h[0]) + abs(h[1])) / (POSITION_TOL * self.length)
-        merit = float(grad @ grad) / scale**2 + float(h @ h) / self.seg_length**2
+        merit = (
+            float(np.sum(grad * grad)) / scale**2
+            + float(h[0] ** 2 + h[1] ** 2) / self.seg_length**2
+        )
         return max(g, hh), merit
 
     def _newton(
@@ -309,7 +328,7 @@ class QuasiStaticChain:
         else:
             diag, a = hessian
         k = self._stiffness()[0]
-        *_, info = _PTTRF(diag.copy(), np.full(self.segments - 1, -k))
+        *_, info = _PTTRF(diag.copy(), self._offdiag().copy())
         if info == 0:
             return True
         # Negative pivots of H = L D Lᵀ (the tridiagonal recurrence counts them).
@@ -328,8 +347,10 @@ class QuasiStaticChain:
             hinv_at = self._tridiag(diag, a.T)
         except (np.linalg.LinAlgError, ValueError):
             return False
-        eig = np.linalg.eigvalsh(0.5 * (a @ hinv_at + (a @ hinv_at).T))
-        return negative + int(np.sum(eig > 0)) == 2
+        (s00, s01), (s10, s11) = _mat2(a, hinv_at).tolist()
+        det = s00 * s11 - 0.25 * (s01 + s10) ** 2
+        positive = 1 if det < 0 else (2 if s00 + s11 > 0 else 0) if det > 0 else -9
+        return negative + positive == 2
 
     def energy(
         self,
@@ -348,9 +369,10 @@ class QuasiStaticChain:
         pts = self._points(theta, clamp)
         if self.gravity != (0.0, 0.0):
             centres = 0.5 * (pts[:-1] + pts[1:])
-            e -= self.segment_mass * float(np.sum(centres @ np.asarray(self.gravity)))
+            gx, gy = self.gravity
+            e -= self.segment_mass * float(np.sum(centres[:, 0] * gx + centres[:, 1] * gy))
         if self.tip_force is not None:
-            e -= float(self.tip_force @ pts[-1])
+            e -= float(self.tip_force[0] * pts[-1, 0] + self.tip_force[1] * pts[-1, 1])
         return e
 
     # ------------------------------------------------------------------ solving
@@ -441,7 +463,7 @@ class QuasiStaticChain:
         grad, diag, a, h = self._grad_hess(theta, lam, grip, clamp)
 
         def merit(th: np.ndarray, hh: np.ndarray) -> float:
-            return self.energy(th, grip, clamp) + 0.5 * rho * float(hh @ hh)
+            return self.energy(th, grip, clamp) + 0.5 * rho * float(hh[0] ** 2 + hh[1] ** 2)
 
         m0 = merit(theta, h)
         for _ in range(MAX_FLOW_STEPS):
@@ -716,6 +738,12 @@ class QuasiStaticSim(RodSim):
     def centerline_jacobian(self) -> np.ndarray:
         """(N+1, 2, 3) d(joint points)/d(gripper pose [x, y, θ]) at the current equilibrium."""
         return self.chain.joint_points_jacobian()
+
+
+def _mat2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(2, N) times (N, q) by elementwise products and numpy sums, not BLAS: the same bits
+    under every BLAS kernel (`replay --verify` compares runs across kernels)."""
+    return np.stack([np.sum(a[0][:, None] * b, axis=0), np.sum(a[1][:, None] * b, axis=0)])
 
 
 def resample_matrix(segments: int, n: int) -> np.ndarray:
