@@ -335,3 +335,14 @@ def test_home_state_is_computed_once_and_restored_identically(engine: str, monke
     # pymunk: the restored chain has no solver warm start, so it settles a little differently
     # from the driven one, within the settle tolerance (measured 0.0066 % of L).
     assert gap(first, driven) < AGREE
+
+
+def test_nan_is_reported_as_diverged_and_the_rod_stops_moving() -> None:
+    sim = RodSim(RodConfig(segments=12, engine="quasistatic"))
+    sim.chain.theta[5] = float("nan")  # a blow-up, injected
+    r = sim.apply(np.array([0.005, 0.0, 0.0]))
+    assert r.diverged and not r.settled
+    assert sim.health().has_nan
+    pose = sim.gripper_pose
+    assert sim.apply(np.array([0.005, 0.0, 0.0])).diverged
+    np.testing.assert_array_equal(sim.gripper_pose, pose)
