@@ -346,3 +346,18 @@ def test_nan_is_reported_as_diverged_and_the_rod_stops_moving() -> None:
     pose = sim.gripper_pose
     assert sim.apply(np.array([0.005, 0.0, 0.0])).diverged
     np.testing.assert_array_equal(sim.gripper_pose, pose)
+
+
+def test_two_quasistatic_runs_are_bit_identical() -> None:
+    cfg = RodConfig(segments=16, engine="quasistatic", gravity=(0.0, -G))
+    commands = np.random.default_rng(7).uniform(-1, 1, (8, 3)) * np.array(cfg.max_step)
+    runs = []
+    for _ in range(2):
+        sim = RodSim(cfg)
+        for u in commands:
+            sim.apply(u)
+        sim.slip_grasp(0.03)
+        runs.append((sim.centerline(), sim.gripper_pose, sim.sim_time))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+    assert runs[0][2] == runs[1][2]
