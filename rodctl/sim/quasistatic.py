@@ -188,18 +188,18 @@ class QuasiStaticChain:
         Few numpy calls on purpose: at N = 50 the algebra is cheaper than the call overhead."""
         seg = self.seg_length
         k, ke = self._stiffness()
-        cs = np.cos(theta), np.sin(theta)
-        c, s = cs
-        kd = np.diff(theta) * k
-        grad = np.zeros(self.segments)
-        grad[1:] = kd
-        grad[:-1] -= kd
-        diag = np.full(self.segments, 2.0 * k)
-        diag[0] = k + ke
-        grad[0] += ke * (theta[0] - clamp[2])
-        a = np.array(cs)[::-1]
-        a *= seg
-        a[0] *= -1.0  # A = l (−sin θ_j, cos θ_j)
+        c = np.cos(theta)
+        s = np.sin(theta)
+        kd = (theta[1:] - theta[:-1]) * k
+        grad = np.empty(self.segments)
+        grad[:-1] = -kd
+        grad[-1] = 0.0
+        grad[1:] += kd
+        grad[0] += ke * (float(theta[0]) - float(clamp[2]))
+        diag = self._diag0().copy()
+        a = np.empty((2, self.segments))
+        np.multiply(s, -seg, out=a[0])  # A = l (−sin θ_j, cos θ_j)
+        np.multiply(c, seg, out=a[1])
         # Body loads: gravity at the centres (weights N − j − 1/2) and a dead tip load.
         gx, gy = self.gravity
         if gx or gy:
@@ -207,21 +207,34 @@ class QuasiStaticChain:
             grad -= w * (gy * c - gx * s)
             diag += w * (gx * c + gy * s)
         if self.tip_force is not None:
-            px, py = self.tip_force
+            px, py = self.tip_force.tolist()
             grad -= seg * (py * c - px * s)
             diag += seg * (px * c + py * s)
-        if self.gripped:
-            grad[-1] -= ke * (grip[2] - theta[-1])
-            diag[-1] = diag[-1] - k + ke
-            grad += lam[0] * a[0] + lam[1] * a[1]
-            diag -= seg * (lam[0] * c + lam[1] * s)
-            h = a[::-1].sum(axis=1) * np.array([1.0, -1.0])
-            h[0] -= grip[0] - clamp[0]
-            h[1] -= grip[1] - clamp[1]
-        else:
-            diag[-1] -= k
-            h = np.zeros(2)
+        if not self.gripped:
+            return grad, diag, a, np.zeros(2)
+        l0, l1 = lam.tolist()
+        grad[-1] -= ke * (float(grip[2]) - float(theta[-1]))
+        grad += l1 * a[1] + l0 * a[0]
+        diag -= (seg * l0) * c + (seg * l1) * s
+        h = np.array(
+            [
+                seg * float(c.sum()) - (float(grip[0]) - float(clamp[0])),
+                seg * float(s.sum()) - (float(grip[1]) - float(clamp[1])),
+            ]
+        )
         return grad, diag, a, h
+
+    def _diag0(self) -> np.ndarray:
+        """The springs' part of H's main diagonal (N,), cached per EI (do not modify: copy)."""
+        cached = self.__dict__.get("_diag_cache")
+        if cached is None or cached[0] != self.bending_stiffness:
+            k, ke = self._stiffness()
+            d = np.full(self.segments, 2.0 * k)
+            d[0] = k + ke
+            d[-1] = k + ke if self.gripped else k
+            cached = (self.bending_stiffness, d)
+            self._diag_cache = cached
+        return cached[1]
 
     def _kkt_solve(
         self, diag: np.ndarray, a: np.ndarray, rhs_theta: np.ndarray, rhs_h: np.ndarray
@@ -232,13 +245,16 @@ class QuasiStaticChain:
         Returns (x, y, S); y and S are None for a free-ended chain (no constraint)."""
         if not self.gripped:
             return self._tridiag(diag, rhs_theta), None, None
-        rhs = np.column_stack([rhs_theta.reshape(self.segments, -1), a.T])
+        q = 1 if rhs_theta.ndim == 1 else rhs_theta.shape[1]
+        rhs = np.empty((self.segments, q + 2), order="F")
+        rhs[:, :q] = rhs_theta.reshape(self.segments, q)
+        rhs[:, q:] = a.T
         sol = self._tridiag(diag, rhs)
-        q = sol.shape[1] - 2
         hy, hinv_at = sol[:, :q], sol[:, q:]
-        schur = _mat2(a, hinv_at)
+        both = _mat2(a, sol)  # [A H⁻¹ rhs | S]
+        schur = both[:, q:]
         # A x = rhs_h with x = H⁻¹ (rhs − Aᵀ y)  ->  S y = A H⁻¹ rhs − rhs_h (2×2, explicit).
-        b = _mat2(a, hy) - rhs_h.reshape(2, -1)
+        b = both[:, :q] - rhs_h.reshape(2, q)
         (s00, s01), (s10, s11) = schur.tolist()
         det = s00 * s11 - s01 * s10
         if det == 0.0 or det != det:
@@ -252,7 +268,8 @@ class QuasiStaticChain:
     def _tridiag(self, diag: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """H⁻¹ rhs for H = tridiag(−k, diag, −k) (LAPACK gtsv, partial pivoting)."""
         off = self._offdiag()
-        _, _, _, x, info = _GTSV(off.copy(), diag.copy(), off.copy(), rhs.copy())
+        # f2py copies every argument it is not told to overwrite: the inputs stay intact.
+        _, _, _, x, info = _GTSV(off, diag, off, rhs)
         if info != 0:
             raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
         return x
@@ -328,7 +345,7 @@ class QuasiStaticChain:
         else:
             diag, a = hessian
         k = self._stiffness()[0]
-        *_, info = _PTTRF(diag.copy(), self._offdiag().copy())
+        *_, info = _PTTRF(diag, self._offdiag())
         if info == 0:
             return True
         # Negative pivots of H = L D Lᵀ (the tridiagonal recurrence counts them).
@@ -743,7 +760,7 @@ class QuasiStaticSim(RodSim):
 def _mat2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(2, N) times (N, q) by elementwise products and numpy sums, not BLAS: the same bits
     under every BLAS kernel (`replay --verify` compares runs across kernels)."""
-    return np.stack([np.sum(a[0][:, None] * b, axis=0), np.sum(a[1][:, None] * b, axis=0)])
+    return (a[:, :, None] * b[None, :, :]).sum(axis=1)
 
 
 def resample_matrix(segments: int, n: int) -> np.ndarray:
