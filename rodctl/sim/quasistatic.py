@@ -145,6 +145,8 @@ class QuasiStaticChain:
             ]
         )
         self.steps = 0
+        #: The chain may be straight (built so, or placed): Newton cannot start from there.
+        self._maybe_straight = True
         self.converged = True
         self.snaps = 0
         self.snap_notes: list[str] = []
@@ -172,13 +174,20 @@ class QuasiStaticChain:
         return cached[1]
 
     def _torque_scale(self) -> float:
-        g = math.hypot(*self.gravity)
-        tip = 0.0 if self.tip_force is None else float(np.hypot(*self.tip_force))
-        return (
-            self.bending_stiffness / self.length
-            + self.mass_per_length * g * self.length**2
-            + tip * self.length
-        )
+        """EI/L + ρA|g|L² + |P|L: the size of the torques, for the residual tolerance."""
+        key = (self.bending_stiffness, self.mass_per_length)
+        cached = self.__dict__.get("_scale_cache")
+        if cached is None or cached[0] != key:
+            g = math.hypot(*self.gravity)
+            tip = 0.0 if self.tip_force is None else float(np.hypot(*self.tip_force))
+            scale = (
+                self.bending_stiffness / self.length
+                + self.mass_per_length * g * self.length**2
+                + tip * self.length
+            )
+            cached = (key, scale)
+            self._scale_cache = cached
+        return cached[1]
 
     def _grad_hess(
         self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
@@ -277,12 +286,10 @@ class QuasiStaticChain:
     def _measures(self, grad: np.ndarray, h: np.ndarray) -> tuple[float, float]:
         """(residual in units of the tolerance (<= 1: converged), merit for the line search)."""
         scale = self._torque_scale()
+        h0, h1 = h.tolist()
         g = float(np.abs(grad).max()) / (self.torque_tol * scale)
-        hh = float(abs(h[0]) + abs(h[1])) / (POSITION_TOL * self.length)
-        merit = (
-            float(np.sum(grad * grad)) / scale**2
-            + float(h[0] ** 2 + h[1] ** 2) / self.seg_length**2
-        )
+        hh = (abs(h0) + abs(h1)) / (POSITION_TOL * self.length)
+        merit = float((grad * grad).sum()) / scale**2 + (h0 * h0 + h1 * h1) / self.seg_length**2
         return max(g, hh), merit
 
     def _newton(
@@ -418,25 +425,26 @@ class QuasiStaticChain:
         self.steps += 1
 
     def _solve_to(self, grip: np.ndarray, clamp: np.ndarray) -> bool:
-        if not (np.all(np.isfinite(self.theta)) and np.all(np.isfinite(self.lam))):
+        if not (np.isfinite(self.theta).all() and np.isfinite(self.lam).all()):
             self._grip, self._clamp = grip, clamp
             return False
-        g0, c0 = self._grip.copy(), self._clamp.copy()
+        g0, c0 = self._grip, self._clamp
         done, frac = 0.0, 1.0
         ok = True
         while done < 1.0:
             f = min(1.0, done + frac)
-            g = g0 + (grip - g0) * f
-            c = c0 + (clamp - c0) * f
             if f == 1.0:
                 g, c = grip, clamp
-            start = self.theta.copy()
-            if self.gripped and float(np.ptp(start)) < 1e-9:
+            else:
+                g = g0 + (grip - g0) * f
+                c = c0 + (clamp - c0) * f
+            start = self.theta  # never modified in place: every update makes a new array
+            if self.gripped and self._maybe_straight and float(np.ptp(start)) < 1e-9:
                 # A straight chain: the end-position constraint is degenerate along the rod
                 # (its Jacobian has rank 1), so Newton cannot start there; start from a smooth
                 # curve through both end poses instead.
                 start = self._hermite_guess(g, c)
-            theta, lam, conv, hess = self._newton(start, self.lam.copy(), g, c)
+            theta, lam, conv, hess = self._newton(start, self.lam, g, c)
             good = (
                 conv
                 and float(np.abs(theta - self.theta).max()) <= MAX_BRANCH_STEP
@@ -444,6 +452,7 @@ class QuasiStaticChain:
             )
             if good:
                 self.theta, self.lam, self._grip, self._clamp = theta, lam, g, c
+                self._maybe_straight = False
                 done = f
                 frac = min(2.0 * frac, 1.0)
                 continue
@@ -613,6 +622,7 @@ class QuasiStaticChain:
             raise ValueError(f"states must be ({self.segments}, 3), got {states.shape}")
         self.theta = states[:, 2].copy()
         self.lam = np.zeros(2)
+        self._maybe_straight = True
         if gripper_pose is not None and self.gripped:
             self._grip = np.asarray(gripper_pose, dtype=float).copy()
 
