@@ -592,9 +592,13 @@ class QuasiStaticChain:
         entry is how far the chain's end is from the gripper (the constraint residual)."""
         gaps = np.zeros(self.segments + (1 if self.gripped else 0))
         if self.gripped:
-            end = self.joint_points()[-1]
-            gaps[-1] = float(np.hypot(*(end - self._grip[:2])))
-        if not np.all(np.isfinite(self.theta)):
+            seg = self.seg_length
+            cx, cy, _ = self._clamp.tolist()
+            gx, gy, _ = self._grip.tolist()
+            ex = cx + seg * float(np.cos(self.theta).sum()) - gx
+            ey = cy + seg * float(np.sin(self.theta).sum()) - gy
+            gaps[-1] = math.hypot(ex, ey)
+        if not np.isfinite(self.theta).all():
             gaps[:] = math.nan
         return gaps
 
