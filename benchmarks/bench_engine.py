@@ -25,25 +25,27 @@ from rodctl.config.rod import RodConfig  # noqa: E402
 from rodctl.sim import RodSim  # noqa: E402
 
 
-def physics(n: int, moves: int) -> tuple[float, float, float]:
-    """ms per `apply` for pymunk and quasistatic on the same random moves, and the largest
-    centerline difference in % of L."""
+def physics(n: int, moves: int) -> tuple[float, float, float, float, float]:
+    """ms per `apply` for pymunk and quasistatic on the same random moves (wall, then CPU time
+    of this process: on a loaded machine the wall time also counts waiting for a core), and
+    the largest centerline difference in % of L."""
     rng = np.random.default_rng(0)
     cfg = RodConfig(segments=n)
     us = rng.uniform(-1, 1, (moves, 3)) * np.asarray(cfg.max_step)
-    out, lines = [], []
+    out, cpu, lines = [], [], []
     for engine in ("pymunk", "quasistatic"):
         sim = RodSim(cfg.model_copy(update={"engine": engine}))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         got = []
         for u in us:
             sim.apply(u)
             got.append(sim.centerline())
         out.append(1e3 * (time.perf_counter() - t0) / moves)
+        cpu.append(1e3 * (time.process_time() - c0) / moves)
         lines.append(np.array(got))
     d = lines[0] - lines[1]
     err = float(np.max(np.hypot(d[..., 0], d[..., 1])))
-    return out[0], out[1], 100 * err / cfg.length
+    return out[0], out[1], cpu[0], cpu[1], 100 * err / cfg.length
 
 
 def episode(engine: str) -> float:
@@ -95,10 +97,11 @@ def main() -> None:
     args = ap.parse_args()
     print("one control step's physics (RodSim.apply, same random moves):")
     for n in (25, 50, 100):
-        p, q, err = physics(n, args.moves)
+        p, q, pc, qc, err = physics(n, args.moves)
         goal = "   (goal >= 50x)" if n == 50 else ""
         print(
-            f"  N = {n:3d}: pymunk {p:7.2f} ms, quasistatic {q:6.3f} ms: {p / q:6.1f}x{goal}"
+            f"  N = {n:3d}: wall pymunk {p:7.2f} ms, quasistatic {q:6.3f} ms: {p / q:6.1f}x;"
+            f"  CPU {pc:7.2f} / {qc:6.3f} ms: {pc / qc:6.1f}x{goal}"
             f"   shapes within {err:.4f} % of L"
         )
     print("one default-config episode, logging off:")
