@@ -168,6 +168,15 @@ class RodConfig(StrictModel):
             "standard gravity, presses it on the table). None: no table. Exclusive with gravity."
         ),
     )
+    engine: Literal["pymunk", "quasistatic"] = Field(
+        "pymunk",
+        description=(
+            "pymunk: the chain's dynamics run until it settles (the paper's set-up). quasistatic: "
+            "the same chain's settled equilibrium solved directly by Newton's method "
+            "(docs/engines.md); dt, iterations, damping, inertia_radius, settle_speed_tol and "
+            "max_settle_time only concern the dynamics and are not used by it."
+        ),
+    )
     segments: int = Field(50, le=1000, ge=2, description="Number of rigid segments in the chain.")
     clamp_pose: Pose = Field((0.0, 0.0, 0.0), description="Pose of the clamped end (world).")
     home_pose: Pose | None = Field(
@@ -243,7 +252,7 @@ class RodConfig(StrictModel):
 
     @model_serializer(mode="wrap")
     def _omit_off_physics(self, handler: Any) -> Any:
-        """Leave `material`, `gravity` and `table_friction` out of a dump while they are off.
+        """Leave `material`, `gravity`, `table_friction`, `engine` out of a dump while off.
 
         Why: the resolved config is logged in every run (MCAP metadata, header, attachment), and
         a weightless rod without a table must keep producing byte-identical logs to the versions
@@ -257,6 +266,8 @@ class RodConfig(StrictModel):
                 data.pop("gravity", None)
             if self.table_friction is None:
                 data.pop("table_friction", None)
+            if self.engine == "pymunk":
+                data.pop("engine", None)
         return data
 
     @model_validator(mode="before")
@@ -291,6 +302,18 @@ class RodConfig(StrictModel):
             raise ValueError(
                 "table_friction (a horizontal rod on a table) and an in-plane gravity (a rod in a "
                 "vertical plane) exclude each other; set one of them"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _engine_supports(self) -> RodConfig:
+        if self.engine == "quasistatic" and self.table_friction is not None:
+            raise ValueError(
+                "table_friction is not supported with engine: quasistatic. On a table the "
+                "settled shape depends on the path the rod slid along (rate-independent "
+                "friction makes each step an incremental minimisation); that is not implemented "
+                "nor validated against the pymunk table, so it is refused rather than ignored. "
+                "Use engine: pymunk for a rod on a table"
             )
         return self
 

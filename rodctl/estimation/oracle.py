@@ -4,8 +4,10 @@ Why: a benchmark needs a reference that separates "the Jacobian estimate was wro
 law or the task is hard". This estimator is told the true d s / d r at every step, by finite
 differences of the simulator itself (`ShapeServoEnv.true_jacobian`): with the paper's law it
 is the paper's law told the true Jacobian. It is not a ceiling: it skips the probing every
-estimating method pays for, and other methods beat it on some targets. No robot can run it (it
-moves a copy of the world), so it is labelled as not realisable wherever it appears.
+estimating method pays for, and other methods beat it on some targets. With `rod.engine:
+quasistatic` the shape part is exact instead (the implicit-function theorem on the equilibrium,
+one linear solve, no settles; docs/engines.md). No robot can run it (it moves a copy of the
+world), so it is labelled as not realisable wherever it appears.
 """
 
 from __future__ import annotations

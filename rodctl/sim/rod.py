@@ -30,6 +30,9 @@ from rodctl.sim.chain import RodChain, first_mode_rate, stable_dt_limit
 #: the symmetric buckling bifurcation of a straight push.
 DEFAULT_HOME_IN_CLAMP_FRAME = (0.8, 0.2, 0.5)
 
+#: Settled home states by rod configuration (`RodSim.at_home`).
+_HOME_STATES: dict[str, dict] = {}
+
 #: Steps between two speed checks while settling (a batch read costs about one step).
 SETTLE_CHECK_EVERY = 5
 
@@ -63,6 +66,8 @@ class ApplyResult:
     settle_time: float
     saturated: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
     sim_steps: int = 0
+    #: Snap-throughs on the way (the quasi-static engine reports them; pymunk's always 0).
+    snaps: int = 0
 
 
 @dataclass
@@ -90,6 +95,10 @@ class RodSim:
     driven quasi-statically to the home pose (`move_to`), then settled. Two `RodSim`s built from
     the same config and fed the same commands give bit-identical centerlines.
 
+    `RodSim(cfg)` with `cfg.engine == "quasistatic"` builds a `QuasiStaticSim`
+    (`rodctl/sim/quasistatic.py`): the same policy layer (this class) on the chain's equilibrium
+    solved directly instead of the pymunk dynamics.
+
     Args:
         cfg: the rod config.
 
@@ -97,8 +106,84 @@ class RodSim:
         UserError: the home pose is outside the workspace, or the rod failed to reach it.
     """
 
-    def __init__(self, cfg: RodConfig) -> None:
+    #: The chain class `_rebuild` builds (the quasi-static engine substitutes its own).
+    _chain_type = RodChain
+
+    def __new__(cls, cfg: RodConfig | None = None, *args: object, **kwargs: object) -> RodSim:
+        if cls is RodSim and getattr(cfg, "engine", "pymunk") == "quasistatic":
+            from rodctl.sim.quasistatic import QuasiStaticSim
+
+            cls = QuasiStaticSim
+        return super().__new__(cls)
+
+    def __init__(self, cfg: RodConfig, *, drive_home: bool = True) -> None:
         self.cfg = cfg
+        self._build_chain(cfg)
+        self._diverged = False
+        #: Segments between the clamp and the grasp (all N until a grasp slip).
+        self._held = cfg.segments
+        if not drive_home:  # `at_home` puts a stored home state in
+            return
+
+        if cfg.home_pose is not None:
+            home = np.asarray(cfg.home_pose, dtype=float)
+        else:
+            cx, cy, cth = cfg.clamp_pose
+            hx, hy, hth = DEFAULT_HOME_IN_CLAMP_FRAME
+            c, s = math.cos(cth), math.sin(cth)
+            x, y = hx * cfg.length, hy * cfg.length
+            home = np.array([cx + c * x - s * y, cy + s * x + c * y, cth + hth])
+            if self.clip_pose(home)[1]:
+                raise UserError(
+                    f"rod: the default home pose {list(np.round(home, 4))} is outside "
+                    "rod.workspace for this clamp_pose; set rod.home_pose"
+                )
+        self._home = home
+        result = self.move_to(home)
+        if result.diverged or not result.settled:
+            raise UserError(
+                f"rod: the simulated rod did not settle at the home pose {list(np.round(home, 4))}"
+                f" (diverged={result.diverged}); check rod.dt, rod.iterations, rod.segments"
+            )
+
+    @classmethod
+    def at_home(cls, cfg: RodConfig) -> RodSim:
+        """A rod settled at its home pose, without driving it there again.
+
+        The home state is computed once per rod configuration (per process, by the driven
+        build above) and stored; every call, the first included, builds a fresh chain and puts
+        that state in (`_home_state` / `_put_home_state`), so every episode starts from the
+        same state whichever came first. For pymunk the restored state has the bodies' poses at
+        rest and no solver warm-start impulses (a pymunk space cannot copy them), so its next
+        steps differ from those of the driven build by far less than the settle tolerance.
+        """
+        key = cfg.model_dump_json()
+        state = _HOME_STATES.get(key)
+        if state is None:
+            state = RodSim(cfg)._home_state()
+            if len(_HOME_STATES) >= 64:
+                _HOME_STATES.pop(next(iter(_HOME_STATES)))
+            _HOME_STATES[key] = state
+        sim = RodSim(cfg, drive_home=False)
+        sim._put_home_state(state)
+        return sim
+
+    def _home_state(self) -> dict:
+        """What `at_home` stores: the settled chain's segment poses, the gripper, the clock."""
+        return {
+            "home": self._home.copy(),
+            "states": self.chain.segment_states(),
+            "gripper": self.chain.gripper_pose(),
+            "steps": self.chain.steps,
+        }
+
+    def _put_home_state(self, state: dict) -> None:
+        self._home = state["home"].copy()
+        self.chain.place(state["states"], state["gripper"])
+        self.chain.steps = state["steps"]
+
+    def _build_chain(self, cfg: RodConfig) -> None:
+        """The pymunk chain, its time step and damping (the quasi-static engine overrides it)."""
         n = cfg.segments
         dt = cfg.dt
         if dt is None:
@@ -136,30 +221,6 @@ class RodSim:
             table_friction=cfg.table_friction,
             table_gravity=STANDARD_GRAVITY,
         )
-        self._diverged = False
-        #: Segments between the clamp and the grasp (all N until a grasp slip).
-        self._held = n
-
-        if cfg.home_pose is not None:
-            home = np.asarray(cfg.home_pose, dtype=float)
-        else:
-            cx, cy, cth = cfg.clamp_pose
-            hx, hy, hth = DEFAULT_HOME_IN_CLAMP_FRAME
-            c, s = math.cos(cth), math.sin(cth)
-            x, y = hx * cfg.length, hy * cfg.length
-            home = np.array([cx + c * x - s * y, cy + s * x + c * y, cth + hth])
-            if self.clip_pose(home)[1]:
-                raise UserError(
-                    f"rod: the default home pose {list(np.round(home, 4))} is outside "
-                    "rod.workspace for this clamp_pose; set rod.home_pose"
-                )
-        self._home = home
-        result = self.move_to(home)
-        if result.diverged or not result.settled:
-            raise UserError(
-                f"rod: the simulated rod did not settle at the home pose {list(np.round(home, 4))}"
-                f" (diverged={result.diverged}); check rod.dt, rod.iterations, rod.segments"
-            )
 
     # ------------------------------------------------------------------ state
     @property
@@ -616,7 +677,7 @@ class RodSim:
             )
             states = np.vstack([states, more])
             grip_pose = np.array([*(grip[:2] + extra * seg * u), grip[2]])
-        chain = RodChain(
+        chain = self._chain_type(
             length=held * seg,
             bending_stiffness=old.bending_stiffness,
             mass_per_length=old.mass_per_length,

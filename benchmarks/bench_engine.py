@@ -1,0 +1,118 @@
+"""The quasi-static engine against pymunk, side by side in one run (issue 24).
+
+Goals: one control step's physics >= 50x faster at N = 50 (N = 25 and 100 shown too); one
+default-config episode with logging off >= 8x faster; `rodctl simulate configs/default.yaml
+--set rod.engine=quasistatic` <= 1.0 s for the whole process.
+
+    python benchmarks/bench_engine.py [--moves 30]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from rodctl.config import load_config  # noqa: E402
+from rodctl.config.rod import RodConfig  # noqa: E402
+from rodctl.sim import RodSim  # noqa: E402
+
+
+def physics(n: int, moves: int) -> tuple[float, float, float, float, float]:
+    """ms per `apply` for pymunk and quasistatic on the same random moves (wall, then CPU time
+    of this process: on a loaded machine the wall time also counts waiting for a core), and
+    the largest centerline difference in % of L."""
+    rng = np.random.default_rng(0)
+    cfg = RodConfig(segments=n)
+    us = rng.uniform(-1, 1, (moves, 3)) * np.asarray(cfg.max_step)
+    out, cpu, lines = [], [], []
+    for engine in ("pymunk", "quasistatic"):
+        sim = RodSim(cfg.model_copy(update={"engine": engine}))
+        t0, c0 = time.perf_counter(), time.process_time()
+        got = []
+        for u in us:
+            sim.apply(u)
+            got.append(sim.centerline())
+        out.append(1e3 * (time.perf_counter() - t0) / moves)
+        cpu.append(1e3 * (time.process_time() - c0) / moves)
+        lines.append(np.array(got))
+    d = lines[0] - lines[1]
+    err = float(np.max(np.hypot(d[..., 0], d[..., 1])))
+    return out[0], out[1], cpu[0], cpu[1], 100 * err / cfg.length
+
+
+def episode(engine: str) -> float:
+    from rodctl.env import ShapeServoEnv
+    from rodctl.episode import run_episode
+    from rodctl.method import Method
+
+    cfg = load_config(
+        "configs/default.yaml",
+        [
+            "logging.mcap=false",
+            "logging.rerun=false",
+            "logging.figures=false",
+            f"rod.engine={engine}",
+        ],
+    )
+    env, method = ShapeServoEnv(cfg), Method.from_config(cfg)
+    t0 = time.perf_counter()
+    summary = run_episode(env, method, sinks=[], run_id="bench").summary
+    wall = time.perf_counter() - t0
+    print(f"  {engine:<12} {wall:7.3f} s  ({summary.steps} steps, {summary.outcome})")
+    return wall
+
+
+def process() -> float:
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "rodctl",
+                "simulate",
+                "configs/default.yaml",
+                "--set",
+                "rod.engine=quasistatic",
+                "--out",
+                tmp,
+            ],
+            check=True,
+            capture_output=True,
+        )
+        return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--moves", type=int, default=30)
+    args = ap.parse_args()
+    print("one control step's physics (RodSim.apply, same random moves):")
+    for n in (25, 50, 100):
+        p, q, pc, qc, err = physics(n, args.moves)
+        goal = "   (goal >= 50x)" if n == 50 else ""
+        print(
+            f"  N = {n:3d}: wall pymunk {p:7.2f} ms, quasistatic {q:6.3f} ms: {p / q:6.1f}x;"
+            f"  CPU {pc:7.2f} / {qc:6.3f} ms: {pc / qc:6.1f}x{goal}"
+            f"   shapes within {err:.4f} % of L"
+        )
+    print("one default-config episode, logging off:")
+    a, b = episode("pymunk"), episode("quasistatic")
+    print(f"  speed-up {a / b:.1f}x   (goal >= 8x)")
+    t = process()
+    print(
+        f"rodctl simulate configs/default.yaml --set rod.engine=quasistatic: {t:.2f} s"
+        "   (goal <= 1.0 s)"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,790 @@
+"""The quasi-static engine: the settled equilibrium of the pymunk chain, solved directly.
+
+Why: the experiment only ever uses *settled* shapes, and the settled shape of the Hencky chain of
+`rodctl/sim/chain.py` is the minimiser of its energy with both end poses given. No dynamics
+(masses' inertia, the fictitious rotary inertia, damping, time step, solver iterations) enters
+it; gravity enters through the real masses ρA·l. Solving that minimisation by Newton's method
+costs a few O(N) linear solves per control step instead of hundreds of physics steps.
+
+The chain is the same as the pymunk one, term for term (module docstring of `chain.py`):
+
+* N segments of length l = L/N, tangent angles θ_0..θ_{N-1}; joint points
+  p_0 = clamp, p_{k+1} = p_k + l t_k with t_k = (cos θ_k, sin θ_k);
+* energy  E(θ) = k_e/2 (θ_0 − θ_c)² + Σ_{i=1}^{N-1} k/2 (θ_i − θ_{i-1})² + k_e/2 (θ_g − θ_{N-1})²
+  − Σ_i m g·c_i,  with k = EI/l, k_e = 2EI/l (the clamp's and gripper's half cells),
+  m = ρA·l and c_i = p_i + (l/2) t_i the segment centres (gravity lumped at the centres, as
+  pymunk applies it);
+* constraint  h(θ) = l Σ_i t_i − (g − p_0) = 0: the chain's far end is at the gripper.
+
+Newton on the KKT system of the Lagrangian E + λ·h (N angles + 2 multipliers): the Hessian H of
+the Lagrangian in θ is tridiagonal (springs) plus a diagonal (gravity and the constraint's
+curvature), and the constraint Jacobian A is a 2-row border, so each Newton step is one banded
+solve with three right-hand sides (LAPACK's tridiagonal gtsv) and a 2×2 Schur complement
+S = A H⁻¹ Aᵀ: O(N). A full step that does not reduce the residual is halved (backtracking line
+search).
+
+Stability: at every converged equilibrium the Hessian reduced to the constraints' tangent space
+must be positive definite. By Sylvester's law of inertia on the block factorisation of the KKT
+matrix, that holds exactly when (negative pivots of H) + (positive eigenvalues of S) = 2; the
+pivots of the tridiagonal H come from its LDLᵀ recurrence. The path is followed by continuation:
+the end poses move along their straight line in sub-steps that are halved when Newton fails,
+lands on an unstable equilibrium or moves the shape by more than `MAX_BRANCH_STEP` (a would-be
+branch jump). When the sub-step is below `MIN_FRACTION` of the move and still fails, the path has
+lost stability (a fold: snap-through). The engine then follows the overdamped gradient flow
+θ' = −∇E (projected on the constraints) by backward-Euler steps — a Newton step with the shift
+I/τ added to H, τ growing as the flow settles — to the next stable equilibrium, counts a snap
+and keeps a note of it (`QuasiStaticChain.snap_notes`); it never jumps branches silently.
+
+No BLAS call in the solve (LAPACK's gtsv and pttrf are plain loops; the few products are
+elementwise), so results do not depend on the BLAS kernel.
+
+Not supported (refused at config validation, `rodctl/config/rod.py`): table friction.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.linalg import get_lapack_funcs
+
+from rodctl.config.rod import RodConfig
+from rodctl.sim.rod import ApplyResult, RodSim
+
+#: LAPACK's tridiagonal solver (Gaussian elimination with partial pivoting): the banded solve of
+#: `scipy.linalg.solve_banded` with one sub- and super-diagonal, without its per-call overhead.
+_GTSV = get_lapack_funcs("gtsv", dtype=np.float64)
+#: LAPACK's L D Lᵀ of a symmetric tridiagonal matrix; fails (info > 0) unless it is positive
+#: definite.
+_PTTRF = get_lapack_funcs("pttrf", dtype=np.float64)
+
+#: Newton iterations allowed per solve before the sub-step is halved.
+MAX_NEWTON = 25
+#: Largest change of any segment angle (rad) in one continuation sub-step: more is treated as a
+#: possible branch jump and the sub-step is halved.
+MAX_BRANCH_STEP = 0.35
+#: Smallest continuation sub-step, as a fraction of the move; below it the path has a fold.
+MIN_FRACTION = 1.0 / 512.0
+#: Backward-Euler gradient-flow steps allowed for one snap.
+MAX_FLOW_STEPS = 4000
+#: Residual tolerances: torque residual relative to the chain's torque scale, and the gripper
+#: constraint relative to L.
+TORQUE_TOL = 1e-9
+#: A full Newton step smaller than this times sqrt(tolerance) (rad) on every angle ends the
+#: iteration: the residual afterwards is of the order of the step's square.
+CONVERGED_STEP = 0.3
+POSITION_TOL = 1e-12
+
+
+class QuasiStaticChain:
+    """The chain of `RodChain` at static equilibrium: same constructor, same readouts.
+
+    The constructor takes `RodChain`'s arguments so that `RodSim` can rebuild either engine's
+    chain the same way (a grasp slip, a movable clamp); the dynamics-only ones (`dt`,
+    `iterations`, `damping_rate`, `inertia_radius`, `segment_inertia`) do not enter a settled
+    shape and are kept only for the record. `step(target, clamp_target)` moves the end poses to
+    the given ones and solves the new equilibrium by continuation (one call = one settled move).
+
+    Args:
+        length, bending_stiffness, mass_per_length, segments, clamp_pose, gripped, tip_force,
+        gravity, movable_clamp: as for `RodChain`.
+        table_friction: must be None (not supported: see the module docstring).
+    """
+
+    def __init__(
+        self,
+        length: float,
+        bending_stiffness: float,
+        mass_per_length: float,
+        segments: int,
+        clamp_pose: Sequence[float],
+        dt: float = 0.0,
+        iterations: int = 0,
+        damping_rate: float = 0.0,
+        inertia_radius: float = 0.0,
+        gripped: bool = True,
+        tip_force: Sequence[float] | None = None,
+        gravity: Sequence[float] = (0.0, 0.0),
+        table_friction: float | None = None,
+        table_gravity: float = 9.81,
+        movable_clamp: bool = False,
+        segment_inertia: float | None = None,
+    ) -> None:
+        if tip_force is not None and gripped:
+            raise ValueError("a tip force needs a free end (gripped=False)")
+        if table_friction is not None:
+            raise ValueError("the quasi-static engine has no table friction")
+        if int(segments) < 2:
+            raise ValueError("the quasi-static chain needs at least 2 segments")
+        self.length = float(length)
+        self.segments = int(segments)
+        self.seg_length = self.length / self.segments
+        self.dt = float(dt)
+        self.bending_stiffness = float(bending_stiffness)
+        self.mass_per_length = float(mass_per_length)
+        self.gravity = (float(gravity[0]), float(gravity[1]))
+        self.table_friction = None
+        self.table_gravity = float(table_gravity)
+        self.segment_inertia = segment_inertia
+        self.tip_force = None if tip_force is None else np.asarray(tip_force, dtype=float)
+        self.gripped = bool(gripped)
+        self.clamp_pose = np.asarray(clamp_pose, dtype=float).copy()
+        self._clamp = self.clamp_pose.copy()
+        #: Not None when the clamp may move (the `RodChain` attribute RodSim tests).
+        self.clamp_body: object | None = True if movable_clamp else None
+        self.gripper: object | None = True if gripped else None
+        n, seg = self.segments, self.seg_length
+        self.theta = np.full(n, self._clamp[2])
+        self.lam = np.zeros(2)
+        self._grip = np.array(
+            [
+                self._clamp[0] + n * seg * math.cos(self._clamp[2]),
+                self._clamp[1] + n * seg * math.sin(self._clamp[2]),
+                self._clamp[2],
+            ]
+        )
+        self.steps = 0
+        #: The chain may be straight (built so, or placed): Newton cannot start from there.
+        self._maybe_straight = True
+        self.converged = True
+        self.snaps = 0
+        self.snap_notes: list[str] = []
+        self.newton_iterations = 0
+        #: Convergence tolerance on the torque residual, relative to the chain's torque scale.
+        self.torque_tol = TORQUE_TOL
+        # Gravity weights: segment j's angle moves the centres of j (by l/2) and of all after it.
+        self._weights = n - np.arange(n) - 0.5
+
+    # ------------------------------------------------------------------ the model
+    @property
+    def segment_mass(self) -> float:
+        return self.mass_per_length * self.seg_length
+
+    def _stiffness(self) -> tuple[float, float]:
+        k = self.bending_stiffness / self.seg_length
+        return k, 2.0 * k
+
+    def _offdiag(self) -> np.ndarray:
+        """H's constant off-diagonal −k (N−1,), cached per EI (do not modify: copy)."""
+        cached = self.__dict__.get("_off_cache")
+        if cached is None or cached[0] != self.bending_stiffness:
+            cached = (self.bending_stiffness, np.full(self.segments - 1, -self._stiffness()[0]))
+            self._off_cache = cached
+        return cached[1]
+
+    def _torque_scale(self) -> float:
+        """EI/L + ρA|g|L² + |P|L: the size of the torques, for the residual tolerance."""
+        key = (self.bending_stiffness, self.mass_per_length)
+        cached = self.__dict__.get("_scale_cache")
+        if cached is None or cached[0] != key:
+            g = math.hypot(*self.gravity)
+            tip = 0.0 if self.tip_force is None else float(np.hypot(*self.tip_force))
+            scale = (
+                self.bending_stiffness / self.length
+                + self.mass_per_length * g * self.length**2
+                + tip * self.length
+            )
+            cached = (key, scale)
+            self._scale_cache = cached
+        return cached[1]
+
+    def _grad_hess(
+        self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(∇_θ L, main diagonal of H, A (2, N), h (2,)); H's off-diagonal is the constant −k.
+
+        Few numpy calls on purpose: at N = 50 the algebra is cheaper than the call overhead."""
+        seg = self.seg_length
+        k, ke = self._stiffness()
+        c = np.cos(theta)
+        s = np.sin(theta)
+        kd = (theta[1:] - theta[:-1]) * k
+        grad = np.empty(self.segments)
+        grad[:-1] = -kd
+        grad[-1] = 0.0
+        grad[1:] += kd
+        grad[0] += ke * (float(theta[0]) - float(clamp[2]))
+        diag = self._diag0().copy()
+        a = np.empty((2, self.segments))
+        np.multiply(s, -seg, out=a[0])  # A = l (−sin θ_j, cos θ_j)
+        np.multiply(c, seg, out=a[1])
+        # Body loads: gravity at the centres (weights N − j − 1/2) and a dead tip load.
+        gx, gy = self.gravity
+        if gx or gy:
+            w = (self.segment_mass * seg) * self._weights
+            grad -= w * (gy * c - gx * s)
+            diag += w * (gx * c + gy * s)
+        if self.tip_force is not None:
+            px, py = self.tip_force.tolist()
+            grad -= seg * (py * c - px * s)
+            diag += seg * (px * c + py * s)
+        if not self.gripped:
+            return grad, diag, a, np.zeros(2)
+        l0, l1 = lam.tolist()
+        grad[-1] -= ke * (float(grip[2]) - float(theta[-1]))
+        grad += l1 * a[1] + l0 * a[0]
+        diag -= (seg * l0) * c + (seg * l1) * s
+        h = np.array(
+            [
+                seg * float(c.sum()) - (float(grip[0]) - float(clamp[0])),
+                seg * float(s.sum()) - (float(grip[1]) - float(clamp[1])),
+            ]
+        )
+        return grad, diag, a, h
+
+    def _diag0(self) -> np.ndarray:
+        """The springs' part of H's main diagonal (N,), cached per EI (do not modify: copy)."""
+        cached = self.__dict__.get("_diag_cache")
+        if cached is None or cached[0] != self.bending_stiffness:
+            k, ke = self._stiffness()
+            d = np.full(self.segments, 2.0 * k)
+            d[0] = k + ke
+            d[-1] = k + ke if self.gripped else k
+            cached = (self.bending_stiffness, d)
+            self._diag_cache = cached
+        return cached[1]
+
+    def _kkt_solve(
+        self, diag: np.ndarray, a: np.ndarray, rhs_theta: np.ndarray, rhs_h: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Solve [H Aᵀ; A 0] [x; y] = [rhs_theta; rhs_h] (rhs_theta (N,) or (N, q)) with one
+        tridiagonal solve of H against [rhs, Aᵀ] and the 2×2 Schur complement S = A H⁻¹ Aᵀ.
+
+        Returns (x, y, S); y and S are None for a free-ended chain (no constraint)."""
+        if not self.gripped:
+            return self._tridiag(diag, rhs_theta), None, None
+        q = 1 if rhs_theta.ndim == 1 else rhs_theta.shape[1]
+        rhs = np.empty((self.segments, q + 2), order="F")
+        rhs[:, :q] = rhs_theta.reshape(self.segments, q)
+        rhs[:, q:] = a.T
+        sol = self._tridiag(diag, rhs)
+        hy, hinv_at = sol[:, :q], sol[:, q:]
+        both = _mat2(a, sol)  # [A H⁻¹ rhs | S]
+        schur = both[:, q:]
+        # A x = rhs_h with x = H⁻¹ (rhs − Aᵀ y)  ->  S y = A H⁻¹ rhs − rhs_h (2×2, explicit).
+        b = both[:, :q] - rhs_h.reshape(2, q)
+        (s00, s01), (s10, s11) = schur.tolist()
+        det = s00 * s11 - s01 * s10
+        if det == 0.0 or det != det:
+            raise np.linalg.LinAlgError("singular Schur complement")
+        y = np.array([s11 * b[0] - s01 * b[1], s00 * b[1] - s10 * b[0]]) / det
+        x = hy - hinv_at[:, :1] * y[0] - hinv_at[:, 1:] * y[1]
+        if rhs_theta.ndim == 1:
+            return x[:, 0], y[:, 0], schur
+        return x, y, schur
+
+    def _tridiag(self, diag: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        """H⁻¹ rhs for H = tridiag(−k, diag, −k) (LAPACK gtsv, partial pivoting)."""
+        off = self._offdiag()
+        # f2py copies every argument it is not told to overwrite: the inputs stay intact.
+        _, _, _, x, info = _GTSV(off, diag, off, rhs)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
+        return x
+
+    def _measures(self, grad: np.ndarray, h: np.ndarray) -> tuple[float, float]:
+        """(residual in units of the tolerance (<= 1: converged), merit for the line search)."""
+        scale = self._torque_scale()
+        h0, h1 = h.tolist()
+        g = float(np.abs(grad).max()) / (self.torque_tol * scale)
+        hh = (abs(h0) + abs(h1)) / (POSITION_TOL * self.length)
+        merit = float((grad * grad).sum()) / scale**2 + (h0 * h0 + h1 * h1) / self.seg_length**2
+        return max(g, hh), merit
+
+    def _newton(
+        self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, bool, tuple]:
+        """Newton with backtracking on the KKT residual; (θ, λ, converged, (diag, A) at θ)."""
+        grad, diag, a, h = self._grad_hess(theta, lam, grip, clamp)
+        res, merit = self._measures(grad, h)
+        for _ in range(MAX_NEWTON):
+            if res <= 1.0:
+                return theta, lam, True, (diag, a)
+            self.newton_iterations += 1
+            try:
+                dth, dlam, _ = self._kkt_solve(diag, a, -grad, -h)
+            except (np.linalg.LinAlgError, ValueError):
+                return theta, lam, False, (diag, a)
+            if dlam is None:
+                dlam = np.zeros(2)
+            if not np.isfinite(dth).all():
+                return theta, lam, False, (diag, a)
+            if float(np.abs(dth).max()) < CONVERGED_STEP * math.sqrt(self.torque_tol):
+                # Quadratic convergence: the residual after this step is O(step²), far below
+                # the tolerance; the Hessian at θ stands for the one at θ + dθ.
+                return theta + dth, lam + dlam, True, (diag, a)
+            step = 1.0
+            for _ in range(30):
+                th2 = theta + step * dth
+                lam2 = lam + step * dlam
+                grad2, diag2, a2, h2 = self._grad_hess(th2, lam2, grip, clamp)
+                res2, merit2 = self._measures(grad2, h2)
+                if res2 <= 1.0 or merit2 < (1.0 - 1e-4 * step) * merit:
+                    break
+                step *= 0.5
+            else:
+                return theta, lam, False, (diag, a)
+            theta, lam, grad, diag, a, h, res, merit = th2, lam2, grad2, diag2, a2, h2, res2, merit2
+        return theta, lam, res <= 1.0, (diag, a)
+
+    def stable(
+        self,
+        theta: np.ndarray | None = None,
+        lam: np.ndarray | None = None,
+        grip: np.ndarray | None = None,
+        clamp: np.ndarray | None = None,
+        hessian: tuple | None = None,
+    ) -> bool:
+        """Whether the equilibrium (default: the current one) is stable: the Hessian reduced to
+        the tangent space of the end-position constraint is positive definite.
+
+        By Sylvester's law of inertia on [H Aᵀ; A 0] = [I 0; A H⁻¹ I] [H 0; 0 −S] [...]ᵀ, that
+        is: (negative eigenvalues of H) + (positive eigenvalues of S = A H⁻¹ Aᵀ) = 2. H positive
+        definite (LAPACK pttrf succeeds) is the common case and settles it at once.
+        `hessian`: (diag, A) already computed at this state."""
+        if hessian is None:
+            theta = self.theta if theta is None else theta
+            lam = self.lam if lam is None else lam
+            grip = self._grip if grip is None else grip
+            clamp = self._clamp if clamp is None else clamp
+            _, diag, a, _ = self._grad_hess(theta, lam, grip, clamp)
+        else:
+            diag, a = hessian
+        k = self._stiffness()[0]
+        *_, info = _PTTRF(diag, self._offdiag())
+        if info == 0:
+            return True
+        # Negative pivots of H = L D Lᵀ (the tridiagonal recurrence counts them).
+        off2 = k * k
+        negative = 0
+        pivot = 1.0
+        for i, di in enumerate(diag.tolist()):
+            pivot = di - (off2 / pivot if i else 0.0)
+            if pivot == 0.0 or pivot != pivot:
+                return False
+            if pivot < 0.0:
+                negative += 1
+        if not self.gripped:
+            return negative == 0
+        try:
+            hinv_at = self._tridiag(diag, a.T)
+        except (np.linalg.LinAlgError, ValueError):
+            return False
+        (s00, s01), (s10, s11) = _mat2(a, hinv_at).tolist()
+        det = s00 * s11 - 0.25 * (s01 + s10) ** 2
+        positive = 1 if det < 0 else (2 if s00 + s11 > 0 else 0) if det > 0 else -9
+        return negative + positive == 2
+
+    def energy(
+        self,
+        theta: np.ndarray | None = None,
+        grip: np.ndarray | None = None,
+        clamp: np.ndarray | None = None,
+    ) -> float:
+        """Potential energy (J) of the chain: springs, gravity, dead tip load."""
+        theta = self.theta if theta is None else theta
+        grip = self._grip if grip is None else grip
+        clamp = self._clamp if clamp is None else clamp
+        k, ke = self._stiffness()
+        e = 0.5 * ke * (theta[0] - clamp[2]) ** 2 + 0.5 * k * float(np.sum(np.diff(theta) ** 2))
+        if self.gripped:
+            e += 0.5 * ke * (grip[2] - theta[-1]) ** 2
+        pts = self._points(theta, clamp)
+        if self.gravity != (0.0, 0.0):
+            centres = 0.5 * (pts[:-1] + pts[1:])
+            gx, gy = self.gravity
+            e -= self.segment_mass * float(np.sum(centres[:, 0] * gx + centres[:, 1] * gy))
+        if self.tip_force is not None:
+            e -= float(self.tip_force[0] * pts[-1, 0] + self.tip_force[1] * pts[-1, 1])
+        return e
+
+    # ------------------------------------------------------------------ solving
+    def equilibrate(self) -> bool:
+        """Solve the equilibrium at the current end poses from the current shape (free end:
+        the cantilever). Returns whether it converged to a stable equilibrium; a Newton failure
+        or an unstable result goes through the gradient flow (a snap, noted)."""
+        return self._solve_to(self._grip.copy(), self._clamp.copy())
+
+    def step(
+        self, target: np.ndarray | None = None, clamp_target: np.ndarray | None = None
+    ) -> None:
+        """Move the gripper to `target` and the clamp to `clamp_target` (None: stay), along
+        their straight line, following the equilibrium path; one call = one settled move."""
+        if clamp_target is not None and self.clamp_body is None:
+            raise ValueError("this chain's clamp is fixed (built with movable_clamp=False)")
+        grip = self._grip.copy() if target is None else np.asarray(target, dtype=float).copy()
+        if not self.gripped:
+            grip = self._grip.copy()
+        clamp = (
+            self._clamp.copy()
+            if clamp_target is None
+            else np.asarray(clamp_target, dtype=float).copy()
+        )
+        self.converged = self._solve_to(grip, clamp)
+        self.steps += 1
+
+    def _solve_to(self, grip: np.ndarray, clamp: np.ndarray) -> bool:
+        if not (np.isfinite(self.theta).all() and np.isfinite(self.lam).all()):
+            self._grip, self._clamp = grip, clamp
+            return False
+        g0, c0 = self._grip, self._clamp
+        done, frac = 0.0, 1.0
+        ok = True
+        while done < 1.0:
+            f = min(1.0, done + frac)
+            if f == 1.0:
+                g, c = grip, clamp
+            else:
+                g = g0 + (grip - g0) * f
+                c = c0 + (clamp - c0) * f
+            start = self.theta  # never modified in place: every update makes a new array
+            if self.gripped and self._maybe_straight and float(np.ptp(start)) < 1e-9:
+                # A straight chain: the end-position constraint is degenerate along the rod
+                # (its Jacobian has rank 1), so Newton cannot start there; start from a smooth
+                # curve through both end poses instead.
+                start = self._hermite_guess(g, c)
+            theta, lam, conv, hess = self._newton(start, self.lam, g, c)
+            good = (
+                conv
+                and float(np.abs(theta - self.theta).max()) <= MAX_BRANCH_STEP
+                and self.stable(hessian=hess)
+            )
+            if good:
+                self.theta, self.lam, self._grip, self._clamp = theta, lam, g, c
+                self._maybe_straight = False
+                done = f
+                frac = min(2.0 * frac, 1.0)
+                continue
+            if frac > MIN_FRACTION:
+                frac *= 0.5
+                continue
+            # The path has lost stability here: follow the gradient flow to a stable state.
+            theta, lam, conv = self._flow(self.theta.copy(), self.lam.copy(), g, c)
+            jump = float(np.max(np.abs(theta - self.theta)))
+            self.snaps += 1
+            self.snap_notes.append(
+                f"snap-through: the equilibrium path lost stability at gripper "
+                f"{[round(float(v), 5) for v in g]}, clamp {[round(float(v), 5) for v in c]}; "
+                f"followed the gradient flow to the next stable equilibrium (largest segment "
+                f"turn {jump:.3f} rad{'' if conv else ', NOT converged'})"
+            )
+            self.theta, self.lam, self._grip, self._clamp = theta, lam, g, c
+            done = f
+            ok = ok and conv
+            if not conv:
+                break
+        self._grip, self._clamp = grip, clamp
+        return ok
+
+    def _flow(
+        self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Overdamped gradient flow θ' = −P ∇E on the constraint manifold, by backward-Euler
+        steps (each a KKT solve with H + I/τ), τ doubling after a step that lowers the penalised
+        energy and quartered after one that does not; ends with Newton once the state is stable."""
+        k, _ = self._stiffness()
+        rho = 1e3 * k / self.seg_length**2  # penalty on the end-position constraint in the merit
+        tau = 1.0 / k
+        grad, diag, a, h = self._grad_hess(theta, lam, grip, clamp)
+
+        def merit(th: np.ndarray, hh: np.ndarray) -> float:
+            return self.energy(th, grip, clamp) + 0.5 * rho * float(hh[0] ** 2 + hh[1] ** 2)
+
+        m0 = merit(theta, h)
+        for _ in range(MAX_FLOW_STEPS):
+            try:
+                dth, dlam, _ = self._kkt_solve(diag + 1.0 / tau, a, -grad, -h)
+            except (np.linalg.LinAlgError, ValueError):
+                tau *= 0.25
+                if tau * k < 1e-12:
+                    break
+                continue
+            if dlam is None:
+                dlam = np.zeros(2)
+            th2, lam2 = theta + dth, lam + dlam
+            grad2, diag2, a2, h2 = self._grad_hess(th2, lam2, grip, clamp)
+            m2 = merit(th2, h2)
+            if np.all(np.isfinite(th2)) and m2 <= m0 + 1e-15 * abs(m0):
+                theta, lam, grad, diag, a, h, m0 = th2, lam2, grad2, diag2, a2, h2, m2
+                tau *= 2.0
+                if self._measures(grad, h)[0] < 1e6 and self.stable(hessian=(diag, a)):
+                    th3, lam3, conv, hess = self._newton(theta.copy(), lam.copy(), grip, clamp)
+                    if conv and self.stable(hessian=hess):
+                        return th3, lam3, True
+            else:
+                tau *= 0.25
+                if tau * k < 1e-12:
+                    break
+        return theta, lam, False
+
+    def _hermite_guess(self, grip: np.ndarray, clamp: np.ndarray) -> np.ndarray:
+        """Segment angles along the cubic Hermite curve between the two end poses."""
+        t = (np.arange(self.segments) + 0.5) / self.segments
+        m0 = self.length * np.array([math.cos(clamp[2]), math.sin(clamp[2])])
+        m1 = self.length * np.array([math.cos(grip[2]), math.sin(grip[2])])
+        d = grip[:2] - clamp[:2]
+        # P'(t) of the Hermite cubic.
+        dp = (
+            np.outer(6 * t * t - 6 * t, -d)
+            + np.outer(3 * t * t - 4 * t + 1, m0)
+            + np.outer(3 * t * t - 2 * t, m1)
+        )
+        ang = np.unwrap(np.arctan2(dp[:, 1], dp[:, 0]))
+        return ang + 2 * math.pi * round((clamp[2] - ang[0]) / (2 * math.pi))
+
+    # ------------------------------------------------------------------ the true Jacobian
+    def pose_jacobian(self) -> tuple[np.ndarray, np.ndarray]:
+        """(dθ/dg (N, 3), dλ/dg (2, 3)) of the current equilibrium with respect to the gripper
+        pose g = [x, y, θ_g], by the implicit-function theorem on the KKT system: one more
+        banded solve with three right-hand sides.
+
+        F(θ, λ; g) = 0 with F = (∇_θ E + Aᵀλ, h): ∂F/∂g has −k_e in row N−1 for θ_g (the gripper
+        spring) and −I in the h rows for (x, y), so [H Aᵀ; A 0] [dθ; dλ] = −∂F/∂g.
+        """
+        if not self.gripped:
+            raise ValueError("a free-ended chain has no gripper pose")
+        _, diag, a, _ = self._grad_hess(self.theta, self.lam, self._grip, self._clamp)
+        _, ke = self._stiffness()
+        rhs_t = np.zeros((self.segments, 3))
+        rhs_t[-1, 2] = ke
+        rhs_h = np.zeros((2, 3))
+        rhs_h[0, 0] = 1.0
+        rhs_h[1, 1] = 1.0
+        dth, dlam, _ = self._kkt_solve(diag, a, rhs_t, rhs_h)
+        return dth, dlam
+
+    def joint_points_jacobian(self) -> np.ndarray:
+        """(N+1, 2, 3) d(joint points)/d(gripper pose): p_k = p_0 + l Σ_{j<k} t_j."""
+        dth, _ = self.pose_jacobian()
+        seg = self.seg_length
+        c, s = np.cos(self.theta), np.sin(self.theta)
+        out = np.zeros((self.segments + 1, 2, 3))
+        out[1:, 0, :] = np.cumsum(-seg * s[:, None] * dth, axis=0)
+        out[1:, 1, :] = np.cumsum(seg * c[:, None] * dth, axis=0)
+        return out
+
+    # ------------------------------------------------------------------ readouts (RodChain's)
+    def _points(self, theta: np.ndarray, clamp: np.ndarray) -> np.ndarray:
+        seg = self.seg_length
+        pts = np.empty((self.segments + 1, 2))
+        pts[0] = clamp[:2]
+        pts[1:, 0] = clamp[0] + np.cumsum(seg * np.cos(theta))
+        pts[1:, 1] = clamp[1] + np.cumsum(seg * np.sin(theta))
+        return pts
+
+    def joint_points(self) -> np.ndarray:
+        """(N+1, 2) centreline at the joints, clamp end first (exact: the chain is closed)."""
+        return self._points(self.theta, self._clamp)
+
+    def segment_states(self) -> np.ndarray:
+        """(N, 3) segment centres and angles [x, y, angle], world frame."""
+        pts = self.joint_points()
+        return np.column_stack([0.5 * (pts[:-1] + pts[1:]), self.theta])
+
+    def segment_velocities(self) -> np.ndarray:
+        """(N, 3) zeros: a settled equilibrium does not move (NaN if the state is not finite)."""
+        bad = not np.all(np.isfinite(self.theta))
+        return np.full((self.segments, 3), math.nan if bad else 0.0)
+
+    def joint_gaps(self) -> np.ndarray:
+        """(N+1,) or (N,): the interior and clamp joints are closed by construction; the last
+        entry is how far the chain's end is from the gripper (the constraint residual)."""
+        gaps = np.zeros(self.segments + (1 if self.gripped else 0))
+        if self.gripped:
+            seg = self.seg_length
+            cx, cy, _ = self._clamp.tolist()
+            gx, gy, _ = self._grip.tolist()
+            ex = cx + seg * float(np.cos(self.theta).sum()) - gx
+            ey = cy + seg * float(np.sin(self.theta).sum()) - gy
+            gaps[-1] = math.hypot(ex, ey)
+        if not np.isfinite(self.theta).all():
+            gaps[:] = math.nan
+        return gaps
+
+    def max_speed(self) -> float:
+        return math.nan if not np.all(np.isfinite(self.theta)) else 0.0
+
+    def kinetic_energy(self) -> float:
+        return self.max_speed()
+
+    def current_clamp_pose(self) -> np.ndarray:
+        return self._clamp.copy()
+
+    def gripper_pose(self) -> np.ndarray:
+        """(3,) gripper pose; the free end's pose without a gripper."""
+        if not self.gripped:
+            end = self.joint_points()[-1]
+            return np.array([end[0], end[1], self.theta[-1]])
+        return self._grip.copy()
+
+    def place(self, states: np.ndarray, gripper_pose: Sequence[float] | None = None) -> None:
+        """Put the chain into a given shape (`RodChain.place`): the segment angles are kept,
+        the positions follow from them; the multipliers restart at 0."""
+        states = np.asarray(states, dtype=float)
+        if states.shape != (self.segments, 3):
+            raise ValueError(f"states must be ({self.segments}, 3), got {states.shape}")
+        self.theta = states[:, 2].copy()
+        self.lam = np.zeros(2)
+        self._maybe_straight = True
+        if gripper_pose is not None and self.gripped:
+            self._grip = np.asarray(gripper_pose, dtype=float).copy()
+
+    # ------------------------------------------------------------------ changing the rod
+    def set_bending_stiffness(self, bending_stiffness: float) -> None:
+        if not (math.isfinite(bending_stiffness) and bending_stiffness > 0):
+            raise ValueError(f"bending stiffness must be finite and > 0, got {bending_stiffness}")
+        self.lam = self.lam * (bending_stiffness / self.bending_stiffness)
+        self.bending_stiffness = float(bending_stiffness)
+
+    def set_mass_per_length(self, mass_per_length: float) -> None:
+        if not (math.isfinite(mass_per_length) and mass_per_length > 0):
+            raise ValueError(f"mass per length must be finite and > 0, got {mass_per_length}")
+        self.mass_per_length = float(mass_per_length)
+
+    def set_table_friction(self, mu: float) -> None:
+        raise ValueError("the quasi-static engine has no table friction")
+
+
+class QuasiStaticSim(RodSim):
+    """`RodSim` on the quasi-static engine: the same policy layer (workspace, speed limits,
+    clipping, home pose, events, divergence), the chain's equilibrium solved directly.
+
+    Built by `RodSim(cfg)` when `cfg.engine == "quasistatic"`. One control step is one
+    continuation solve (`QuasiStaticChain.step`); the simulated clock advances by
+    `control_period` per step. `settled` is False when Newton and the gradient flow could not
+    reach a stable equilibrium; a snap-through is counted in `ApplyResult.snaps` with a note.
+    """
+
+    _chain_type = QuasiStaticChain
+
+    def _build_chain(self, cfg: RodConfig) -> None:
+        self.dt = float(cfg.control_period)
+        self.omega1 = math.nan
+        self._damping_rate = 0.0
+        self.chain = QuasiStaticChain(
+            length=cfg.length,
+            bending_stiffness=cfg.bending_stiffness,
+            mass_per_length=cfg.mass_per_length,
+            segments=cfg.segments,
+            clamp_pose=cfg.clamp_pose,
+            dt=self.dt,
+            gravity=cfg.gravity,
+        )
+        self._snap_seen = 0
+
+    @property
+    def _move_steps(self) -> int:
+        return 1
+
+    def _settle(self, target: np.ndarray) -> tuple[bool, bool]:
+        """Nothing to wait for: the step's solve already is the settled state."""
+        if not np.all(np.isfinite(self.chain.theta)):
+            return False, True
+        return bool(self.chain.converged), False
+
+    def _hold(self) -> ApplyResult:
+        """After a change of the rod itself: re-solve at the same end poses."""
+        if self._diverged:
+            return ApplyResult(False, False, False, True, np.zeros(3), 0.0)
+        self.chain.step(None)
+        settled, diverged = self._settle(self.gripper_pose)
+        diverged = diverged or self._gaps_too_wide()
+        if diverged:
+            self._diverged = True
+            settled = False
+        return ApplyResult(settled, False, False, diverged, np.zeros(3), 0.0, sim_steps=1)
+
+    def snapshot(self) -> dict:
+        c = self.chain
+        return {
+            "chain": c,
+            "state": (c.theta.copy(), c.lam.copy(), c._grip.copy(), c._clamp.copy()),
+            "steps": c.steps,
+            "snaps": (c.snaps, len(c.snap_notes)),
+            "diverged": self._diverged,
+        }
+
+    def restore(self, snap: dict) -> None:
+        if snap["chain"] is not self.chain:
+            raise RuntimeError("restore: the chain was rebuilt since the snapshot")
+        c = self.chain
+        theta, lam, grip, clamp = snap["state"]
+        c.theta, c.lam, c._grip, c._clamp = theta.copy(), lam.copy(), grip.copy(), clamp.copy()
+        c.steps = snap["steps"]
+        c.snaps = snap["snaps"][0]
+        del c.snap_notes[snap["snaps"][1] :]
+        c.converged = True
+        self._diverged = snap["diverged"]
+
+    def _rebuild(self, held: int, movable_clamp: bool) -> None:
+        notes, snaps = self.chain.snap_notes, self.chain.snaps
+        super()._rebuild(held, movable_clamp)
+        self.chain.snap_notes, self.chain.snaps = notes, snaps
+
+    def _counted(self, run: object, *args: object) -> ApplyResult:
+        before = self.chain.snaps
+        result = run(*args)
+        result.snaps = self.chain.snaps - before
+        return result
+
+    def apply(self, u: np.ndarray) -> ApplyResult:
+        return self._counted(super().apply, u)
+
+    def move_to(self, pose: np.ndarray) -> ApplyResult:
+        return self._counted(super().move_to, pose)
+
+    def move_clamp(self, pose: np.ndarray, max_step: np.ndarray | None = None) -> ApplyResult:
+        return self._counted(super().move_clamp, pose, max_step)
+
+    def slip_grasp(self, ds: float) -> ApplyResult:
+        return self._counted(super().slip_grasp, ds)
+
+    def set_bending_stiffness(self, bending_stiffness: float) -> ApplyResult:
+        return self._counted(super().set_bending_stiffness, bending_stiffness)
+
+    def set_mass_per_length(self, mass_per_length: float) -> ApplyResult:
+        return self._counted(super().set_mass_per_length, mass_per_length)
+
+    def _home_state(self) -> dict:
+        c = self.chain
+        return {
+            "home": self._home.copy(),
+            "state": (c.theta.copy(), c.lam.copy(), c._grip.copy()),
+            "steps": c.steps,
+        }
+
+    def _put_home_state(self, state: dict) -> None:
+        self._home = state["home"].copy()
+        theta, lam, grip = state["state"]
+        self.chain.theta, self.chain.lam, self.chain._grip = theta.copy(), lam.copy(), grip.copy()
+        self.chain.steps = state["steps"]
+
+    def take_snap_notes(self) -> list[str]:
+        """The snap notes since the last call (the env logs them with the step)."""
+        notes = self.chain.snap_notes[self._snap_seen :]
+        self._snap_seen = len(self.chain.snap_notes)
+        return list(notes)
+
+    def centerline_jacobian(self) -> np.ndarray:
+        """(N+1, 2, 3) d(joint points)/d(gripper pose [x, y, θ]) at the current equilibrium."""
+        return self.chain.joint_points_jacobian()
+
+
+def _mat2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(2, N) times (N, q) by elementwise products and numpy sums, not BLAS: the same bits
+    under every BLAS kernel (`replay --verify` compares runs across kernels)."""
+    return (a[:, :, None] * b[None, :, :]).sum(axis=1)
+
+
+def resample_matrix(segments: int, n: int) -> np.ndarray:
+    """(n, N+1) the linear map from the joints of a chain of N equal segments to `n` points
+    equally spaced in arc length (what `resample_polyline` does for such a chain). Its
+    derivative along any inextensible motion is this same matrix: arc length does not change."""
+    q = np.linspace(0.0, float(segments), n)
+    idx = np.minimum(np.floor(q).astype(int), segments - 1)
+    frac = q - idx
+    w = np.zeros((n, segments + 1))
+    w[np.arange(n), idx] = 1.0 - frac
+    w[np.arange(n), idx + 1] += frac
+    return w
