@@ -369,10 +369,12 @@ def train_encoder(
     """
     from pathlib import Path
 
+    from rodctl.features.autoencoder import require_torch
     from rodctl.features.training import quick_config
     from rodctl.features.training import train_encoder as train
     from rodctl.runs import RunDir
 
+    require_torch("rodctl train-encoder")  # before anything is collected or written
     cfg = load_config(config, set_ or [])
     if quick:
         cfg = quick_config(cfg)

@@ -50,7 +50,6 @@ _VERSIONED = (
     "mcap",
     "pydantic",
     "opencv-python-headless",
-    "scikit-image",
 )
 
 STATUSES = ("running", "completed", "failed", "interrupted")
