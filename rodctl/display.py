@@ -57,22 +57,26 @@ def step_progress(total: int, enabled: bool = True) -> Iterator[StepProgress]:
         transient=False,
     )
     task = progress.add_task("step", total=total, t1=float("nan"), px=float("nan"))
+    started = stopped = False
 
     def on_step(rec: StepRecord) -> None:
+        # The bar appears with the first step, so that a run failing before it (a bad target,
+        # an unreadable checkpoint) prints its error without a bar of NaNs above it.
+        nonlocal started
+        if not started and not stopped:
+            started = True
+            progress.start()
         progress.update(
             task, completed=rec.step, t1=rec.T1, px=rec.pixel_error, description=rec.phase
         )
 
-    stopped = False
-
     def done() -> None:
         # Once only: off a terminal, every Progress.stop() prints an empty line.
         nonlocal stopped
-        if not stopped:
-            stopped = True
+        if started and not stopped:
             progress.stop()
+        stopped = True
 
-    progress.start()
     try:
         yield StepProgress(on_step, done)
     finally:
