@@ -14,6 +14,21 @@ RL_ENV_ID = "rodctl/ShapeServoRL-v0"
 GOAL_ENV_ID = "rodctl/ShapeServoGoal-v0"
 
 
+def load_run(path, *, recover: bool = False, images: bool = True):
+    """A `rodctl simulate` run read back from its MCAP log (docs/python-api.md)."""
+    from rodctl.notebook import load_run as _load_run
+
+    return _load_run(path, recover=recover, images=images)
+
+
+def load_results(path):
+    """The episodes of a compare, sweep or suite folder as a pandas DataFrame (pandas needed;
+    docs/python-api.md)."""
+    from rodctl.notebook import load_results as _load_results
+
+    return _load_results(path)
+
+
 def _register_env() -> None:
     from gymnasium.envs.registration import register, registry
 

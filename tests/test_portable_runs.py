@@ -11,6 +11,7 @@ from pathlib import Path
 from paths import REPO
 from typer.testing import CliRunner
 
+import rodctl
 from rodctl.cli import app
 from rodctl.features.autoencoder import DEFAULT_CHECKPOINT
 
@@ -44,6 +45,7 @@ def test_a_copied_run_folder_verifies_without_the_original_checkpoint(tmp_path):
     res = runner.invoke(app, ["replay", str(moved), "--verify", "--no-figures"])
     assert res.exit_code == 0, res.output
     assert "verify: OK" in res.output
+    assert [r.step for r in rodctl.load_run(moved).records] == [0, 1, 2, 3]
 
     # A copy changed after the run is not what the run used.
     with open(moved / "encoder.npz", "r+b") as fh:
