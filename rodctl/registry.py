@@ -106,14 +106,15 @@ class Registry(Generic[T]):
                     f"{self.kind} type {name!r} is already registered by "
                     f"{self._entries[name].source}"
                 )
-            doc = (config.__doc__ or "").strip().splitlines()
+            # The first paragraph, not the first line, which may stop mid-sentence.
+            doc = " ".join((config.__doc__ or "").strip().split("\n\n")[0].split())
             self._entries[name] = Registration(
                 kind=self.kind,
                 type=name,
                 config=config,
                 factory=factory,
                 source=_source_of(factory),
-                summary=doc[0] if doc else "",
+                summary=doc,
             )
             _invalidate_models()
             return factory
