@@ -4,7 +4,6 @@ error, an aligned `rodctl plugins`, and `config show` naming a file that exists.
 
 from __future__ import annotations
 
-
 from paths import REPO
 from typer.testing import CliRunner
 
