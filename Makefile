@@ -1,20 +1,33 @@
 # Two commands for a new user; each sets itself up on a fresh machine.
-#   make demo   create .venv, install, run `rodctl simulate configs/default.yaml`
-#   make test   create .venv, install, run the test suite
+#   make demo   create .venv, install what a run needs (no torch, no test tools), run
+#               `rodctl simulate configs/default.yaml`
+#   make test   create .venv, install torch and the extras `train` and `test`, run the test suite
+# Where torch would come from PyPI with CUDA (gigabytes), take PyTorch's CPU build:
+#   make test TORCH_INDEX=https://download.pytorch.org/whl/cpu      (docs/install.md)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+DEMO   := $(VENV)/.demo-installed
 PLUGIN := $(VENV)/.plugin-installed
+TORCH_INDEX ?=
+TORCH_FROM  := $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX),)
 
 .PHONY: demo test bench lint clean-venv
 
+# The test set-up: torch first (TORCH_INDEX: from that index only, e.g. PyTorch's CPU build),
+# then the project with the extras `train` (torch, already satisfied) and `test`.
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	# The CPU build of torch first: an unpinned torch would pull gigabytes of CUDA packages.
-	$(BIN)/pip install --quiet torch==2.13.0
-	$(BIN)/pip install --quiet -e ".[test]"
-	touch $(STAMP)
+	$(BIN)/pip install --quiet $(TORCH_FROM) torch==2.13.0
+	$(BIN)/pip install --quiet -e ".[train,test]"
+	touch $(STAMP) $(DEMO)
+
+# What a run needs and nothing else: no torch, no test tools.
+$(DEMO): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet -e .
+	touch $(DEMO)
 
 # The example plug-in (examples/plugin/) is part of the test suite: the tests run it through
 # the CLI and compare, as a user who installed it would.
@@ -22,7 +35,7 @@ $(PLUGIN): $(STAMP) examples/plugin/pyproject.toml
 	$(BIN)/pip install --quiet -e examples/plugin
 	touch $(PLUGIN)
 
-demo: $(STAMP)
+demo: $(DEMO)
 	$(BIN)/rodctl simulate configs/default.yaml
 
 test: $(STAMP) $(PLUGIN)

@@ -20,15 +20,41 @@ from rodctl.executors.base import sigterm_as_interrupt
 
 F = TypeVar("F", bound=Callable[..., Any])
 
+
+def _plain_help() -> None:
+    """typer 0.29 shows a required argument as `{config}` in the usage line and `<bool>` beside
+    every flag in --help; show CONFIG, and nothing beside a flag, as click does."""
+    from typer import core
+
+    def usage_name(self: Any) -> str:
+        name = self.display_name_raw.upper()
+        name = name if self.required else f"[{name}]"
+        return name + ("..." if self.nargs != 1 else "")
+
+    option_type = core.TyperOption.display_type_rich
+
+    def flag_type(self: Any, ctx: Any) -> str | None:
+        return None if self.is_flag and self.metavar is None else option_type(self, ctx)
+
+    core.TyperArgument._usage_display_name = usage_name
+    core.TyperOption.display_type_rich = flag_type
+
+
+_plain_help()
+
+# Markdown: docstring paragraphs are reflowed to the terminal (no line broken mid-sentence);
+# an indented block (the examples) is shown as written.
 app = typer.Typer(
     name="rodctl",
     help="Experiment runner for vision-based shape servoing of elastic rods.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
+    rich_markup_mode="markdown",
 )
 config_app = typer.Typer(
     help="Inspect configs: print a resolved config or the JSON schema.",
     no_args_is_help=True,
+    rich_markup_mode="markdown",
 )
 app.add_typer(config_app, name="config")
 
@@ -111,25 +137,37 @@ def _startup(
 @app.command()
 def plugins() -> None:
     """List every registered feature, estimator and controller type, and where it comes from."""
+    import textwrap
+
     from rodctl.registry import STAGES, load_plugins, plugin_provenance
 
     failures = load_plugins(strict=False)
     provenance = plugin_provenance()
     overridden = {(o["kind"], o["type"]) for o in provenance["overrides"]}
+    width = max((len(reg.type) for registry in STAGES.values() for reg in registry), default=0)
     for kind, registry in STAGES.items():
         typer.echo(f"{kind}:")
         for reg in registry:
             default = " (default)" if reg.type == registry.default else ""
             if (kind, reg.type) in overridden:
                 default += " (REPLACES the built-in: --allow-override)"
-            typer.echo(f"  {reg.type:<14} {reg.source}{default}")
+            typer.echo(f"  {reg.type:<{width}}  {reg.source}{default}")
+            indent = " " * (width + 4)
             if reg.summary:
-                typer.echo(f"  {'':<14} {reg.summary}")
+                typer.echo(
+                    textwrap.fill(
+                        reg.summary,
+                        100,
+                        initial_indent=indent,
+                        subsequent_indent=indent,
+                        break_on_hyphens=False,
+                    )
+                )
     if provenance["loaded"]:
         typer.echo("plug-ins loaded:")
     for p in provenance["loaded"]:
         typer.echo(f"  {p['distribution']} {p['version']} ({p['value']}): {p['file']}")
-        typer.echo(f"  {'':<14} sha256 {p['sha256']}")
+        typer.echo(f"    sha256 {p['sha256']}")
     for f in failures:
         typer.echo(f"failed plug-in {f.name} ({f.value}): {f.error}", err=True)
     if failures:
@@ -208,7 +246,7 @@ def _derived_values(cfg: ExperimentConfig) -> dict[str, Any]:
         out["camera.cy"] = clean((cam.height - 1) / 2.0)
     checkpoint = getattr(cfg.feature, "checkpoint", "")
     if checkpoint is None:
-        out["feature.checkpoint"] = "the packaged rodctl/assets/encoder.pt"
+        out["feature.checkpoint"] = "the packaged rodctl/assets/encoder.npz"
     return out
 
 
@@ -231,7 +269,9 @@ def config_schema(
 
 OutOpt = Annotated[
     str,
-    typer.Option("--out", "-o", help="Parent folder of the run directory.", show_default=True),
+    typer.Option(
+        "--out", "-o", help="Parent folder of the run directory.", show_default=True, metavar="DIR"
+    ),
 ]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or table.")]
 
@@ -256,6 +296,12 @@ def simulate(
 
     Exit code 0 when the run completed (converged or not: see summary.json), 1 when it
     failed (diverged, lost the rod, crashed) or was interrupted, 2 on bad input.
+
+    Examples:
+
+        rodctl simulate configs/default.yaml
+        rodctl simulate configs/default.yaml --set run.max_steps=300 -o runs/mine
+        rodctl simulate configs/default.yaml -q --json
     """
     from rodctl.display import print_summary, step_progress
     from rodctl.records import RunSummary
@@ -318,6 +364,9 @@ def replay(
             metavar="TOL",
         ),
     ] = 0.0,
+    quiet: Annotated[
+        bool, typer.Option("--quiet", "-q", help="No summary table: only the verdict and errors.")
+    ] = False,
 ) -> None:
     """Rebuild run.rrd and the figures from a run's MCAP alone and print its summary.
 
@@ -325,14 +374,20 @@ def replay(
     logged step: bit-identical, identical within --tolerance (the largest deviation per field
     and the two numeric environments are shown), or a mismatch (the first step and field;
     exit 1). Prints the output folder last.
+
+    Examples:
+
+        rodctl replay runs/20261201-120000_default --verify
+        rodctl replay runs/20261201-120000_default/run.mcap --recover -q
     """
     from rodctl.replay import format_summary, rebuild
     from rodctl.replay import verify as verify_run
 
     result = rebuild(path, out, recover=recover, figures=figures)
-    typer.echo(format_summary(result.run), err=True)
-    for note in result.notes:
-        typer.echo(f"note: {note}", err=True)
+    if not quiet:
+        typer.echo(format_summary(result.run), err=True)
+        for note in result.notes:
+            typer.echo(f"note: {note}", err=True)
     code = 0
     if verify:
         from rodctl.replay import config_file_differences
@@ -388,16 +443,24 @@ def train_encoder(
 ) -> None:
     """Collect rod centerlines through the camera and train the autoencoder feature.
 
-    Writes dataset.npz, encoder.npz and encoder.pt (the same weights + normalisation + config
-    + metrics, for numpy and for torch) and metrics.json into a new run directory; prints it
+    Writes dataset.npz, encoder.npz and encoder.pt (the same weights, normalisation, config
+    and metrics, for numpy and for torch) and metrics.json into a new run directory; prints it
     as the last line. Use the checkpoint with --set feature.checkpoint=RUN_DIR/encoder.npz.
+    Needs torch: pip install -e ".[train]" (docs/install.md).
+
+    Examples:
+
+        rodctl train-encoder configs/default.yaml --quick
+        rodctl train-encoder configs/default.yaml --dataset runs/20261201-120000_default/dataset.npz
     """
     from pathlib import Path
 
+    from rodctl.features.autoencoder import require_torch
     from rodctl.features.training import quick_config
     from rodctl.features.training import train_encoder as train
     from rodctl.runs import RunDir
 
+    require_torch("rodctl train-encoder")  # before anything is collected or written
     cfg = load_config(config, set_ or [])
     if quick:
         cfg = quick_config(cfg)
@@ -505,13 +568,28 @@ def compare(
     success criterion. Writes results.jsonl (as episodes finish), results.csv/json, summary.md
     and figures/ into a new folder and prints it as the last line. SIGINT/SIGTERM stop it
     within seconds, keeping every finished episode (exit 1).
+
+    Examples:
+
+        rodctl compare configs/compare-smoke.yaml
+        rodctl compare configs/compare.yaml --workers 2 --set targets.count=10
+        rodctl compare configs/compare.yaml --resume runs/20261201-120000_compare
     """
     from rodctl.compare import run_compare
     from rodctl.config import read_yaml
     from rodctl.suite import run_suite
 
+    data = read_yaml(config)
+    if not {"scenarios", "methods", "parameters"} & set(data):
+        raise UserError(
+            f"{config}: this is an experiment config (no `methods`); run it with "
+            f"`rodctl simulate {config}`, or compare methods with a compare config such as "
+            "configs/compare.yaml"
+        )
+    if "parameters" in data:
+        raise UserError(f"{config}: this is a sweep config; run it with `rodctl sweep {config}`")
     # A config with `scenarios` is a benchmark suite: every scenario is a compare of its own.
-    runner = run_suite if "scenarios" in read_yaml(config) else run_compare
+    runner = run_suite if "scenarios" in data else run_compare
     _finish_batch(
         runner, config, set_=set_, out=out, quiet=quiet, workers=workers,
         executor=executor, address=address, resume=resume,
@@ -535,6 +613,11 @@ def sweep(
     Writes results.jsonl (as episodes finish), results.csv (a column per swept key),
     summary.md / summary.json ranked by the config's metric, and a figure of the metric
     against each swept key; prints the folder as the last line.
+
+    Examples:
+
+        rodctl sweep configs/sweep-smoke.yaml
+        rodctl sweep configs/sweep-tuning.yaml --workers 2
     """
     from rodctl.sweep import run_sweep
 

@@ -397,6 +397,7 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
                 row["error"] = f"diagnosis failed: {type(exc).__name__}: {exc}"
         row.update(
             outcome=summary.outcome,
+            converged=summary.outcome == "converged",
             steps=summary.steps,
             steps_to_converge=summary.steps_to_converge,
             final_pixel_error=summary.final_pixel_error,
@@ -636,8 +637,10 @@ def stream_episodes(
 
 
 def _task_tags(task: dict[str, Any]) -> dict[str, Any]:
-    """The identifying columns of a task's row (method, target, and a sweep's tags)."""
-    return {"method": task["method"], "target": task["target"], **task.get("tags", {})}
+    """The identifying columns of a task's row (method, target, and a sweep's tags), and a
+    compare's target columns."""
+    tags = {"method": task["method"], "target": task["target"], **task.get("tags", {})}
+    return {**tags, **task.get("columns", {})}
 
 
 # --- statistics -------------------------------------------------------------------------------
@@ -958,6 +961,16 @@ def _episode_tasks(
                     "log_dir": str(log_dir) if log_dir else None,
                     # A stalled or pinned episode is examined for why (rodctl.diagnosis).
                     "diagnose": True,
+                    # results.jsonl carries every column of results.csv (`_report` sets the same)
+                    "columns": {
+                        "scenario": cfg.scenario,
+                        "band": t.band(cfg.targets.bands),
+                        "difficulty": round(t.difficulty, 6),
+                        "target_x": float(t.pose[0]),
+                        "target_y": float(t.pose[1]),
+                        "target_theta": float(t.pose[2]),
+                        "converged": False,
+                    },
                 }
             )
     return tasks

@@ -6,6 +6,9 @@ directory); rich disables animation by itself when stderr is not a terminal.
 
 from __future__ import annotations
 
+import math
+import sys
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -54,22 +57,26 @@ def step_progress(total: int, enabled: bool = True) -> Iterator[StepProgress]:
         transient=False,
     )
     task = progress.add_task("step", total=total, t1=float("nan"), px=float("nan"))
+    started = stopped = False
 
     def on_step(rec: StepRecord) -> None:
+        # The bar appears with the first step, so that a run failing before it (a bad target,
+        # an unreadable checkpoint) prints its error without a bar of NaNs above it.
+        nonlocal started
+        if not started and not stopped:
+            started = True
+            progress.start()
         progress.update(
             task, completed=rec.step, t1=rec.T1, px=rec.pixel_error, description=rec.phase
         )
 
-    stopped = False
-
     def done() -> None:
         # Once only: off a terminal, every Progress.stop() prints an empty line.
         nonlocal stopped
-        if not stopped:
-            stopped = True
+        if started and not stopped:
             progress.stop()
+        stopped = True
 
-    progress.start()
     try:
         yield StepProgress(on_step, done)
     finally:
@@ -88,6 +95,43 @@ class RateColumn(ProgressColumn):
         return Text("-" if speed is None else f"{speed:.2f} {self.unit}/s")
 
 
+#: Seconds between two plain progress lines when stderr is not a terminal (`task_progress`).
+LINE_EVERY_S = 5.0
+
+
+def _clock(seconds: float) -> str:
+    m, s = divmod(int(round(seconds)), 60)
+    h, m = divmod(m, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+
+
+@contextmanager
+def _progress_lines(label: str, total: int, unit: str, completed: int) -> Iterator[Callable]:
+    """`task_progress` off a terminal: one plain line on stderr every `LINE_EVERY_S` seconds
+    and when the work is done, e.g. "training: 120/300 epochs (40%), rms 2.31 px, 0:12 elapsed,
+    ETA 0:18"."""
+    start, last = time.monotonic(), -math.inf
+    done = completed
+
+    def advance(note: str = "", n: int = 1) -> None:
+        nonlocal done, last
+        done += n
+        now = time.monotonic()
+        if now - last < LINE_EVERY_S and done < total:
+            return
+        last = now
+        elapsed = now - start
+        rate = (done - completed) / elapsed if elapsed > 0 else 0.0
+        eta = _clock((total - done) / rate) if rate > 0 else "?"
+        share = f" ({100.0 * done / total:.0f}%)" if total else ""
+        parts = [f"{label}: {done:,}/{total:,}{' ' + unit if unit else ''}{share}"]
+        parts += [note] if note else []
+        parts += [f"{_clock(elapsed)} elapsed", f"ETA {eta}"]
+        print(", ".join(parts), file=sys.stderr, flush=True)
+
+    yield advance
+
+
 @contextmanager
 def task_progress(
     label: str,
@@ -95,13 +139,21 @@ def task_progress(
     enabled: bool = True,
     rate: str | None = None,
     completed: int = 0,
+    *,
+    lines_unit: str | None = None,
 ) -> Iterator[Callable[..., None]]:
     """A progress bar over `total` units of work (samples, epochs, episodes) on stderr.
 
     Yields ``advance(note="", n=1)``: move the bar by n and show a short note beside it.
     `rate` names the unit to show a rate of (e.g. "episodes"); `completed` starts the bar
-    part-way (a resumed run).
+    part-way (a resumed run). With `lines_unit` (e.g. "epochs"), when stderr is not a terminal
+    (a log file, a pipe, a notebook) a plain line is printed every `LINE_EVERY_S` seconds
+    instead of the bar, which rich would otherwise only draw at the end.
     """
+    if enabled and lines_unit is not None and not stderr.is_terminal:
+        with _progress_lines(label, total, lines_unit, completed) as advance:
+            yield advance
+        return
     progress = Progress(
         TextColumn(f"[bold]{label}"),
         BarColumn(),

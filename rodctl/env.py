@@ -17,7 +17,9 @@ Observation (a `Dict` space):
     gripper: (3,) float64 gripper pose [x, y, theta] (world frame, m, rad): the robot's own
         proprioception.
     applied: (3,) float64 the pose increment the robot really made in the last step (after its
-        per-axis speed limit and the workspace), zeros after `reset`.
+        per-axis speed limit and the workspace), zeros after `reset`. Within `rod.max_step`
+        per axis except when the workspace clipped the move (the space allows the workspace's
+        span).
     extraction_ok: 1 when the whole rod was seen and traced, else 0.
     target: (N, 2) float64 the target centerline in pixels (it moves only when the camera is
         bumped by a mid-run event: the same physical shape seen from the new pose).
@@ -31,6 +33,11 @@ are applied before the move of their step; `info["events"]` has their log lines.
 
 The episode is a pure function of (config, seed): `reset(seed)` rebuilds the rod, the camera
 and its noise stream, and the target, from named seed streams (`rodctl.runs.rng`).
+
+Observations are float64 and shaped as above because the methods run on them (bit for bit,
+`replay --verify`). For RL libraries, `rodctl.rl` wraps this environment as
+`rodctl/ShapeServoRL-v0` and `rodctl/ShapeServoGoal-v0` (float32 vectors, actions in [-1, 1],
+normalised observations, a success bonus, a goal-conditioned form for HER): docs/rl.md.
 """
 
 from __future__ import annotations
@@ -200,18 +207,20 @@ class ShapeServoEnv(gym.Env):
         lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]]) - margin
         hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]]) + margin
         self.action_space = spaces.Box(-self.max_step, self.max_step, dtype=np.float64)
+        # Extracted points lie in the image; the bounds leave room for sub-pixel fits. One
+        # bound for both axes, so that the space prints as one line.
+        pixels = spaces.Box(-size.max(), 2 * size.max(), (n, 2), dtype=np.float64)
         self.observation_space = spaces.Dict(
             {
-                # Extracted points lie in the image; the bounds leave room for sub-pixel fits.
-                "centerline": spaces.Box(
-                    np.tile(-size, (n, 1)), np.tile(2 * size, (n, 1)), dtype=np.float64
-                ),
+                "centerline": pixels,
                 "gripper": spaces.Box(lo, hi, dtype=np.float64),
-                "applied": spaces.Box(-self.max_step, self.max_step, dtype=np.float64),
+                # A free move is within max_step per axis; a move clipped at the reach limit
+                # is pulled towards the clamp and can exceed one axis's limit (by ~1 % in
+                # random walks), more after a clamp move or a grasp slip. What always holds:
+                # both poses are in the workspace.
+                "applied": spaces.Box(lo - hi, hi - lo, dtype=np.float64),
                 "extraction_ok": spaces.Discrete(2),
-                "target": spaces.Box(
-                    np.tile(-size, (n, 1)), np.tile(2 * size, (n, 1)), dtype=np.float64
-                ),
+                "target": pixels,
             }
         )
         self._lost_frame_cost = big

@@ -123,14 +123,15 @@ class Registry(Generic[T]):
                     f"it replaces the built-in {self.kind} type {name!r}, which needs "
                     f"`rodctl --allow-override` ({ALLOW_OVERRIDE_ENV}=1)"
                 )
-            doc = (config.__doc__ or "").strip().splitlines()
+            # The first paragraph, not the first line, which may stop mid-sentence.
+            doc = " ".join((config.__doc__ or "").strip().split("\n\n")[0].split())
             self._entries[name] = Registration(
                 kind=self.kind,
                 type=name,
                 config=config,
                 factory=factory,
                 source=_override_source(factory) if override else _source_of(factory),
-                summary=doc[0] if doc else "",
+                summary=doc,
             )
             if override:
                 _record_override(self.kind, name, "registered with replace=True")

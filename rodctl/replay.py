@@ -581,6 +581,10 @@ def verify(run: ReadRun, *, tolerance: float = 0.0, progress: bool = False) -> V
     if not ended and logged:
         # An interrupted, failed or unfinished run: replay only as far as it got.
         data.setdefault("run", {})["max_steps"] = max(1, int(logged[-1].step))
+    from rodctl.portable import with_embedded_checkpoint
+
+    # The encoder copied into the run folder, not whatever its original path holds here.
+    data = with_embedded_checkpoint(data, Path(run.path).parent)
     cfg = validate_config(data, f"{run.path} (embedded config.yaml)")
     records = rerun_records(cfg, run.header.run_id)
     fresh = records if ended else records[: len(logged)]

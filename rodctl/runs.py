@@ -53,7 +53,6 @@ _VERSIONED = (
     "mcap",
     "pydantic",
     "opencv-python-headless",
-    "scikit-image",
 )
 
 STATUSES = ("running", "completed", "failed", "interrupted")

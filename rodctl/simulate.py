@@ -118,6 +118,7 @@ def simulate(
         env = ShapeServoEnv(cfg)
         method = Method.from_config(cfg)
         run = RunDir.create(out, cfg, command="simulate", argv=argv)
+        _embed_encoder(cfg, run)
         try:
             # The figure process first: it gets the records before the logs are closed.
             sinks = ([figures] if figures else []) + make_sinks(cfg, run.path)
@@ -175,6 +176,22 @@ def simulate(
         raise shown
     code = EXIT_OK if status == "completed" else EXIT_RUN_FAILED
     return SimulateResult(run=run, summary=summary, exit_code=code, error=error)
+
+
+def _embed_encoder(cfg: ExperimentConfig, run: RunDir) -> None:
+    """Copy the encoder checkpoint into the run folder and record its hash (rodctl/portable.py),
+    so that the folder verifies on another machine. On a full disk: as `RunDir.create` does."""
+    from rodctl.errors import RunFailed
+    from rodctl.portable import embed_checkpoint
+
+    try:
+        record = embed_checkpoint(cfg, run.path)
+        if record is not None:
+            run.meta["encoder"] = record
+            run.write_meta()
+    except OSError as exc:
+        run.finish("failed", error=f"cannot copy the encoder checkpoint: {describe_os_error(exc)}")
+        raise RunFailed(f"cannot start the run in {run.path}: {describe_os_error(exc)}") from None
 
 
 def _figures(worker: FigureWorker, result: Any, folder: Path) -> str | None:

@@ -34,7 +34,7 @@ def test_cited_paths_exist(doc):
     text = doc.read_text(encoding="utf-8")
     missing = []
     for raw in _PATH.findall(text):
-        if re.fullmatch(r"rodctl/ShapeServo-v\d+", raw):
+        if re.fullmatch(r"rodctl/ShapeServo(RL|Goal)?-v\d+", raw):
             continue  # the Gymnasium environment id, not a path
         for path in _expand(raw.rstrip(".,")):
             if not list(ROOT.glob(path)):

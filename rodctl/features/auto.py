@@ -74,6 +74,9 @@ def auto_checkpoint(cfg: ExperimentConfig) -> Path:
     if path.is_file():
         _say(f"using the quick encoder cached for this rod and camera: {path}")
         return path
+    from rodctl.features.autoencoder import require_torch
+
+    require_torch(f"feature.checkpoint=auto (no quick encoder cached for this setup at {path})")
     _say(
         f"no encoder cached for this rod and camera yet; training a quick one once "
         f"({QUICK_SAMPLES:,} samples, {QUICK_EPOCHS} epochs: about 30 s on 2 cores)"

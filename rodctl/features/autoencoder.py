@@ -26,7 +26,8 @@ friction or training settings. Loading it for a config whose fingerprint
 differs is a `UserError` naming the file and the config keys to change.
 
 torch is imported only inside the functions that need it (`AutoencoderNet`, `torch_encode`,
-`.pt` files), never at module import.
+`.pt` files), never at module import. It is an optional dependency (the extra `train`):
+`require_torch` says how to install it when it is missing.
 """
 
 from __future__ import annotations
@@ -54,6 +55,23 @@ VERSION = 1
 
 #: The checkpoint packaged with rodctl and used when `feature.checkpoint` is None.
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "assets" / "encoder.npz"
+
+
+def require_torch(purpose: str) -> Any:
+    """Import and return torch, or raise a `UserError` saying how to install it.
+
+    Args:
+        purpose: what needs torch, e.g. "train-encoder" (starts the message).
+    """
+    try:
+        import torch
+    except ImportError:
+        raise UserError(
+            f"{purpose} needs torch, which rodctl installs only for training: "
+            "pip install -e '.[train]' (on a machine without a GPU, install the CPU build of "
+            "torch first: docs/install.md)"
+        ) from None
+    return torch
 
 
 def AutoencoderNet(inputs: int, hidden: list[int], latent_dim: int) -> torch.nn.Module:  # noqa: N802
@@ -382,12 +400,12 @@ class EncoderCheckpoint:
         path = Path(path)
         if not path.is_file():
             raise UserError(f"{path}: encoder checkpoint not found")
+        if path.suffix != ".npz":
+            torch = require_torch(f"{path}: reading a .pt checkpoint (or use its .npz twin)")
         try:
             if path.suffix == ".npz":
                 data = _read_npz(path)
             else:
-                import torch
-
                 data = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as exc:  # noqa: BLE001 - torch/numpy raise many types on a corrupt file
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""

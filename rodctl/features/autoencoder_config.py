@@ -72,7 +72,14 @@ class EncoderTrainingConfig(StrictModel):
         lt=1.0,
         description="Share of the collected walks held out for validation.",
     )
-    threads: int = Field(2, le=256, ge=1, description="torch intra-op threads while training.")
+    threads: int = Field(
+        1,
+        le=256,
+        ge=1,
+        description="torch intra-op threads while training. 1 by measurement: the network is "
+        "small, and a second thread was 14x slower per epoch on a busy 2-core machine "
+        "(benchmarks/bench_training_threads.py, docs/install.md).",
+    )
 
 
 class AutoencoderFeatureConfig(StrictModel):

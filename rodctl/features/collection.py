@@ -269,7 +269,9 @@ def collect_dataset(
     tasks = [(cfg_json, size, s) for size, s in zip(sizes, seeds, strict=True)]
     results: list[dict[str, Any]] = []
     try:
-        with task_progress("collecting", data_cfg.samples, progress) as advance:
+        with task_progress(
+            "collecting", data_cfg.samples, progress, lines_unit="samples"
+        ) as advance:
             if data_cfg.workers == 1 or len(tasks) == 1:
                 for task in tasks:
                     results.append(_collect_task(task))

@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from rodctl.config import ExperimentConfig, dump_config
 from rodctl.display import task_progress
@@ -34,6 +33,7 @@ from rodctl.features.autoencoder import (
     EncoderCheckpoint,
     architecture_of,
     encoder_fingerprint,
+    require_torch,
 )
 from rodctl.features.autoencoder_config import AutoencoderFeatureConfig, EncoderTrainingConfig
 from rodctl.features.collection import CenterlineDataset, collect_dataset
@@ -113,6 +113,7 @@ def fit_autoencoder(
     if not scale > 0.0:
         raise UserError("training centerlines are all identical; nothing to learn")
 
+    torch = require_torch("training an encoder")
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(tcfg.threads)
     try:
@@ -128,7 +129,7 @@ def fit_autoencoder(
         batch = min(tcfg.batch_size, n_train)
         losses: list[float] = []
         t0 = time.perf_counter()
-        with task_progress("training", tcfg.epochs, progress) as advance:
+        with task_progress("training", tcfg.epochs, progress, lines_unit="epochs") as advance:
             for _epoch in range(tcfg.epochs):
                 order = torch.randperm(n_train, generator=gen)
                 total = 0.0
