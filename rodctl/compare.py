@@ -920,7 +920,16 @@ def _report(
     wall = time.perf_counter() - wall0
     n_workers = pool.workers
     write_results(
-        folder, cfg, targets, rows, summary, wall, n_workers, partial=partial, executor=pool.name
+        folder,
+        cfg,
+        targets,
+        rows,
+        summary,
+        wall,
+        n_workers,
+        partial=partial,
+        executor=pool.name,
+        figure_target=fig_target,
     )
     header, lines = summary_rows(summary, bands)
     write_summary_md(
@@ -936,6 +945,9 @@ def _report(
         md.write_text(note + md.read_text(encoding="utf-8"), encoding="utf-8")
     if rows:
         _write_figures(folder / "figures", records, rows, list(cfg.methods))
+    from rodctl.report import write_compare_report
+
+    write_compare_report(folder, cfg, rows)
     if progress:
         title = f"{cfg.name}: {len(targets)} targets, {wall:.0f} s"
         _print_table(summary, title + (" (PARTIAL)" if partial else ""))
@@ -978,10 +990,12 @@ def write_results(
     *,
     partial: bool = False,
     executor: str = "local",
+    figure_target: int | None = None,
 ) -> None:
     """results.csv (one row per episode) and results.json (rows, summary, targets, config).
 
     `partial`: an interrupted run; results.json says so (`"partial": true`).
+    `figure_target`: the target the side-by-side figures show (their captions name it).
     """
     with (folder / "results.csv").open("w", newline="", encoding="utf-8") as fh:
         writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS, extrasaction="ignore")
@@ -995,6 +1009,7 @@ def write_results(
         "workers": workers,
         "executor": executor,
         "partial": partial,
+        "figure_target": figure_target,
         "targets": [
             {
                 "index": t.index,

@@ -17,10 +17,8 @@ tables and paired statistics) and `report.html` (self-contained: figures embedde
 
 from __future__ import annotations
 
-import base64
 import csv
 import functools
-import html
 import json
 import math
 import time
@@ -33,6 +31,7 @@ import yaml
 from rodctl.config.compare import CompareConfig
 from rodctl.config.loading import ConfigError, apply_override, validate_config
 from rodctl.errors import UserError
+from rodctl.report import write_report_html
 from rodctl.runs import RunDir, write_json_atomic
 from rodctl.statistics import PairedDifference, paired_difference
 
@@ -304,15 +303,12 @@ def write_suite_outputs(
     md = [
         f"# rodctl benchmark suite: {cfg.name}",
         "",
-        f"{len(folders)} scenarios x {len(methods)} methods; reference method **{ref}**; "
-        f"wall time {wall:.0f} s (summed over the runs a `--resume` continued). Every scenario "
-        "is an ordinary compare run under `scenarios/<name>/` (its own results, figures and "
-        "summary).",
+        f"{_count(len(folders), 'scenario')} x {_count(len(methods), 'method')}; reference "
+        f"method **{ref}**; wall time {wall:.0f} s (summed over the runs a `--resume` "
+        "continued). Every scenario is an ordinary compare run under `scenarios/<name>/` (its "
+        "own results, figures, summary and report).",
         "",
-        "Paired differences are *method minus reference* over the targets both converged on: "
-        "the mean, its bootstrap 95 % confidence interval, the Wilcoxon signed-rank p-value and "
-        "wins/ties/losses (lower is better for every metric). **bold**: significant (p < 0.05 and "
-        "the interval excludes 0).",
+        PAIRED_NOTE,
         "",
     ]
     stats: dict[str, Any] = {}
@@ -321,8 +317,6 @@ def write_suite_outputs(
         mine = [r for r in rows if r["scenario"] == name]
         summary = summarize(mine, methods, bands)
         header, lines = summary_rows(summary, bands)
-        metrics = present_metrics(mine)
-        paired = paired_table(mine, methods, ref, metrics)
         sc = (cfg.scenarios or {}).get(name)
         md += [f"## {name}", ""]
         if sc is not None and sc.description:
@@ -332,20 +326,51 @@ def write_suite_outputs(
             changed += [f"methods' `{k}` = `{v}`" for k, v in sc.method_set.items()]
             md += ["Changed: " + ", ".join(changed), ""]
         md += [markdown_table(header, lines), ""]
-        md += _paired_markdown(mine, methods, ref, paired, metrics)
-        stats[name] = {
-            m: {col: vars(d) for col, d in per.items()} | {"success": success_pairs(mine, m, ref)}
-            for m, per in paired.items()
-        }
+        paired_md, stats[name] = paired_statistics(mine, methods, ref)
+        md += paired_md
         tables.append(
             (name, terminal_table(summary, f"{name}: {summary['common_targets']} paired"))
         )
     (folder / "summary.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     write_json_atomic(folder / "statistics.json", stats)
-    write_report_html(folder / "report.html", cfg, "\n".join(md), folders)
+    figure_sets = [(name, Path(f)) for name, f in folders.items()]
+    write_report_html(
+        folder / "report.html", f"rodctl suite {cfg.name}", "\n".join(md), figure_sets
+    )
     from rich.console import Group
 
     return Group(*(t for _, t in tables))
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
+#: What the paired tables show (summary.md of a suite, and of a plain compare).
+PAIRED_NOTE = (
+    "Paired differences are *method minus reference* over the targets both converged on: "
+    "the mean, its bootstrap 95 % confidence interval, the Wilcoxon signed-rank p-value and "
+    "wins/ties/losses (lower is better for every metric). **bold**: significant (p < 0.05 and "
+    "the interval excludes 0)."
+)
+
+
+def paired_statistics(
+    rows: Sequence[dict[str, Any]], methods: Sequence[str], ref: str
+) -> tuple[list[str], dict[str, Any]]:
+    """Every method against `ref` on the episodes of one compare (or one scenario): the
+    summary.md lines (a verdict per method, then the paired table) and the statistics.json
+    entry (each paired metric's difference, and `success`: `success_pairs`)."""
+    from rodctl.report import verdict_lines
+
+    metrics = present_metrics(rows)
+    paired = paired_table(rows, methods, ref, metrics)
+    md = verdict_lines(ref, paired) + _paired_markdown(rows, methods, ref, paired, metrics)
+    stats = {
+        m: {col: vars(d) for col, d in per.items()} | {"success": success_pairs(rows, m, ref)}
+        for m, per in paired.items()
+    }
+    return md, stats
 
 
 def _paired_markdown(
@@ -368,75 +393,3 @@ def _paired_markdown(
     from rodctl.compare import markdown_table
 
     return [f"Paired against **{ref}**:", "", markdown_table(header, lines), ""]
-
-
-# --- the self-contained report -----------------------------------------------------------------
-
-
-def write_report_html(path: Path, cfg: CompareConfig, markdown: str, folders: dict[str, str]):
-    """One HTML file that opens from disk with no network: the summary and every figure inline."""
-    body = [_markdown_to_html(markdown)]
-    for name, folder in folders.items():
-        figs = sorted((Path(folder) / "figures").glob("*.png"))
-        if not figs:
-            continue
-        body.append(f"<h2>Figures: {html.escape(name)}</h2>")
-        for fig in figs:
-            data = base64.b64encode(fig.read_bytes()).decode("ascii")
-            body.append(
-                f'<figure><img alt="{html.escape(fig.stem)}" src="data:image/png;base64,{data}">'
-                f"<figcaption>{html.escape(name)}: {html.escape(fig.stem)}</figcaption></figure>"
-            )
-    page = f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>rodctl suite {html.escape(cfg.name)}</title>
-<style>
-body {{ font-family: system-ui, sans-serif; max-width: 1200px; margin: 2em auto; color: #222; }}
-table {{ border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }}
-th, td {{ border: 1px solid #ccc; padding: 0.25em 0.5em; text-align: right; }}
-th:first-child, td:first-child {{ text-align: left; }}
-figure {{ display: inline-block; margin: 0.5em; }} img {{ max-width: 560px; }}
-code {{ background: #f3f3f3; padding: 0 0.2em; }}
-</style></head><body>
-{"".join(body)}
-</body></html>
-"""
-    path.write_text(page, encoding="utf-8")
-    return path
-
-
-def _inline(text: str) -> str:
-    import re
-
-    out = html.escape(text)
-    out = re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", out)
-    return re.sub(r"`(.+?)`", r"<code>\1</code>", out)
-
-
-def _markdown_to_html(markdown: str) -> str:
-    """The subset of markdown summary.md uses: headings, paragraphs, pipe tables."""
-    out: list[str] = []
-    table: list[list[str]] = []
-
-    def flush() -> None:
-        if table:
-            head, *rest = table
-            out.append("<table><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in head) + "</tr>")
-            for row in rest:
-                out.append("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in row) + "</tr>")
-            out.append("</table>")
-            table.clear()
-
-    for line in markdown.splitlines():
-        if line.startswith("|"):
-            cells = [c.strip() for c in line.strip().strip("|").split("|")]
-            if not all(set(c) <= {"-", ":"} for c in cells):
-                table.append(cells)
-            continue
-        flush()
-        if line.startswith("#"):
-            level = len(line) - len(line.lstrip("#"))
-            out.append(f"<h{level}>{_inline(line.lstrip('#').strip())}</h{level}>")
-        elif line.strip():
-            out.append(f"<p>{_inline(line)}</p>")
-    flush()
-    return "\n".join(out)
