@@ -702,24 +702,43 @@ def markdown_table(header: Sequence[str], lines: Sequence[Sequence[str]]) -> str
 
 
 def success_figure(rows: Sequence[dict], methods: Sequence[str], path: Path, bins: int = 5) -> Path:
-    """Success rate and median steps to converge against target difficulty, one line per method."""
+    """Success rate and median steps to converge against target difficulty, one line per method.
+
+    Methods differ by colour, line style and marker (`rodctl.plots.style`), and each method's
+    points are shifted sideways by a small, fixed amount, so two methods with the same value
+    (every method at 100 %) stay visible side by side instead of hiding each other."""
+    from rodctl.plots import DPI
+
+    fig = success_axes(rows, methods, bins)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def success_axes(rows: Sequence[dict], methods: Sequence[str], bins: int = 5) -> Any:
+    """The matplotlib Figure of `success_figure`."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+
+    from rodctl.plots import style
 
     d = np.array([r["difficulty"] for r in rows], dtype=float)
     edges = np.linspace(d.min(), d.max() + 1e-9, bins + 1)
     mid = 0.5 * (edges[:-1] + edges[1:])
+    span = float(d.max() - d.min()) or 0.1
     fig = Figure(figsize=(6.4, 5.6), layout="constrained")
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
-    for m in methods:
+    for i, m in enumerate(methods):
         rate, steps = [], []
         for lo, hi in zip(edges[:-1], edges[1:], strict=True):
             rb = [r for r in rows if r["method"] == m and lo <= r["difficulty"] < hi]
             cb = [r["steps_to_converge"] for r in rb if r["outcome"] == "converged"]
             rate.append(100 * len(cb) / len(rb) if rb else np.nan)
             steps.append(np.median(cb) if cb else np.nan)
-        ax1.plot(mid, rate, marker="o", label=m)
-        ax2.plot(mid, steps, marker="o", label=m)
+        x = mid + (i - (len(methods) - 1) / 2) * 0.012 * span
+        st = style(i) | {"markersize": 6}
+        ax1.plot(x, rate, label=m, **st)
+        ax2.plot(x, steps, label=m, **st)
     ax1.set_ylabel("success rate (%)")
     ax1.set_ylim(-5, 105)
     ax2.set_ylabel("median steps to converge")
@@ -728,10 +747,8 @@ def success_figure(rows: Sequence[dict], methods: Sequence[str], path: Path, bin
         ax.grid(True, alpha=0.3)
     ax1.legend(fontsize=8)
     fig.suptitle("Success and speed against target difficulty")
-    path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=120)
-    return path
+    return fig
 
 
 # --- the command ------------------------------------------------------------------------------
