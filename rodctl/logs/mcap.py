@@ -283,7 +283,11 @@ def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, A
     return {"deletions": [], "entities": [_entity(t_ns, "gripper", arrows=[arrow])]}
 
 
-def camera_views(config_yaml: str) -> dict[int, tuple[dict[str, Any], dict[str, Any]]]:
+#: Where the camera is, by the step from which it holds: (FrameTransform, CameraCalibration).
+CameraViews = dict[int, tuple[dict[str, Any], dict[str, Any]]]
+
+
+def camera_views(config_yaml: str) -> CameraViews:
     """The camera as Foxglove places it, by the control step from which it holds: step 0 the
     configured camera, then one entry per `camera_bump` event (`rodctl.events`), replayed on
     the configured pose in the loop's order. Each is (FrameTransform fields, CameraCalibration
@@ -343,6 +347,62 @@ def camera_views(config_yaml: str) -> dict[int, tuple[dict[str, Any], dict[str, 
     return out
 
 
+def camera_messages(views: CameraViews, step: int, t_ns: int) -> list[tuple[str, dict[str, Any]]]:
+    """/tf and /camera/calibration when the camera is placed from `step` on (at the start,
+    after a camera_bump; `camera_views`), else none."""
+    if step not in views:
+        return []
+    transform, calibration = views[step]
+    ts = {"timestamp": codec.foxglove_time(t_ns)}
+    return [(TOPIC_TRANSFORM, ts | transform), (TOPIC_CALIBRATION, ts | calibration)]
+
+
+def step_messages(
+    header: RunHeader, r: StepRecord, t_ns: int, png: bytes | None, views: CameraViews
+) -> list[tuple[str, dict[str, Any]]]:
+    """The messages of one step, in the order they are written: the three contract topics, the
+    scene, the frame (`png`, if this step logs one) with its annotations, and the camera's
+    place if a camera_bump moved it before this step. Shared by the file and the live view."""
+    msgs = [
+        (codec.TOPIC_ROD_STATE, codec.rod_state_message(r)),
+        (codec.TOPIC_CAMERA_CENTERLINE, codec.camera_message(r)),
+        (codec.TOPIC_CONTROL, codec.control_message(r)),
+        (codec.TOPIC_ROD_SCENE, line_strip_scene(t_ns, "rod", r.centerline, _ROD_RGB, 0.006)),
+        (codec.TOPIC_GRIPPER_SCENE, gripper_scene(t_ns, r.gripper, header.rod_length)),
+    ]
+    if png is not None:
+        image = {
+            "timestamp": codec.foxglove_time(t_ns),
+            "frame_id": "camera",
+            "data": codec.b64(png),
+            "format": "png",
+        }
+        msgs.append((codec.TOPIC_IMAGE, image))
+        msgs.append((codec.TOPIC_ANNOTATIONS, image_annotations(t_ns, header, r)))
+    if int(r.step) > 0:  # a camera_bump applied before this step moved the camera
+        msgs += camera_messages(views, int(r.step), t_ns)
+    return msgs
+
+
+def target_scene(t_ns: int, header: RunHeader) -> dict[str, Any]:
+    """/world/target: the target centerline as a wide translucent band just under the rod."""
+    return line_strip_scene(
+        t_ns, "target", header.target_centerline, _TARGET_RGB, 0.012, z=_TARGET_Z
+    )
+
+
+def log_message(t_ns: int, level: str, text: str) -> dict[str, Any]:
+    """A foxglove.Log message."""
+    return {
+        "timestamp": codec.foxglove_time(t_ns),
+        "level": codec.LOG_LEVELS[level],
+        "message": text,
+        "name": "rodctl",
+        "file": "",
+        "line": 0,
+    }
+
+
 #: The array fields of a StepRecord (everything the writer thread reads but the frame).
 _ARRAY_FIELDS = tuple(
     f.name for f in fields(StepRecord) if f.name != "image" and f.type in ("np.ndarray", np.ndarray)
@@ -378,7 +438,7 @@ class McapSink:
         self._queue: deque[Future[None]] = deque()
         self._worker: ThreadPoolExecutor | None = None
         self._closed = False
-        self._camera_views: dict[int, tuple[dict[str, Any], dict[str, Any]]] = {}
+        self._camera_views: CameraViews = {}
 
     # ---------------------------------------------------------------------------- Sink protocol
     def open(self, header: RunHeader) -> None:
@@ -428,16 +488,9 @@ class McapSink:
         )
         t0 = codec.LOG_EPOCH_NS
         self._add(codec.TOPIC_HEADER, t0, 0, codec.header_to_json(header))
-        self._add(
-            codec.TOPIC_TARGET_SCENE,
-            t0,
-            0,
-            line_strip_scene(
-                t0, "target", header.target_centerline, _TARGET_RGB, 0.012, z=_TARGET_Z
-            ),
-        )
+        self._add(codec.TOPIC_TARGET_SCENE, t0, 0, target_scene(t0, header))
         self._camera_views = camera_views(header.config_yaml)
-        for topic, msg in self._camera_messages(0, t0):
+        for topic, msg in camera_messages(self._camera_views, 0, t0):
             self._add(topic, t0, 0, msg)
         self._log(t0, *codec.open_log_line(header))
         self._flush()
@@ -482,24 +535,8 @@ class McapSink:
         assert self._writer is not None and self._header is not None
         t = codec.log_time_ns(r.sim_time)
         k = int(r.step)
-        msgs = [
-            (codec.TOPIC_ROD_STATE, codec.rod_state_message(r)),
-            (codec.TOPIC_CAMERA_CENTERLINE, codec.camera_message(r)),
-            (codec.TOPIC_CONTROL, codec.control_message(r)),
-            (codec.TOPIC_ROD_SCENE, line_strip_scene(t, "rod", r.centerline, _ROD_RGB, 0.006)),
-            (codec.TOPIC_GRIPPER_SCENE, gripper_scene(t, r.gripper, self._header.rod_length)),
-        ]
-        if frame is not None:
-            image = {
-                "timestamp": codec.foxglove_time(t),
-                "frame_id": "camera",
-                "data": codec.b64(frame.result()),
-                "format": "png",
-            }
-            msgs.append((codec.TOPIC_IMAGE, image))
-            msgs.append((codec.TOPIC_ANNOTATIONS, image_annotations(t, self._header, r)))
-        if k > 0:  # a camera_bump applied before this step moved the camera
-            msgs += self._camera_messages(k, t)
+        png = frame.result() if frame is not None else None
+        msgs = step_messages(self._header, r, t, png, self._camera_views)
         data = [(topic, _dumps(m)) for topic, m in msgs]
         lines = codec.step_log_lines(prev, r)
         with signals_deferred():
@@ -564,15 +601,6 @@ class McapSink:
         raise_or_warn(errors, status, f"{self.path}: closing the MCAP log failed")
 
     # -------------------------------------------------------------------------------- helpers
-    def _camera_messages(self, step: int, t_ns: int) -> list[tuple[str, dict[str, Any]]]:
-        """/tf and /camera/calibration when the camera is placed from `step` on (at the start,
-        after a camera_bump; `camera_views`), else none."""
-        if step not in self._camera_views:
-            return []
-        transform, calibration = self._camera_views[step]
-        ts = {"timestamp": codec.foxglove_time(t_ns)}
-        return [(TOPIC_TRANSFORM, ts | transform), (TOPIC_CALIBRATION, ts | calibration)]
-
     def _add(self, topic: str, t_ns: int, seq: int, msg: dict[str, Any]) -> None:
         assert self._writer is not None
         self._add_with(self._writer, topic, t_ns, seq, msg)
@@ -586,16 +614,7 @@ class McapSink:
             data=_dumps(msg),
         )
 
-    @staticmethod
-    def _log_msg(t_ns: int, level: str, text: str) -> dict[str, Any]:
-        return {
-            "timestamp": codec.foxglove_time(t_ns),
-            "level": codec.LOG_LEVELS[level],
-            "message": text,
-            "name": "rodctl",
-            "file": "",
-            "line": 0,
-        }
+    _log_msg = staticmethod(log_message)
 
     def _log(self, t_ns: int, level: str, text: str, sequence: int = 0) -> None:
         self._add(codec.TOPIC_LOG, t_ns, sequence, self._log_msg(t_ns, level, text))
