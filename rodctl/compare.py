@@ -16,9 +16,10 @@ runs them, one BLAS/torch thread each; results depend neither on the number of w
 the executor. Each row is appended to results.jsonl the moment its episode finishes, so a run
 stopped by SIGINT/SIGTERM (or killed) keeps them and `--resume` finishes it.
 Outputs, in one new folder: results.csv / results.json (one row per episode), summary.md (the
-table also printed to the terminal), targets.yaml (the target poses, reusable as a
-`targets.file`), figures/ (the paper's three figures side by side for one target, success rate
-and steps against target difficulty) and, if asked, every episode's logs under episodes/.
+table also printed to the terminal, and the paired comparison with the reference), targets.yaml
+(the target poses, reusable as a `targets.file`), figures/ (the paper's three figures side by
+side for one target, success rate and steps against target difficulty), statistics.json and
+report.html (`rodctl.report`) and, if asked, every episode's logs under episodes/.
 """
 
 from __future__ import annotations
