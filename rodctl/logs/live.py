@@ -69,12 +69,18 @@ class LiveView:
         """Start the server and advertise every channel (once: a started view stays as is).
 
         Raises:
-            UserError: the port is taken (or cannot be bound), named.
+            UserError: the Foxglove SDK is not installed, or the port is taken (or cannot be
+                bound), named.
         """
         if self._server is not None:
             return self
-        import foxglove
-        from foxglove.websocket import ServerListener
+        try:
+            import foxglove
+            from foxglove.websocket import ServerListener
+        except ImportError:
+            raise UserError(
+                "--live needs the Foxglove SDK: pip install 'rodctl[live]' (foxglove-sdk)"
+            ) from None
 
         subscribed = self._subscribed
 

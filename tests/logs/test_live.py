@@ -85,3 +85,11 @@ def test_a_live_run_reaches_a_foxglove_websocket_client(tmp_path):
     for topic in ("/rod/state", "/control", "/world/rod", "/tf", "/camera/calibration"):
         mine = [m for m in received if m[0] == topic]
         assert mine == [m for m in logged if m[0] == topic], topic
+
+
+def test_a_taken_port_is_one_clear_error():
+    from rodctl.errors import UserError
+
+    with LiveView(port=0) as first:
+        with pytest.raises(UserError, match=f"127.0.0.1:{first.port}.*--live-port"):
+            LiveView(port=first.port).start()
