@@ -97,7 +97,9 @@ def verdict_lines(
         "both converged on: mean [bootstrap 95 % interval]):",
         "",
     ]
-    lines += [f"- {verdict(m, ref, per[metric], unit)}" for m, per in paired.items()]
+    # A metric no episode has a value for (no episode converged) is not in the table at all.
+    none = PairedDifference(0, None, None, None, None, 0, 0, 0)
+    lines += [f"- {verdict(m, ref, per.get(metric, none), unit)}" for m, per in paired.items()]
     return lines + [""]
 
 

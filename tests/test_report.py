@@ -61,6 +61,9 @@ def test_a_verdict_says_what_the_statistics_say():
     assert "not significant (p = " in report.verdict("ma2022", "paper", same)
     none = PairedDifference(0, None, None, None, None, 0, 0, 0)
     assert "no target" in report.verdict("ma2022", "paper", none)
+    # No episode converged: the metric is absent, the verdict says there is nothing to compare.
+    [line] = [x for x in report.verdict_lines("paper", {"ma2022": {}}) if x.startswith("- ")]
+    assert "no target" in line
 
 
 def test_markdown_is_rendered_and_raw_html_escaped():
