@@ -85,13 +85,12 @@ def verdict(method: str, ref: str, d: PairedDifference, unit: str = "steps") -> 
     return f"{head}, not significant (p = {d.p_value:.2g}, {n})"
 
 
-def verdict_lines(
-    ref: str, paired: dict[str, dict[str, PairedDifference]], metric: str = VERDICT_METRIC[0]
-) -> list[str]:
-    """The verdicts as a markdown list (one line per method), introduced by what they measure."""
+def verdict_lines(ref: str, paired: dict[str, dict[str, PairedDifference]]) -> list[str]:
+    """The verdicts (`VERDICT_METRIC`) as a markdown list, one line per method, introduced by
+    what they measure."""
     if not paired:
         return []
-    unit = VERDICT_METRIC[1] if metric == VERDICT_METRIC[0] else ""
+    metric, unit = VERDICT_METRIC
     lines = [
         f"Verdict, steps to converge against **{ref}** (method minus reference on the targets "
         "both converged on: mean [bootstrap 95 % interval]):",
@@ -106,22 +105,22 @@ def verdict_lines(
 # --- figures ----------------------------------------------------------------------------------
 
 
-def describe_target(folder: Path) -> tuple[str, str | None]:
-    """(what the side-by-side figures of a compare folder show, e.g. "target 3 (difficulty
-    0.41, gripper at x 0.512 m, y 0.030 m, θ +0.10 rad)", its anchor) from its results.json."""
+def describe_target(folder: Path) -> str:
+    """What the side-by-side figures of a compare folder show, from its results.json, e.g.
+    "target 3 (difficulty 0.41, gripper at x 0.512 m, y 0.030 m, θ +0.10 rad)"."""
     try:
         data = json.loads((folder / "results.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return "the figure target", None
+        return "the figure target"
     index = data.get("figure_target")
     target = next((t for t in data.get("targets", []) if t.get("index") == index), None)
     if target is None:
-        return "the figure target", None
+        return "the figure target"
     x, y, th = target["pose"]
     return (
         f"target {index} (difficulty {target['difficulty']:.2f}, gripper at x {x:.3f} m, "
         f"y {y:.3f} m, θ {th:+.2f} rad)"
-    ), f"t{index}"
+    )
 
 
 def ordered_figures(figures: Path) -> list[tuple[Path, str]]:
@@ -173,7 +172,7 @@ def write_report_html(
         figures = ordered_figures(folder / "figures")
         if not figures:
             continue
-        target, _ = describe_target(folder)
+        target = describe_target(folder)
         body.append(f"<h2>Figures{': ' + html.escape(heading) if heading else ''}</h2>")
         for fig, caption in figures:
             text = caption.format(target=target)
