@@ -66,6 +66,14 @@ def _title(ax: Axes, text: str, size: float = FONT) -> None:
     ax.set_title(text, fontsize=size)
 
 
+def _headline(text: str, method: str, width_in: float, size: float = FONT + 1) -> str:
+    """`text — method` on one line if it fits the figure's width, else the method on a second
+    line (constrained layout makes room for a title's height, never for its width)."""
+    one = f"{text} — {method}"
+    # DejaVu Sans averages ~0.6 em a character; 90 % of the width is left for the title.
+    return one if len(one) * 0.6 * size <= 0.9 * width_in * 72 else f"{text}\n{method}"
+
+
 def _plain(value: float, _pos: object = None) -> str:
     """A log axis label as a plain number: 0.5, 2, 100, 1e-05."""
     return f"{value:g}"
@@ -240,7 +248,7 @@ def render_figures(header: RunHeader, records: Sequence[StepRecord]) -> dict[str
         fig = _figure(5.6, 4.4)
         ax = fig.subplots()
         draw_shapes(ax, header, records)
-        _title(ax, f"Rod centerline every three frames — {header.method}", FONT + 1)
+        _title(ax, _headline("Rod centerline every three frames", header.method, 5.6), FONT + 1)
         pngs = {"shapes.png": _png(fig)}
 
         steps, t1, px, u = _series(records)
@@ -254,7 +262,7 @@ def render_figures(header: RunHeader, records: Sequence[StepRecord]) -> dict[str
         _ticks(ax, log_y=t1)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=FONT - 1)
-        _title(ax, f"Deformation error T1 — {header.method}", FONT + 1)
+        _title(ax, _headline("Deformation error T1", header.method, 6.4), FONT + 1)
         pngs["t1.png"] = _png(fig)
 
         pngs["commands.png"] = _png(_commands({header.method: records}, speed_limits(header)))
@@ -298,10 +306,9 @@ def _commands(runs: Mapping[str, Sequence[StepRecord]], limits: np.ndarray | Non
         fig.legend(
             handles, labels, loc="outside lower center", ncol=4, fontsize=FONT - 1, frameon=False
         )
-    title = "Pose increment Δr per step (probing shaded"
-    title += ", speed limits dashed)" if limits is not None else ")"
+    title = "Pose increment Δr commanded per step"  # the legend names the shading and limits
     if single:
-        title += f" — {next(iter(runs))}"
+        title = _headline(title, next(iter(runs)), 6.4)
     fig.suptitle(title, fontsize=FONT + 1)
     return fig
 

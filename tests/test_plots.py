@@ -95,6 +95,7 @@ def _texts(fig):
 def test_no_title_or_legend_overlaps_another_and_nothing_is_cut_off(tmp_path, monkeypatch):
     figures = _drawn_figures(monkeypatch)
     run = _with_limits(SyntheticRun(seed=1, image_every=0))
+    run.header.method = "autoencoder/windowed_ls/mfac"  # a long name must not run off the top
     plots.write_figures(run.header, run.records(20), tmp_path / "one")
     runs = {}
     for i, name in enumerate(("paper", "ma2022", "aghajanzadeh2022", "akf-pinv")):
@@ -144,6 +145,8 @@ def test_commands_draw_the_speed_limits_and_call_the_command_a_pose_increment():
     fig = plots._commands({"m": run.records(12)}, plots.speed_limits(run.header))
     title = fig._suptitle.get_text()
     assert "Pose increment" in title and "velocity" not in title.lower()
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert "speed limit" in labels and "probing" in labels
     for ax, limit in zip(fig.axes, (0.01, 0.02, 0.05), strict=True):
         levels = {
             round(float(line.get_ydata()[0]), 6) for line in ax.lines if line.get_ls() == "--"
