@@ -10,6 +10,7 @@ import functools
 import json
 import sys
 from collections.abc import Callable
+from contextlib import nullcontext
 from typing import Annotated, Any, TypeVar
 
 import typer
@@ -291,6 +292,17 @@ def simulate(
             "the table and the run directory.",
         ),
     ] = False,
+    live: Annotated[
+        bool,
+        typer.Option(
+            "--live",
+            help="Stream the run to Foxglove (WebSocket, localhost); the run starts when a "
+            "client subscribes. docs/reports.md.",
+        ),
+    ] = False,
+    live_port: Annotated[
+        int, typer.Option("--live-port", help="Port of the --live server (0: any free one).")
+    ] = 8765,
 ) -> None:
     """Run one shape-servoing experiment; print the run directory as the last line.
 
@@ -315,7 +327,8 @@ def simulate(
         )
     cfg = load_config(config, set_ or [])
     table = not (quiet or as_json)
-    with step_progress(cfg.run.max_steps, enabled=table) as on_step:
+    view = _live_view(cfg, live_port) if live else None  # stopped when the run is over
+    with step_progress(cfg.run.max_steps, enabled=table) as on_step, view or nullcontext():
 
         def first_result(summary: RunSummary) -> None:
             # The table as soon as the episode has ended; the figures and meta.json follow.
@@ -323,7 +336,12 @@ def simulate(
             print_summary(summary)
 
         result = run_simulation(
-            cfg, out, argv=sys.argv, on_step=on_step, on_summary=first_result if table else None
+            cfg,
+            out,
+            argv=sys.argv,
+            on_step=on_step,
+            on_summary=first_result if table else None,
+            live=view,
         )
     if result.error:
         typer.echo(f"error: {result.error}", err=True)
@@ -335,6 +353,26 @@ def simulate(
     else:
         typer.echo(str(result.run.path))
     raise typer.Exit(code=result.exit_code)
+
+
+def _live_view(cfg: ExperimentConfig, port: int) -> Any:
+    """`simulate --live`: a started `LiveView` with a client subscribed (Ctrl-C: exit 1)."""
+    from rodctl.logs.live import LiveView
+
+    # A short grace at the end: the last messages are still on their way when the run ends.
+    view = LiveView(cfg.logging, port=port, grace_s=0.5).start()
+    typer.echo(
+        f"live view on {view.url}: in Foxglove, Open connection > Foxglove WebSocket > that URL; "
+        "the run starts when it subscribes (Ctrl-C to give up)",
+        err=True,
+    )
+    try:
+        view.wait_for_client()
+    except KeyboardInterrupt:
+        view.stop()
+        typer.echo("interrupted before the run started: no live client", err=True)
+        raise typer.Exit(code=1) from None
+    return view
 
 
 @app.command()

@@ -16,9 +16,10 @@ runs them, one BLAS/torch thread each; results depend neither on the number of w
 the executor. Each row is appended to results.jsonl the moment its episode finishes, so a run
 stopped by SIGINT/SIGTERM (or killed) keeps them and `--resume` finishes it.
 Outputs, in one new folder: results.csv / results.json (one row per episode), summary.md (the
-table also printed to the terminal), targets.yaml (the target poses, reusable as a
-`targets.file`), figures/ (the paper's three figures side by side for one target, success rate
-and steps against target difficulty) and, if asked, every episode's logs under episodes/.
+table also printed to the terminal, and the paired comparison with the reference), targets.yaml
+(the target poses, reusable as a `targets.file`), figures/ (the paper's three figures side by
+side for one target, success rate and steps against target difficulty), statistics.json and
+report.html (`rodctl.report`) and, if asked, every episode's logs under episodes/.
 """
 
 from __future__ import annotations
@@ -761,24 +762,43 @@ def markdown_table(header: Sequence[str], lines: Sequence[Sequence[str]]) -> str
 
 
 def success_figure(rows: Sequence[dict], methods: Sequence[str], path: Path, bins: int = 5) -> Path:
-    """Success rate and median steps to converge against target difficulty, one line per method."""
+    """Success rate and median steps to converge against target difficulty, one line per method.
+
+    Methods differ by colour, line style and marker (`rodctl.plots.style`), and each method's
+    points are shifted sideways by a small, fixed amount, so two methods with the same value
+    (every method at 100 %) stay visible side by side instead of hiding each other."""
+    from rodctl.plots import DPI
+
+    fig = success_axes(rows, methods, bins)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def success_axes(rows: Sequence[dict], methods: Sequence[str], bins: int = 5) -> Any:
+    """The matplotlib Figure of `success_figure`."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+
+    from rodctl.plots import style
 
     d = np.array([r["difficulty"] for r in rows], dtype=float)
     edges = np.linspace(d.min(), d.max() + 1e-9, bins + 1)
     mid = 0.5 * (edges[:-1] + edges[1:])
+    span = float(d.max() - d.min()) or 0.1
     fig = Figure(figsize=(6.4, 5.6), layout="constrained")
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
-    for m in methods:
+    for i, m in enumerate(methods):
         rate, steps = [], []
         for lo, hi in zip(edges[:-1], edges[1:], strict=True):
             rb = [r for r in rows if r["method"] == m and lo <= r["difficulty"] < hi]
             cb = [r["steps_to_converge"] for r in rb if r["outcome"] == "converged"]
             rate.append(100 * len(cb) / len(rb) if rb else np.nan)
             steps.append(np.median(cb) if cb else np.nan)
-        ax1.plot(mid, rate, marker="o", label=m)
-        ax2.plot(mid, steps, marker="o", label=m)
+        x = mid + (i - (len(methods) - 1) / 2) * 0.012 * span
+        st = style(i) | {"markersize": 6}
+        ax1.plot(x, rate, label=m, **st)
+        ax2.plot(x, steps, label=m, **st)
     ax1.set_ylabel("success rate (%)")
     ax1.set_ylim(-5, 105)
     ax2.set_ylabel("median steps to converge")
@@ -787,10 +807,8 @@ def success_figure(rows: Sequence[dict], methods: Sequence[str], path: Path, bin
         ax.grid(True, alpha=0.3)
     ax1.legend(fontsize=8)
     fig.suptitle("Success and speed against target difficulty")
-    path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=120)
-    return path
+    return fig
 
 
 # --- the command ------------------------------------------------------------------------------
@@ -1010,7 +1028,16 @@ def _report(
     wall = time.perf_counter() - wall0
     n_workers = pool.workers
     write_results(
-        folder, cfg, targets, rows, summary, wall, n_workers, partial=partial, executor=pool.name
+        folder,
+        cfg,
+        targets,
+        rows,
+        summary,
+        wall,
+        n_workers,
+        partial=partial,
+        executor=pool.name,
+        figure_target=fig_target,
     )
     header, lines = summary_rows(summary, bands)
     write_summary_md(
@@ -1026,6 +1053,9 @@ def _report(
         md.write_text(note + md.read_text(encoding="utf-8"), encoding="utf-8")
     if rows:
         _write_figures(folder / "figures", records, rows, list(cfg.methods))
+    from rodctl.report import write_compare_report
+
+    write_compare_report(folder, cfg, rows)
     if progress:
         title = f"{cfg.name}: {len(targets)} targets, {wall:.0f} s"
         _print_table(summary, title + (" (PARTIAL)" if partial else ""))
@@ -1068,10 +1098,12 @@ def write_results(
     *,
     partial: bool = False,
     executor: str = "local",
+    figure_target: int | None = None,
 ) -> None:
     """results.csv (one row per episode) and results.json (rows, summary, targets, config).
 
     `partial`: an interrupted run; results.json says so (`"partial": true`).
+    `figure_target`: the target the side-by-side figures show (their captions name it).
     """
     with (folder / "results.csv").open("w", newline="", encoding="utf-8") as fh:
         writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS, extrasaction="ignore")
@@ -1085,6 +1117,7 @@ def write_results(
         "workers": workers,
         "executor": executor,
         "partial": partial,
+        "figure_target": figure_target,
         "targets": [
             {
                 "index": t.index,

@@ -9,13 +9,13 @@ Several methods (`write_comparison_figures`): `shapes.png` side by side; `pixel_
 method on one axis in the one unit all methods share (pixels; T1 is in each feature's own units,
 ~1 for the autoencoder against ~80 for Bezier control points, so T1 curves on one axis compare
 units, not methods); `t1.png` as small multiples, one panel and one scale per method; and
-`commands.png`. Methods differ by colour *and* line style and marker, so overlapping curves stay
-readable.
+`commands.png` (the pose increment Δr commanded each step, the speed limits dashed). Methods
+differ by colour *and* line style and marker, so overlapping curves stay readable.
 
-Speed: fixed margins instead of matplotlib's constrained layout, no `rc_context` (it re-validates
-every rcParam), few ticks, plain-text titles, one artist for all transition shapes, 100 dpi, PNG
-zlib level 1: the three figures of a run cost about half the CPU time they did (0.55-0.7 s
-against 1.2-1.3 s on the shared 2-core machine, `benchmarks/bench_plots.py`).
+Legibility: matplotlib's constrained layout (no title overlaps another, no label is cut off),
+150 dpi, log axes with several labelled ticks in plain numbers (`_log_axis`).
+Speed: no `rc_context` (it re-validates every rcParam), few ticks, one artist for all transition
+shapes, PNG zlib level 1 (`benchmarks/bench_plots.py` prints the time).
 """
 
 from __future__ import annotations
@@ -28,19 +28,19 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import LogLocator, MaxNLocator, NullLocator
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullLocator
 
 from rodctl.records import RunHeader, StepRecord
 
 #: Shape-sequence colours, as in the paper: initial black, transitions blue, target red.
 INITIAL, TRANSITION, TARGET = "black", "tab:blue", "tab:red"
-AXES = ("Δr_x (m)", "Δr_y (m)", "Δr_θ (rad)")
+AXES = ("Δx (m)", "Δy (m)", "Δθ (rad)")
 PROBE_COLOR = "tab:purple"
 #: Per-method styles: colour, line style and marker all differ between neighbours.
 _COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:gray")
 _LINES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)), (0, (1, 1)))
 _MARKERS = ("o", "s", "^", "D", "v", "P", "X")
-DPI = 100
+DPI = 150
 FONT = 10  # matplotlib's default size, so no rc_context is needed
 
 
@@ -55,30 +55,70 @@ def style(i: int) -> dict:
     }
 
 
-def _figure(w: float, h: float, **margins: float) -> Figure:
-    fig = Figure(figsize=(w, h), dpi=DPI)
+def _figure(w: float, h: float) -> Figure:
+    """A figure with constrained layout: titles, labels and legends get the room they need."""
+    fig = Figure(figsize=(w, h), dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
-    box = {"left": 0.1, "right": 0.97, "bottom": 0.12, "top": 0.88, "hspace": 0.35, "wspace": 0.3}
-    box.update(margins)
-    fig.subplots_adjust(**box)
     return fig
 
 
 def _title(ax: Axes, text: str, size: float = FONT) -> None:
-    """An axes title as plain text: `Axes.set_title` re-measures every tick label to place it,
-    which cost more than the rest of a small figure."""
-    ax.text(0.5, 1.02, text, transform=ax.transAxes, ha="center", va="bottom", fontsize=size)
+    ax.set_title(text, fontsize=size)
 
 
-def _ticks(ax: Axes, log_y: bool = False) -> None:
-    """Few ticks: each one is several artists to build and draw (most of the drawing time)."""
+def _headline(text: str, method: str, width_in: float, size: float = FONT + 1) -> str:
+    """`text — method` on one line if it fits the figure's width, else the method on a second
+    line (constrained layout makes room for a title's height, never for its width)."""
+    one = f"{text} — {method}"
+    # DejaVu Sans averages ~0.6 em a character; 90 % of the width is left for the title.
+    return one if len(one) * 0.6 * size <= 0.9 * width_in * 72 else f"{text}\n{method}"
+
+
+def _plain(value: float, _pos: object = None) -> str:
+    """A log axis label as a plain number: 0.5, 2, 100, 1e-05."""
+    return f"{value:g}"
+
+
+def _log_axis(ax: Axes, values: np.ndarray) -> None:
+    """A log y axis with several labelled ticks however few decades the data spans: labels
+    at 1, 2, 5 per decade over a few decades, at linearly spaced values within one decade,
+    at powers of ten only over many."""
+    ax.set_yscale("log")
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v) & (v > 0)]
+    decades = float(np.log10(v.max() / v.min())) if v.size else 0.0
+    if decades > 4:
+        locator = LogLocator(base=10, numticks=8)
+    elif decades > 0.7:
+        locator = LogLocator(base=10, subs=(1.0, 2.0, 5.0), numticks=12)
+    else:
+        locator = MaxNLocator(nbins=5)
+    ax.yaxis.set_major_locator(locator)
+    ax.yaxis.set_major_formatter(FuncFormatter(_plain))
+    ax.yaxis.set_minor_locator(NullLocator())
+
+
+def _ticks(ax: Axes, log_y: np.ndarray | None = None) -> None:
+    """Few ticks: each one is several artists to build and draw (most of the drawing time).
+    `log_y`: the values a log y axis shows (`_log_axis`)."""
     ax.xaxis.set_major_locator(MaxNLocator(nbins=6, integer=True))
-    if log_y:
-        ax.set_yscale("log")
-        ax.yaxis.set_major_locator(LogLocator(numticks=5))
-        ax.yaxis.set_minor_locator(NullLocator())
+    if log_y is not None:
+        _log_axis(ax, log_y)
     else:
         ax.yaxis.set_major_locator(MaxNLocator(nbins=5))
+
+
+def speed_limits(header: RunHeader) -> np.ndarray | None:
+    """(3,) the rod's per-step limits on |Δx|, |Δy|, |Δθ| from the run's config, or None when
+    the config does not say (a synthetic run)."""
+    import yaml
+
+    try:
+        limits = (yaml.safe_load(header.config_yaml) or {})["rod"]["max_step"]
+        out = np.asarray(limits, dtype=float).reshape(3)
+    except (yaml.YAMLError, KeyError, TypeError, ValueError):
+        return None
+    return out if np.all(np.isfinite(out)) else None
 
 
 #: savefig arguments; zlib level 1: a third of the default level's encoding time, files ~30 %
@@ -134,7 +174,13 @@ def shade_probing(ax: Axes, spans: Sequence[tuple[int, int]], label: bool = True
         )
 
 
-def draw_shapes(ax: Axes, header: RunHeader, records: Sequence[StepRecord], every: int = 3) -> None:
+def draw_shapes(
+    ax: Axes,
+    header: RunHeader,
+    records: Sequence[StepRecord],
+    every: int = 3,
+    legend: bool = True,
+) -> None:
     """Fig. 1: the extracted centerline every `every` frames, initial black -> blue -> target red.
 
     The target is a wide translucent red band under everything and the final shape a dashed
@@ -159,7 +205,8 @@ def draw_shapes(ax: Axes, header: RunHeader, records: Sequence[StepRecord], ever
     ax.set_aspect("equal", adjustable="datalim")
     if not ax.yaxis_inverted():
         ax.invert_yaxis()
-    ax.legend(loc="best", fontsize=FONT - 1, framealpha=0.8)
+    if legend:
+        ax.legend(loc="best", fontsize=FONT - 1, framealpha=0.8)
 
 
 def _series(records: Sequence[StepRecord]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -183,7 +230,7 @@ def warm_up() -> None:
     fig = _figure(2.0, 2.0)
     ax = fig.subplots()
     ax.plot([1, 2, 3], [1.0, 10.0, 100.0], marker="o", label="warm-up")
-    _ticks(ax, log_y=True)
+    _ticks(ax, log_y=np.array([1.0, 100.0]))
     shade_probing(ax, [(1, 2)])
     ax.legend(fontsize=FONT - 1)
     _title(ax, "Δr_θ (rad)", FONT + 1)
@@ -204,46 +251,55 @@ def render_figures(header: RunHeader, records: Sequence[StepRecord]) -> dict[str
     `rodctl.figure_worker` draws them in a helper process and the command writes them
     (`rodctl.figure_worker.save_figures`)."""
     if True:  # one block per figure group; no rc_context (it re-validates every rcParam: slow)
-        fig = _figure(5.6, 4.4, left=0.13, bottom=0.12, top=0.9)
+        fig = _figure(5.6, 4.4)
         ax = fig.subplots()
         draw_shapes(ax, header, records)
-        _title(ax, f"Rod centerline every three frames — {header.method}", FONT + 1)
+        _title(ax, _headline("Rod centerline every three frames", header.method, 5.6), FONT + 1)
         pngs = {"shapes.png": _png(fig)}
 
         steps, t1, px, u = _series(records)
         spans = _probe_spans(records)
-        fig = _figure(6.4, 3.6, left=0.11)
+        fig = _figure(6.4, 3.6)
         ax = fig.subplots()
         shade_probing(ax, spans)
         ax.plot(steps, _log_safe(t1), color="tab:blue", marker="o", ms=3, lw=1.4, label="T1")
         ax.set_xlabel("step")
         ax.set_ylabel("T1 = ||s* − s|| (feature units)")
-        _ticks(ax, log_y=True)
+        _ticks(ax, log_y=t1)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=FONT - 1)
-        _title(ax, f"Deformation error T1 — {header.method}", FONT + 1)
+        _title(ax, _headline("Deformation error T1", header.method, 6.4), FONT + 1)
         pngs["t1.png"] = _png(fig)
 
-        pngs["commands.png"] = _png(_commands({header.method: records}))
+        pngs["commands.png"] = _png(_commands({header.method: records}, speed_limits(header)))
     return pngs
 
 
-def _commands(runs: Mapping[str, Sequence[StepRecord]]) -> Figure:
-    """Fig. 3; with several methods, the legend goes above the axes (it would hide curves)."""
-    top = 0.92 if len(runs) == 1 else 0.84
-    fig = _figure(6.4, 5.6, left=0.14, top=top, bottom=0.08, hspace=0.15)
+def _commands(runs: Mapping[str, Sequence[StepRecord]], limits: np.ndarray | None) -> Figure:
+    """Fig. 3: the pose increment Δr = (Δx, Δy, Δθ) commanded each step (a displacement per
+    step, applied over the step's duration), one panel per component, the speed limits
+    ±`limits` dashed. With several methods the legend goes below the panels (inside, it would
+    hide curves)."""
+    fig = _figure(6.4, 5.8 if len(runs) == 1 else 6.4)
     axes = fig.subplots(3, 1, sharex=True)
     spans = sorted({s for recs in runs.values() for s in _probe_spans(recs)})
     single = len(runs) == 1
     for i, (name, recs) in enumerate(runs.items()):
         steps, _, _, u = _series(recs)
         st = style(0 if single else i)
-        if single:
-            st["marker"] = "o"
         for j, ax in enumerate(axes):
             ax.plot(steps, u[:, j], label=name, **st)
     for j, (ax, label) in enumerate(zip(axes, AXES, strict=True)):
         shade_probing(ax, spans, label=j == 0)
+        if limits is not None:
+            for sign in (1.0, -1.0):
+                ax.axhline(
+                    sign * limits[j],
+                    color="0.3",
+                    ls="--",
+                    lw=0.9,
+                    label="speed limit" if j == 0 and sign > 0 else None,
+                )
         _ticks(ax)
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
@@ -254,15 +310,12 @@ def _commands(runs: Mapping[str, Sequence[StepRecord]]) -> Figure:
     else:
         handles, labels = axes[0].get_legend_handles_labels()
         fig.legend(
-            handles,
-            labels,
-            loc="upper center",
-            bbox_to_anchor=(0.55, 0.955),
-            ncol=4,
-            fontsize=FONT - 1,
-            frameon=False,
+            handles, labels, loc="outside lower center", ncol=4, fontsize=FONT - 1, frameon=False
         )
-    fig.suptitle("Velocity command Δr (probing shaded)", fontsize=FONT + 1)
+    title = "Pose increment Δr commanded per step"  # the legend names the shading and limits
+    if single:
+        title = _headline(title, next(iter(runs)), 6.4)
+    fig.suptitle(title, fontsize=FONT + 1)
     return fig
 
 
@@ -277,37 +330,39 @@ def write_comparison_figures(
     if True:
         cols = min(n, 3)
         rows = -(-n // cols)
-        fig = _figure(4.4 * cols, 3.9 * rows + 0.4, left=0.08, right=0.98, top=0.9, wspace=0.25)
+        fig = _figure(4.4 * cols, 3.9 * rows + 0.4)
         axes = fig.subplots(rows, cols, squeeze=False).ravel()
-        for ax, name in zip(axes, names, strict=False):
+        for k, (ax, name) in enumerate(zip(axes, names, strict=False)):
             header, records = runs[name]
-            draw_shapes(ax, header, records)
+            draw_shapes(ax, header, records, legend=k == 0)
             _title(ax, name)
         for ax in axes[n:]:
             ax.set_visible(False)
         fig.suptitle("Rod centerline every three frames", fontsize=FONT + 2)
         paths = [_save(fig, out_dir / "shapes.png")]
 
-        fig = _figure(7.2, 4.2, left=0.1, right=0.97)
+        fig = _figure(7.2, 4.2)
         ax = fig.subplots()
+        shown = []
         for i, name in enumerate(names):
             steps, _, px, _ = _series(runs[name][1])
             ax.plot(steps, _log_safe(px), label=name, **style(i))
+            shown.append(px)
         ax.set_xlabel("step (probing included)")
         ax.set_ylabel("pixel error (px, log)")
-        _ticks(ax, log_y=True)
+        _ticks(ax, log_y=np.concatenate(shown))
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=FONT - 1, ncol=2)
         _title(ax, "Mean centerline distance to the target, every method", FONT + 1)
         paths.append(_save(fig, out_dir / "pixel_error.png"))
 
-        fig = _figure(4.0 * cols, 2.8 * rows + 0.5, left=0.08, right=0.98, top=0.88, hspace=0.5)
+        fig = _figure(4.0 * cols, 2.8 * rows + 0.5)
         axes = fig.subplots(rows, cols, squeeze=False).ravel()
         for i, (ax, name) in enumerate(zip(axes, names, strict=False)):
             steps, t1, _, _ = _series(runs[name][1])
             shade_probing(ax, _probe_spans(runs[name][1]), label=i == 0)
             ax.plot(steps, _log_safe(t1), **style(i))
-            _ticks(ax, log_y=True)
+            _ticks(ax, log_y=t1)
             ax.grid(True, alpha=0.3)
             _title(ax, name)
             ax.set_xlabel("step")
@@ -318,5 +373,7 @@ def write_comparison_figures(
         )
         paths.append(_save(fig, out_dir / "t1.png"))
 
-        paths.append(_save(_commands({m: runs[m][1] for m in names}), out_dir / "commands.png"))
+        limits = speed_limits(runs[names[0]][0])  # the methods share the base's rod
+        commands = _commands({m: runs[m][1] for m in names}, limits)
+        paths.append(_save(commands, out_dir / "commands.png"))
     return paths

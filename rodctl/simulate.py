@@ -100,6 +100,7 @@ def simulate(
     argv: list[str] | None = None,
     on_step: Callable[[StepRecord], None] | None = None,
     on_summary: Callable[[RunSummary], None] | None = None,
+    live: Sink | None = None,
 ) -> SimulateResult:
     """Run one experiment into a new run directory under `out`.
 
@@ -111,6 +112,7 @@ def simulate(
     `on_summary` gets the episode's summary as soon as summary.json is written, before the
     figures are waited for (the run's status may still become `failed` if they cannot be
     written: see the result).
+    `live`: one more sink, e.g. a started `rodctl.logs.live.LiveView` (its owner stops it).
     """
     stops = StopRequests()
     figures = FigureWorker.start() if cfg.logging.figures else None
@@ -122,6 +124,7 @@ def simulate(
         try:
             # The figure process first: it gets the records before the logs are closed.
             sinks = ([figures] if figures else []) + make_sinks(cfg, run.path)
+            sinks += [live] if live is not None else []
             result = run_episode(
                 env,
                 method,

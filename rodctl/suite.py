@@ -20,10 +20,8 @@ when every seed agrees (docs/statistics.md).
 
 from __future__ import annotations
 
-import base64
 import csv
 import functools
-import html
 import json
 import math
 import time
@@ -38,6 +36,7 @@ from rodctl.config.compare import CompareConfig
 from rodctl.config.loading import ConfigError, apply_override, validate_config
 from rodctl.errors import UserError
 from rodctl.journal import lock_run_folder
+from rodctl.report import write_report_html
 from rodctl.runs import RunDir, write_json_atomic
 from rodctl.statistics import PairedDifference, adjust, paired_difference
 
@@ -540,7 +539,8 @@ def write_suite_outputs(
     md = [
         f"# rodctl benchmark suite: {cfg.name}",
         "",
-        f"{len(scenarios)} scenarios x {len(methods)} methods x {len(seeds)} target seed(s) "
+        f"{_count(len(scenarios), 'scenario')} x {_count(len(methods), 'method')} x "
+        f"{_count(len(seeds), 'target seed')} "
         f"({', '.join(str(s) for s in seeds)}); reference method **{ref}**; wall time "
         f"{wall:.0f} s (summed over the runs a `--resume` continued). Every scenario on every "
         "seed is an ordinary compare run under `scenarios/` (its own results, figures and "
@@ -588,7 +588,10 @@ def write_suite_outputs(
     write_json_atomic(
         folder / "statistics.json", statistics_json(rows, methods, ref, scenarios, comparisons)
     )
-    write_report_html(folder / "report.html", cfg, "\n".join(md), folders)
+    figure_sets = [(name, Path(f)) for name, f in folders.items()]
+    write_report_html(
+        folder / "report.html", f"rodctl suite {cfg.name}", "\n".join(md), figure_sets
+    )
     from rich.console import Group
 
     return Group(*(t for _, t in tables))
@@ -674,6 +677,46 @@ def _fmt_mean(d: PairedDifference) -> str:
     return "–" if d.mean is None else f"{d.mean:+.2f} (n = {d.n})"
 
 
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
+#: What the paired tables of a plain compare show (its summary.md).
+PAIRED_NOTE = (
+    "Paired differences are *method minus reference* over the targets both converged on: "
+    "the mean, its BCa bootstrap 95 % confidence interval, the raw Wilcoxon signed-rank p, the "
+    "p adjusted by Holm's correction over every test of this compare (*adj.*) and "
+    "wins/ties/losses (lower is better for every metric). **bold**: significant after "
+    f"correction (adjusted p < {ALPHA} and the interval excludes 0). Method: docs/statistics.md."
+)
+
+
+def paired_statistics(
+    rows: Sequence[dict[str, Any]], methods: Sequence[str], ref: str
+) -> tuple[list[str], dict[str, Any]]:
+    """Every method against `ref` on the episodes of one plain compare: the summary.md lines (a
+    verdict per method, then the paired table) and statistics.json (for every method but the
+    reference, each paired metric's difference with raw and Holm-adjusted p, and `success`:
+    `success_pairs`). The tests of the compare are one family, as a suite's pooled tests are."""
+    from rodctl.report import verdict_lines
+
+    name = "compare"
+    tagged = [{**r, "scenario": name} for r in rows]
+    comparisons = suite_comparisons(tagged, methods, ref, [name])
+    paired = {
+        m: {c.metric: c.pooled for c in comparisons if c.method == m} for m in methods if m != ref
+    }
+    md = verdict_lines(ref, paired) + _paired_markdown(
+        tagged, methods, ref, comparisons, _seeds(tagged)
+    )
+    stats = {
+        m: {col: _difference_json(d) for col, d in per.items()}
+        | {"success": success_pairs(tagged, m, ref)}
+        for m, per in paired.items()
+    }
+    return md, stats
+
+
 def _paired_markdown(
     rows: Sequence[dict[str, Any]],
     methods: Sequence[str],
@@ -716,75 +759,3 @@ def _paired_markdown(
             lines.append(cells)
     out += ["Per seed (each seed's tests Holm-adjusted as one family):", ""]
     return [*out, markdown_table(header, lines), ""]
-
-
-# --- the self-contained report -----------------------------------------------------------------
-
-
-def write_report_html(path: Path, cfg: CompareConfig, markdown: str, folders: dict[str, str]):
-    """One HTML file that opens from disk with no network: the summary and every figure inline."""
-    body = [_markdown_to_html(markdown)]
-    for name, folder in folders.items():
-        figs = sorted((Path(folder) / "figures").glob("*.png"))
-        if not figs:
-            continue
-        body.append(f"<h2>Figures: {html.escape(name)}</h2>")
-        for fig in figs:
-            data = base64.b64encode(fig.read_bytes()).decode("ascii")
-            body.append(
-                f'<figure><img alt="{html.escape(fig.stem)}" src="data:image/png;base64,{data}">'
-                f"<figcaption>{html.escape(name)}: {html.escape(fig.stem)}</figcaption></figure>"
-            )
-    page = f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>rodctl suite {html.escape(cfg.name)}</title>
-<style>
-body {{ font-family: system-ui, sans-serif; max-width: 1200px; margin: 2em auto; color: #222; }}
-table {{ border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }}
-th, td {{ border: 1px solid #ccc; padding: 0.25em 0.5em; text-align: right; }}
-th:first-child, td:first-child {{ text-align: left; }}
-figure {{ display: inline-block; margin: 0.5em; }} img {{ max-width: 560px; }}
-code {{ background: #f3f3f3; padding: 0 0.2em; }}
-</style></head><body>
-{"".join(body)}
-</body></html>
-"""
-    path.write_text(page, encoding="utf-8")
-    return path
-
-
-def _inline(text: str) -> str:
-    import re
-
-    out = html.escape(text)
-    out = re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", out)
-    return re.sub(r"`(.+?)`", r"<code>\1</code>", out)
-
-
-def _markdown_to_html(markdown: str) -> str:
-    """The subset of markdown summary.md uses: headings, paragraphs, pipe tables."""
-    out: list[str] = []
-    table: list[list[str]] = []
-
-    def flush() -> None:
-        if table:
-            head, *rest = table
-            out.append("<table><tr>" + "".join(f"<th>{_inline(c)}</th>" for c in head) + "</tr>")
-            for row in rest:
-                out.append("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in row) + "</tr>")
-            out.append("</table>")
-            table.clear()
-
-    for line in markdown.splitlines():
-        if line.startswith("|"):
-            cells = [c.strip() for c in line.strip().strip("|").split("|")]
-            if not all(set(c) <= {"-", ":"} for c in cells):
-                table.append(cells)
-            continue
-        flush()
-        if line.startswith("#"):
-            level = len(line) - len(line.lstrip("#"))
-            out.append(f"<h{level}>{_inline(line.lstrip('#').strip())}</h{level}>")
-        elif line.strip():
-            out.append(f"<p>{_inline(line)}</p>")
-    flush()
-    return "\n".join(out)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import cv2
+import numpy as np
 
 from rodctl import plots
 from rodctl.logs.synthetic import SyntheticRun
@@ -48,3 +49,121 @@ def test_comparison_figures_include_pixel_error_in_one_unit(tmp_path):
     assert names == ["shapes.png", "pixel_error.png", "t1.png", "commands.png"]
     w, _ = _size(tmp_path / "t1.png")
     assert w >= 3 * 350  # small multiples, three a row
+
+
+def _with_limits(run, limits=(0.01, 0.01, 0.05)):
+    import yaml
+
+    cfg = yaml.safe_load(run.header.config_yaml)
+    cfg["rod"]["max_step"] = list(limits)
+    run.header.config_yaml = yaml.safe_dump(cfg)
+    return run
+
+
+def _drawn_figures(monkeypatch):
+    """Every Figure the plotting functions save, drawn (so layout and text extents are final)."""
+    figures = []
+    for name in ("_png", "_save"):
+        original = getattr(plots, name)
+
+        def keep(fig, *args, _original=original):
+            figures.append(fig)
+            return _original(fig, *args)
+
+        monkeypatch.setattr(plots, name, keep)
+    return figures
+
+
+def _texts(fig):
+    """The figure's titles, legends and axis labels that are shown, as (what, bbox)."""
+    r = fig.canvas.get_renderer()
+    out = []
+    if fig._suptitle is not None:
+        out.append(("suptitle", fig._suptitle.get_window_extent(r)))
+    out += [("figure legend", leg.get_window_extent(r)) for leg in fig.legends]
+    for ax in fig.axes:
+        if not ax.get_visible():
+            continue
+        for what, text in (("title", ax.title), ("x label", ax.xaxis.label)):
+            if text.get_text() and text.get_visible():
+                out.append((f"{what} {text.get_text()!r}", text.get_window_extent(r)))
+        if ax.yaxis.label.get_text():
+            out.append(("y label", ax.yaxis.label.get_window_extent(r)))
+    return out
+
+
+def test_no_title_or_legend_overlaps_another_and_nothing_is_cut_off(tmp_path, monkeypatch):
+    figures = _drawn_figures(monkeypatch)
+    run = _with_limits(SyntheticRun(seed=1, image_every=0))
+    run.header.method = "autoencoder/windowed_ls/mfac"  # a long name must not run off the top
+    plots.write_figures(run.header, run.records(20), tmp_path / "one")
+    runs = {}
+    for i, name in enumerate(("paper", "ma2022", "aghajanzadeh2022", "akf-pinv")):
+        r = _with_limits(SyntheticRun(seed=i, image_every=0))
+        runs[name] = (r.header, r.records(10 + i))
+    plots.write_comparison_figures(runs, tmp_path / "cmp")
+    assert len(figures) == 7
+    for fig in figures:
+        assert fig.dpi >= 150
+        texts = _texts(fig)
+        box = fig.bbox
+        for what, bb in texts:
+            inside = bb.x0 >= box.x0 - 1 and bb.x1 <= box.x1 + 1
+            inside = inside and bb.y0 >= box.y0 - 1 and bb.y1 <= box.y1 + 1
+            assert inside, f"{what} is cut off: {bb} outside {box}"
+        tops = [(w, b) for w, b in texts if w in ("suptitle", "figure legend") or w[:5] == "title"]
+        for i, (wa, a) in enumerate(tops):
+            for wb, b in tops[i + 1 :]:
+                assert not a.overlaps(b), f"{wa} overlaps {wb}"
+
+
+def _labelled_ticks(ax):
+    lo, hi = sorted(ax.get_ylim())
+    ticks = [t for t in ax.yaxis.get_major_ticks() if lo <= t.get_loc() <= hi]
+    return [t.label1.get_text() for t in ticks if t.label1.get_text()]
+
+
+def test_log_axes_label_several_ticks_whatever_the_span():
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    for values in ([0.3, 5.0], [8.2, 9.6], [1.0, 3e5], [0.004, 0.3]):
+        fig = Figure()
+        FigureCanvasAgg(fig)
+        ax = fig.subplots()
+        y = np.geomspace(*values, 20)
+        ax.plot(np.arange(20), y)
+        plots._log_axis(ax, y)
+        fig.canvas.draw()
+        labels = _labelled_ticks(ax)
+        assert len(labels) >= 3, (values, labels)
+        assert all("10^" not in s and "$" not in s for s in labels), labels  # plain numbers
+
+
+def test_commands_draw_the_speed_limits_and_call_the_command_a_pose_increment():
+    run = _with_limits(SyntheticRun(seed=1, image_every=0), (0.01, 0.02, 0.05))
+    fig = plots._commands({"m": run.records(12)}, plots.speed_limits(run.header))
+    title = fig._suptitle.get_text()
+    assert "Pose increment" in title and "velocity" not in title.lower()
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert "speed limit" in labels and "probing" in labels
+    for ax, limit in zip(fig.axes, (0.01, 0.02, 0.05), strict=True):
+        levels = {
+            round(float(line.get_ydata()[0]), 6) for line in ax.lines if line.get_ls() == "--"
+        }
+        assert levels == {limit, -limit}
+    assert plots.speed_limits(SyntheticRun(seed=1, image_every=0).header) is None  # not known
+
+
+def test_methods_with_equal_results_stay_apart_in_the_success_figure():
+    from rodctl.compare import success_axes
+
+    rows = [
+        {"method": m, "difficulty": d, "outcome": "converged", "steps_to_converge": 6}
+        for m in ("a", "b", "c")
+        for d in (0.2, 0.5, 0.8)
+    ]
+    ax = success_axes(rows, ["a", "b", "c"]).axes[0]
+    xs = [tuple(line.get_xdata()[~np.isnan(line.get_ydata())]) for line in ax.lines]
+    assert len(set(xs)) == 3  # all at 100 %, side by side rather than on top of each other
+    assert len({line.get_marker() for line in ax.lines}) == 3

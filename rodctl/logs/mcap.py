@@ -9,8 +9,11 @@ Layout (topic contract in the README, "The MCAP log"):
   contract fields exactly as named, extras after them; MCAP `sequence` = step.
 - `/world/rod`, `/world/target`, `/world/gripper` (foxglove.SceneUpdate), `/camera/image`
   (foxglove.CompressedImage, PNG), `/camera/annotations` (foxglove.ImageAnnotations: target,
-  extracted centerline and projected truth over each logged frame), `/log` (foxglove.Log): what
-  people look at in Foxglove, with the official schemas embedded.
+  extracted centerline and projected truth over each logged frame), `/log` (foxglove.Log),
+  `/tf` (foxglove.FrameTransform: where the camera is in the world, frame `world` -> `camera`)
+  and `/camera/calibration` (foxglove.CameraCalibration: its pinhole intrinsics), both at the
+  start and again at each `camera_bump` event, so Foxglove's 3D panel places the camera and its
+  image: what people look at in Foxglove, with the official schemas embedded.
 - `/run/header`, `/run/summary`: one message each (RunHeader; summary.json + closing status).
 - metadata `rodctl.run`, `rodctl.config` (the resolved config, flattened to dotted keys),
   `rodctl.end` (closing status); attachment `config.yaml`.
@@ -88,7 +91,12 @@ CHANNELS: tuple[tuple[str, dict[str, Any]], ...] = (
     (codec.TOPIC_ANNOTATIONS, schemas.IMAGE_ANNOTATIONS),
     (codec.TOPIC_LOG, schemas.LOG),
     (codec.TOPIC_SUMMARY, schemas.RUN_SUMMARY),
+    # Added after the others (registration order is part of the byte-stable layout).
+    ("/tf", schemas.FRAME_TRANSFORM),
+    ("/camera/calibration", schemas.CAMERA_CALIBRATION),
 )
+TOPIC_TRANSFORM = "/tf"
+TOPIC_CALIBRATION = "/camera/calibration"
 
 # Colours (r, g, b[, a]) of the 3D scene: rod blue on top, target a wider translucent green
 # band just below it (so a rod lying on the target shows as blue inside green), gripper orange.
@@ -275,6 +283,126 @@ def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, A
     return {"deletions": [], "entities": [_entity(t_ns, "gripper", arrows=[arrow])]}
 
 
+#: Where the camera is, by the step from which it holds: (FrameTransform, CameraCalibration).
+CameraViews = dict[int, tuple[dict[str, Any], dict[str, Any]]]
+
+
+def camera_views(config_yaml: str) -> CameraViews:
+    """The camera as Foxglove places it, by the control step from which it holds: step 0 the
+    configured camera, then one entry per `camera_bump` event (`rodctl.events`), replayed on
+    the configured pose in the loop's order. Each is (FrameTransform fields, CameraCalibration
+    fields) without the timestamp. Empty when the config does not describe a camera.
+
+    The transform is the camera frame in the world frame (OpenCV's camera axes: +x right in
+    the image, +y down, +z along the optical axis, which is what CameraCalibration's frame
+    means): translation = the camera centre, rotation = R^T as a quaternion, R being
+    `Camera.rotation` (world -> camera).
+    """
+    from pydantic import ValidationError
+    from scipy.spatial.transform import Rotation
+
+    from rodctl.config.camera import CameraConfig
+    from rodctl.events import CameraBump
+    from rodctl.vision.camera import Camera
+
+    try:
+        data = yaml.safe_load(config_yaml)
+        cam = Camera(CameraConfig.model_validate(data.get("camera", {})))
+        run = data.get("run") or {}
+        bumps = [
+            CameraBump.model_validate(e)
+            for e in (run.get("events") or [])
+            if isinstance(e, dict) and e.get("type") == "camera_bump"
+        ]
+    except (yaml.YAMLError, AttributeError, TypeError, ValidationError):
+        return {}
+
+    def view(camera: Camera) -> tuple[dict[str, Any], dict[str, Any]]:
+        qx, qy, qz, qw = Rotation.from_matrix(camera.rotation.T).as_quat(canonical=True)
+        cx, cy, cz = (float(v) for v in camera.center)
+        transform = {
+            "parent_frame_id": "world",
+            "child_frame_id": "camera",
+            "translation": {"x": cx, "y": cy, "z": cz},
+            "rotation": {"x": float(qx), "y": float(qy), "z": float(qz), "w": float(qw)},
+        }
+        k = [float(v) for v in camera.camera_matrix.ravel()]
+        calibration = {
+            "frame_id": "camera",
+            "width": int(camera.width),
+            "height": int(camera.height),
+            "distortion_model": "plumb_bob",
+            "D": [0.0, 0.0, 0.0, 0.0, 0.0],  # the rendering has no lens distortion
+            "K": k,
+            "R": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            "P": k[0:3] + [0.0] + k[3:6] + [0.0] + k[6:9] + [0.0],
+        }
+        return transform, calibration
+
+    out = {0: view(cam)}
+    for bump in sorted(bumps, key=lambda e: e.at_step):  # stable: list order within a step
+        c = cam.cfg
+        cam.set_pose(**bump.new_pose(c.look_at, c.distance, c.tilt_deg, c.azimuth_deg))
+        out[int(bump.at_step)] = view(cam)
+    return out
+
+
+def camera_messages(views: CameraViews, step: int, t_ns: int) -> list[tuple[str, dict[str, Any]]]:
+    """/tf and /camera/calibration when the camera is placed from `step` on (at the start,
+    after a camera_bump; `camera_views`), else none."""
+    if step not in views:
+        return []
+    transform, calibration = views[step]
+    ts = {"timestamp": codec.foxglove_time(t_ns)}
+    return [(TOPIC_TRANSFORM, ts | transform), (TOPIC_CALIBRATION, ts | calibration)]
+
+
+def step_messages(
+    header: RunHeader, r: StepRecord, t_ns: int, png: bytes | None, views: CameraViews
+) -> list[tuple[str, dict[str, Any]]]:
+    """The messages of one step, in the order they are written: the three contract topics, the
+    scene, the frame (`png`, if this step logs one) with its annotations, and the camera's
+    place if a camera_bump moved it before this step. Shared by the file and the live view."""
+    msgs = [
+        (codec.TOPIC_ROD_STATE, codec.rod_state_message(r)),
+        (codec.TOPIC_CAMERA_CENTERLINE, codec.camera_message(r)),
+        (codec.TOPIC_CONTROL, codec.control_message(r)),
+        (codec.TOPIC_ROD_SCENE, line_strip_scene(t_ns, "rod", r.centerline, _ROD_RGB, 0.006)),
+        (codec.TOPIC_GRIPPER_SCENE, gripper_scene(t_ns, r.gripper, header.rod_length)),
+    ]
+    if png is not None:
+        image = {
+            "timestamp": codec.foxglove_time(t_ns),
+            "frame_id": "camera",
+            "data": codec.b64(png),
+            "format": "png",
+        }
+        msgs.append((codec.TOPIC_IMAGE, image))
+        msgs.append((codec.TOPIC_ANNOTATIONS, image_annotations(t_ns, header, r)))
+    if int(r.step) > 0:  # a camera_bump applied before this step moved the camera
+        msgs += camera_messages(views, int(r.step), t_ns)
+    return msgs
+
+
+def target_scene(t_ns: int, header: RunHeader) -> dict[str, Any]:
+    """/world/target: the target centerline as a wide translucent band just under the rod."""
+    return line_strip_scene(
+        t_ns, "target", header.target_centerline, _TARGET_RGB, 0.012, z=_TARGET_Z
+    )
+
+
+def log_message(t_ns: int, level: str, text: str) -> dict[str, Any]:
+    """A foxglove.Log message."""
+    return {
+        "timestamp": codec.foxglove_time(t_ns),
+        "level": codec.LOG_LEVELS[level],
+        "message": text,
+        "name": "rodctl",
+        "file": "",
+        "line": 0,
+    }
+
+
 #: The array fields of a StepRecord (everything the writer thread reads but the frame).
 _ARRAY_FIELDS = tuple(
     f.name for f in fields(StepRecord) if f.name != "image" and f.type in ("np.ndarray", np.ndarray)
@@ -310,6 +438,7 @@ class McapSink:
         self._queue: deque[Future[None]] = deque()
         self._worker: ThreadPoolExecutor | None = None
         self._closed = False
+        self._camera_views: CameraViews = {}
 
     # ---------------------------------------------------------------------------- Sink protocol
     def open(self, header: RunHeader) -> None:
@@ -365,14 +494,10 @@ class McapSink:
         )
         t0 = codec.LOG_EPOCH_NS
         self._add(codec.TOPIC_HEADER, t0, 0, codec.header_to_json(header))
-        self._add(
-            codec.TOPIC_TARGET_SCENE,
-            t0,
-            0,
-            line_strip_scene(
-                t0, "target", header.target_centerline, _TARGET_RGB, 0.012, z=_TARGET_Z
-            ),
-        )
+        self._add(codec.TOPIC_TARGET_SCENE, t0, 0, target_scene(t0, header))
+        self._camera_views = camera_views(header.config_yaml)
+        for topic, msg in camera_messages(self._camera_views, 0, t0):
+            self._add(topic, t0, 0, msg)
         self._log(t0, *codec.open_log_line(header))
         self._flush()
 
@@ -416,22 +541,8 @@ class McapSink:
         assert self._writer is not None and self._header is not None
         t = codec.log_time_ns(r.sim_time)
         k = int(r.step)
-        msgs = [
-            (codec.TOPIC_ROD_STATE, codec.rod_state_message(r)),
-            (codec.TOPIC_CAMERA_CENTERLINE, codec.camera_message(r)),
-            (codec.TOPIC_CONTROL, codec.control_message(r)),
-            (codec.TOPIC_ROD_SCENE, line_strip_scene(t, "rod", r.centerline, _ROD_RGB, 0.006)),
-            (codec.TOPIC_GRIPPER_SCENE, gripper_scene(t, r.gripper, self._header.rod_length)),
-        ]
-        if frame is not None:
-            image = {
-                "timestamp": codec.foxglove_time(t),
-                "frame_id": "camera",
-                "data": codec.b64(frame.result()),
-                "format": "png",
-            }
-            msgs.append((codec.TOPIC_IMAGE, image))
-            msgs.append((codec.TOPIC_ANNOTATIONS, image_annotations(t, self._header, r)))
+        png = frame.result() if frame is not None else None
+        msgs = step_messages(self._header, r, t, png, self._camera_views)
         data = [(topic, _dumps(m)) for topic, m in msgs]
         lines = codec.step_log_lines(prev, r)
         with signals_deferred():
@@ -509,16 +620,7 @@ class McapSink:
             data=_dumps(msg),
         )
 
-    @staticmethod
-    def _log_msg(t_ns: int, level: str, text: str) -> dict[str, Any]:
-        return {
-            "timestamp": codec.foxglove_time(t_ns),
-            "level": codec.LOG_LEVELS[level],
-            "message": text,
-            "name": "rodctl",
-            "file": "",
-            "line": 0,
-        }
+    _log_msg = staticmethod(log_message)
 
     def _log(self, t_ns: int, level: str, text: str, sequence: int = 0) -> None:
         self._add(codec.TOPIC_LOG, t_ns, sequence, self._log_msg(t_ns, level, text))

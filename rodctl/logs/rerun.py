@@ -12,15 +12,19 @@ Rerun batches rows into chunks on a background thread):
   wide translucent green band under the rod), `/world/clamp` (static, light grey, labelled),
   `/world/gripper`: the scene in world metres with **y negated**: Rerun's 2D views are y-down
   while the world is y-up, so the stored y is -y_world and the view shows the rod the right way up.
-- `/camera/image` (PNG frames chosen by `codec.FrameSchedule`), `/camera/target` (static,
-  green), `/camera/projected_truth` (wide translucent yellow band), `/camera/centerline`
-  (extracted, thin blue on top): pixels, already y-down; colours differ from the rendered rod
-  (red) and from each other, and the draw order puts the extracted line above the truth.
+- `/camera/image` (PNG frames chosen by `codec.FrameSchedule`), `/camera/target` (static, the
+  widest band, translucent green, under the others), `/camera/projected_truth` (a narrower
+  translucent yellow band), `/camera/centerline` (extracted, thin blue on top): pixels, already
+  y-down; colours differ from the rendered rod (red) and from each other, and each band is
+  narrower than the one under it, so at convergence, with the three lines on one another, the
+  target still shows as a green edge around the others. `/camera/legend` (static): one labelled
+  dot per overlay in the image's top-left corner, so no label sits on the rod.
 - `/control/T1`, `/control/pixel_error`, `/control/u/{x,y,theta}`: scalars;
   `/control/probing/{T1,pixel_error}`: violet markers on the probing steps.
 - `/log`: the same log lines as the MCAP's `/log`.
-The blueprint (2D scene, camera with the overlays over the image, T1, pixel error and the three
-command axes, the log) gives both 2D views fixed bounds, so nothing refits while scrubbing: the
+The blueprint (2D scene, camera with the overlays over the image, T1, pixel error, the command's
+translation (m) and rotation (rad) on two plots of their own scale, the log) gives both 2D views
+fixed bounds, so nothing refits while scrubbing: the
 camera view the image frame, the scene a box around the clamp of one rod length plus the gripper
 arrow (sent when the recording starts, so a killed run still has a layout), replaced when the
 recording closes by the box around everything the run drew, with a 10 % margin.
@@ -52,9 +56,11 @@ _TARGET = (40, 200, 90, 150)
 _CLAMP = (225, 225, 225)
 _GRIPPER = (255, 150, 20)
 # Camera overlays: the rendered rod is red on a light background.
-_CAM_TARGET = (0, 170, 50)
+_CAM_TARGET = (0, 170, 50, 150)
 _EXTRACTED = (20, 70, 255)
 _TRUTH = (255, 215, 0, 170)
+#: Half-widths (px) of the camera overlays, widest under: target, truth, extracted.
+_CAM_RADII = (4.5, 2.5, 0.8)
 _PROBE_MARK = _ROD_PROBE
 _AXES = ("x", "y", "theta")
 _AXIS_COLORS = ((220, 50, 47), (38, 139, 210), (133, 153, 0))
@@ -137,7 +143,16 @@ def blueprint(header: RunHeader, scene_bounds: rrb.VisualBounds2D | None = None)
                     contents=["/control/pixel_error", "/control/probing/pixel_error"],
                     name="pixel error (px)",
                 ),
-                rrb.TimeSeriesView(origin="/control/u", name="command u (m, m, rad)"),
+                rrb.TimeSeriesView(
+                    origin="/control/u",
+                    contents=["/control/u/x", "/control/u/y"],
+                    name="command: translation Δx, Δy (m per step)",
+                ),
+                rrb.TimeSeriesView(
+                    origin="/control/u",
+                    contents=["/control/u/theta"],
+                    name="command: rotation Δθ (rad per step)",
+                ),
                 rrb.TextLogView(origin="/log", name="log"),
             ),
         ),
@@ -269,9 +284,7 @@ class RerunSink:
         L = float(header.rod_length) if np.isfinite(header.rod_length) else 0.5
         rec.log(
             "/world/target",
-            rr.LineStrips2D(
-                [target], colors=[_TARGET], radii=0.012 * L, labels=["target"], draw_order=10.0
-            ),
+            rr.LineStrips2D([target], colors=[_TARGET], radii=0.012 * L, draw_order=10.0),
             static=True,
         )
         rec.log(
@@ -282,11 +295,23 @@ class RerunSink:
         rec.log(
             "/camera/target",
             rr.LineStrips2D(
-                [header.target_pixels],
-                colors=[_CAM_TARGET],
-                radii=1.5,
-                labels=["target"],
-                draw_order=20.0,
+                [header.target_pixels], colors=[_CAM_TARGET], radii=_CAM_RADII[0], draw_order=20.0
+            ),
+            static=True,
+        )
+        # The overlays' names as a legend in the image's corner: a label on a line sits at its
+        # middle, on the rod.
+        w, h = header.image_size
+        step = max(14.0, 0.04 * h)
+        rec.log(
+            "/camera/legend",
+            rr.Points2D(
+                [(step, step * (i + 1)) for i in range(3)],
+                colors=[_CAM_TARGET[:3], _TRUTH[:3], _EXTRACTED],
+                radii=4.0,
+                labels=["target", "truth (projected)", "extracted"],
+                show_labels=True,
+                draw_order=50.0,
             ),
             static=True,
         )
@@ -302,12 +327,12 @@ class RerunSink:
         )
         rec.log(
             "/camera/centerline",
-            rr.LineStrips2D.from_fields(colors=[_EXTRACTED], radii=0.8, draw_order=30.0),
+            rr.LineStrips2D.from_fields(colors=[_EXTRACTED], radii=_CAM_RADII[2], draw_order=30.0),
             static=True,
         )
         rec.log(
             "/camera/projected_truth",
-            rr.LineStrips2D.from_fields(colors=[_TRUTH], radii=3.0, draw_order=25.0),
+            rr.LineStrips2D.from_fields(colors=[_TRUTH], radii=_CAM_RADII[1], draw_order=25.0),
             static=True,
         )
         rec.log("/control/T1", rr.SeriesLines(names="T1", colors=[_ROD]), static=True)
@@ -324,10 +349,10 @@ class RerunSink:
                 ),
                 static=True,
             )
-        for axis, color in zip(_AXES, _AXIS_COLORS, strict=True):
-            rec.log(
-                f"/control/u/{axis}", rr.SeriesLines(names=f"u_{axis}", colors=[color]), static=True
-            )
+        for axis, name, color in zip(
+            _AXES, ("Δx (m)", "Δy (m)", "Δθ (rad)"), _AXIS_COLORS, strict=True
+        ):
+            rec.log(f"/control/u/{axis}", rr.SeriesLines(names=name, colors=[color]), static=True)
 
     def write(self, record: StepRecord) -> None:
         """Buffer one step; every `flush_every_steps` steps the buffer is sent as columns.

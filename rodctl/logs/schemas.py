@@ -47,6 +47,8 @@ SCENE_UPDATE = official("SceneUpdate")
 COMPRESSED_IMAGE = official("CompressedImage")
 IMAGE_ANNOTATIONS = official("ImageAnnotations")
 LOG = official("Log")
+FRAME_TRANSFORM = official("FrameTransform")
+CAMERA_CALIBRATION = official("CameraCalibration")
 
 #: The primitive lists of a foxglove.SceneEntity (every one required, empty when unused).
 PRIMITIVE_LISTS: tuple[str, ...] = tuple(
@@ -271,6 +273,8 @@ ALL: dict[str, dict[str, Any]] = {
         COMPRESSED_IMAGE,
         IMAGE_ANNOTATIONS,
         LOG,
+        FRAME_TRANSFORM,
+        CAMERA_CALIBRATION,
     )
 }
 

@@ -14,6 +14,7 @@ import json
 from typing import Any
 
 import jsonschema
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
@@ -217,5 +218,54 @@ def test_every_foxglove_message_validates_against_the_official_schema(mcap_file)
         "/camera/image",
         "/camera/annotations",
         "/log",
+        "/tf",
+        "/camera/calibration",
     }
     assert seen["/camera/image"] == seen["/camera/annotations"]
+    assert seen["/tf"] == seen["/camera/calibration"] == 1  # no camera_bump: placed once
+
+
+def _project(transform, calibration, world_xy):
+    """Pixels of world points (z = 0) as Foxglove computes them from /tf and the calibration."""
+    from scipy.spatial.transform import Rotation
+
+    q = transform["rotation"]
+    to_world = Rotation.from_quat([q["x"], q["y"], q["z"], q["w"]]).as_matrix()
+    t = np.array([transform["translation"][k] for k in "xyz"])
+    pts = np.column_stack([world_xy, np.zeros(len(world_xy))])
+    cam = (pts - t) @ to_world  # = R_world->camera @ (p - t), row by row
+    uvw = cam @ np.array(calibration["K"]).reshape(3, 3).T
+    return uvw[:, :2] / uvw[:, 2:]
+
+
+def test_the_camera_foxglove_places_sees_what_the_camera_saw():
+    """/tf and /camera/calibration project the world onto the pixels rodctl's camera gives,
+    at the start and after a camera_bump."""
+    import yaml
+
+    from rodctl.config import ExperimentConfig, dump_config
+    from rodctl.logs.mcap import camera_views
+    from rodctl.vision.camera import Camera
+
+    cfg = ExperimentConfig.model_validate(
+        {
+            "camera": {"tilt_deg": 10.0, "azimuth_deg": 5.0},
+            "run": {"events": [{"type": "camera_bump", "at_step": 4, "tilt_deg": 6.0}]},
+        }
+    )
+    views = camera_views(dump_config(cfg))
+    assert sorted(views) == [0, 4]
+    world = np.column_stack([np.linspace(0.0, 0.5, 7), np.linspace(-0.05, 0.1, 7)])
+    camera = Camera(cfg.camera)
+    for step in (0, 4):
+        if step == 4:
+            camera.set_pose(tilt_deg=16.0)
+        transform, calibration = views[step]
+        assert transform["parent_frame_id"] == "world" and calibration["frame_id"] == "camera"
+        assert transform["child_frame_id"] == "camera"
+        assert (calibration["width"], calibration["height"]) == (camera.width, camera.height)
+        np.testing.assert_allclose(
+            _project(transform, calibration, world), camera.project(world), atol=1e-6
+        )
+    assert views[0][0] != views[4][0] and views[0][1] == views[4][1]  # intrinsics stay
+    assert camera_views(yaml.safe_dump({"camera": {"width": -3}})) == {}  # no camera, no views

@@ -191,3 +191,57 @@ def test_probing_steps_are_marked(rrd_file, synthetic):
     by_step = dict(zip(steps, (c[0] for c in colors), strict=True))
     assert len({by_step[k] for k in probe}) == 1
     assert by_step[1] != by_step[0] and by_step[1] != by_step[5] and by_step[0] == by_step[5]
+
+
+def _view_contents(path) -> list[dict[str, list[str]]]:
+    """Per blueprint: view name -> its contents query."""
+    reader = RrdReader(path)
+    out = []
+    for store in reader.blueprints():
+        names, queries = {}, {}
+        for ch in reader.stream(store=store):
+            rb = ch.to_record_batch()
+            if "ViewBlueprint:display_name" in rb.schema.names:
+                names[ch.entity_path] = rb.column("ViewBlueprint:display_name").to_pylist()[0][0]
+            if "ViewContents:query" in rb.schema.names:
+                view = ch.entity_path.rsplit("/", 1)[0]
+                queries[view] = rb.column("ViewContents:query").to_pylist()[0]
+        out.append({names[v]: q for v, q in queries.items()})
+    return out
+
+
+def test_translation_and_rotation_commands_are_plotted_apart(rrd_file):
+    for views in _view_contents(rrd_file):
+        [theta] = [name for name, q in views.items() if "/control/u/theta" in q]
+        [xy] = [name for name, q in views.items() if "/control/u/x" in q]
+        assert theta != xy and "/control/u/y" in views[xy] and "/control/u/x" not in views[theta]
+        assert "(rad" in theta and "(m" in xy
+
+
+def _static(chunks, entity, component):
+    [value] = [
+        ch.to_record_batch().column(component).to_pylist()[0]
+        for ch in chunks[entity]
+        if ch.is_static and component in ch.to_record_batch().schema.names
+    ]
+    return value
+
+
+def test_camera_labels_keep_off_the_rod_and_the_target_shows_at_convergence(rrd_file, synthetic):
+    header, records = synthetic
+    chunks = _chunks(rrd_file)
+    for entity in ("/camera/target", "/world/target"):  # a line's label sits on the rod
+        names = set().union(*(ch.to_record_batch().schema.names for ch in chunks[entity]))
+        assert "LineStrips2D:labels" not in names, entity
+    labels = _static(chunks, "/camera/legend", "Points2D:labels")
+    assert labels == ["target", "truth (projected)", "extracted"]
+    spots = np.asarray(_static(chunks, "/camera/legend", "Points2D:positions"))
+    rod = np.concatenate([header.target_pixels] + [r.extracted for r in records])
+    gap = np.linalg.norm(spots[:, None, :] - rod[None, :, :], axis=2).min()
+    assert gap > 40, gap  # px: the legend is clear of every line the camera view draws
+    # Lying on one another at convergence, each band is narrower than the one under it.
+    radii = [
+        _static(chunks, f"/camera/{e}", "LineStrips2D:radii")[0]
+        for e in ("target", "projected_truth", "centerline")
+    ]
+    assert radii[0] > radii[1] > radii[2], radii
