@@ -982,6 +982,7 @@ def _episode_tasks(
                     # results.jsonl carries every column of results.csv (`_report` sets the same)
                     "columns": {
                         "scenario": cfg.scenario,
+                        "seed": cfg.seed,
                         "band": t.band(cfg.targets.bands),
                         "difficulty": round(t.difficulty, 6),
                         "target_x": float(t.pose[0]),
