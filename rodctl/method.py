@@ -179,6 +179,9 @@ class Method:
         if ok:
             s_new = self._encode(obs["centerline"])
             t = time.perf_counter()
+            observe = getattr(self.estimator, "observe", None)
+            if observe is not None:  # a state-dependent model (the learned one) sees the state
+                observe(np.asarray(obs["centerline"]), np.asarray(obs["gripper"], dtype=float))
             self.J = self.estimator.update(s_new - self.s, self._unseen)
             self.times.control += time.perf_counter() - t
             self._unseen[:] = 0.0
