@@ -342,8 +342,8 @@ class LearnedJacobian:
         *,
         camera: Any = None,
         home_pose: np.ndarray | None = None,
-        learning_rate: float = 0.5,
-        window: int = 5,
+        learning_rate: float = 0.2,
+        window: int = 10,
         dead_zone: float = 1e-4,
     ) -> None:
         self.p, self.q = int(p), int(q)
@@ -488,13 +488,13 @@ class LearnedTrainingConfig(StrictModel):
         10, ge=3, le=200, description="K: centerline points of the state (the authors use 10)."
     )
     width: float = Field(
-        2.0,
+        4.0,
         gt=0.0,
         le=100.0,
         description="RBF width sigma_h as a multiple of cluster h's RMS radius.",
     )
     ridge: float = Field(
-        1e-4,
+        0.1,
         ge=0.0,
         le=1e3,
         description="Ridge weight of the output-layer least squares, relative to the mean "
@@ -524,13 +524,13 @@ class LearnedEstimatorConfig(StrictModel):
         "trained yet (only `rodctl train-model` accepts that).",
     )
     learning_rate: float = Field(
-        0.5,
+        0.2,
         ge=0.0,
         le=1.0,
         description="eta of the online normalised gradient step (0: no online updates; 1: "
         "each step reproduces the last move exactly).",
     )
-    window: int = Field(5, ge=1, le=1000, description="Moves the online gradient sums over.")
+    window: int = Field(10, ge=1, le=1000, description="Moves the online gradient sums over.")
     dead_zone: float = Field(1e-4, le=1.0, ge=0.0, description=DEAD_ZONE_DOC)
     other_setup: Literal["refuse", "accept"] = Field(
         "refuse",

@@ -339,3 +339,49 @@ def train_model(cfg: ExperimentConfig, run: RunDir, *, progress: bool = True) ->
     }
     write_json_atomic(Path(run.path) / "metrics.json", metrics)
     return metrics
+
+
+def one_step_errors(
+    estimator: Any, walk: dict[str, Any], encode: Any, *, skip: int = 0
+) -> np.ndarray:
+    """||ds_k - J_k dr_k|| along one walk: J_k is the estimate before move k, then updated.
+
+    How a method meets the walk's moves in the loop: the estimate made from everything seen
+    so far predicts the next feature change; then the estimator folds that move in (the state
+    hooks first, for the learned model). An estimator with a `prepare` hook starts there, any
+    other from the least-squares fit of the first q + 1 moves (the probing of docs/method.md
+    §4), which are then not scored.
+
+    Args:
+        estimator: a `JacobianEstimator` for the walk's feature.
+        walk: a `collect_walk` result (one segment is used: the first).
+        encode: the feature map's batch encoder.
+        skip: further leading moves not scored.
+
+    Returns:
+        (M,) errors in feature units.
+    """
+    from rodctl.estimation.probing import fit_jacobian
+
+    seg = np.asarray(walk["segment"])
+    n = int(np.sum(seg == seg[0]))
+    pixels = np.asarray(walk["pixels"], dtype=float)[:n]
+    poses = np.asarray(walk["poses"], dtype=float)[:n]
+    S = np.asarray(encode(pixels), dtype=float)
+    dS, dR = np.diff(S, axis=0), np.diff(poses, axis=0)
+    prepare = getattr(estimator, "prepare", None)
+    observe = getattr(estimator, "observe", None)
+    start = 0
+    if prepare is not None:
+        J = prepare(pixels[0])
+    else:
+        start = dR.shape[1] + 1
+        J = fit_jacobian(dS[:start], dR[:start])
+        estimator.reset(J)
+    errs = []
+    for k in range(start, len(dR)):
+        errs.append(float(np.linalg.norm(dS[k] - J @ dR[k])))
+        if observe is not None:
+            observe(pixels[k + 1], poses[k + 1])
+        J = estimator.update(dS[k], dR[k])
+    return np.array(errs[skip:])
