@@ -418,7 +418,10 @@ def train_model(
     from rodctl.estimation.learned_training import train_model as train
     from rodctl.runs import RunDir
 
-    cfg = load_config(config, set_ or [])
+    try:  # the model to be trained replaces any the config names (it is not checked)
+        cfg = load_config(config, [*(set_ or []), "estimator.checkpoint=null"])
+    except UserError:
+        cfg = load_config(config, set_ or [])  # its own error, or not a learned estimator
     if cfg.estimator.type != "learned":
         raise UserError(
             f"{config}: train-model trains the learned Jacobian, but estimator.type is "
