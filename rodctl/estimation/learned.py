@@ -519,9 +519,10 @@ class LearnedEstimatorConfig(StrictModel):
 
     type: Literal["learned"] = "learned"
     checkpoint: str | None = Field(
-        None,
-        description="The trained model (model.npz from `rodctl train-model`). None: not "
-        "trained yet (only `rodctl train-model` accepts that).",
+        ...,
+        description="The trained model (model.npz from `rodctl train-model`; "
+        "rodctl/assets/learned-yu2023.npz is one for configs/yu2023.yaml). null: not trained "
+        "yet (only `rodctl train-model` accepts that).",
     )
     learning_rate: float = Field(
         0.2,

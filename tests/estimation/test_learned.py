@@ -114,4 +114,4 @@ def test_a_config_without_a_trained_model_says_how_to_train_one():
     from rodctl.estimation import make_estimator
 
     with pytest.raises(UserError, match="rodctl train-model"):
-        make_estimator(LearnedEstimatorConfig(), 6, 3)
+        make_estimator(LearnedEstimatorConfig(checkpoint=None), 6, 3)

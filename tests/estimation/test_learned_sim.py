@@ -23,6 +23,7 @@ from rodctl.registry import FEATURES, BuildContext, load_plugins
 from rodctl.vision import Camera
 
 SMALL = [
+    "estimator.checkpoint=null",  # the model is trained here
     "rod.material={name: silicone_tube}",
     "rod.gravity=[0.0, -9.81]",
     "rod.segments=20",
