@@ -205,6 +205,7 @@ _BUILTIN_MODULES = (
     "rodctl.control.pinv",
     "rodctl.control.qp",
     "rodctl.control.scripted",
+    "rodctl.control.convex",
 )
 
 

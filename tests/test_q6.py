@@ -29,7 +29,7 @@ FEATURE_TYPES = {
     "nodes": {"type": "nodes"},
 }
 ESTIMATOR_TYPES = ["akf", "broyden", "windowed_ls", "offline", "oracle", "learned"]
-CONTROLLER_TYPES = ["mfac", "pinv", "qp", "scripted"]
+CONTROLLER_TYPES = ["mfac", "pinv", "qp", "scripted", "yu_convex"]
 
 
 def test_every_registered_type_has_a_q6_test():
