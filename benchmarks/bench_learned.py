@@ -8,7 +8,8 @@ walks as the loop would meet them (`rodctl.estimation.learned_training.one_step_
 the estimate from what it has seen predicts the next move's feature change, then folds it in.
 Prints the mean error per estimator beside the goal: the learned model below the AKF.
 
-    .venv/bin/python benchmarks/bench_learned.py [--samples 3000] [--chunk 300] [--set KEY=VALUE]
+    .venv/bin/python benchmarks/bench_learned.py [--samples 3000] [--chunk 300] [--held-out 2]
+        [--set KEY=VALUE] [--save model.npz]
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ def main() -> None:
     parser.add_argument("--chunk", type=int, default=300)
     parser.add_argument("--held-out", type=int, default=2, help="walks held out for scoring")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--save", help="also write the fitted model (.npz) here")
     args = parser.parse_args()
     load_plugins()
     sets = [
@@ -51,6 +53,8 @@ def main() -> None:
     collect = time.perf_counter() - t0
     held, train = walks[: args.held_out], walks[args.held_out :]
     model = train_model_from_walks(cfg, train)
+    if args.save:
+        model.save(args.save)
     feature = FEATURES.build(cfg.feature, BuildContext(points=cfg.camera.points, experiment=cfg))
     camera = Camera(cfg.camera, None)
     est = cfg.estimator
