@@ -532,6 +532,59 @@ def train_encoder(
     typer.echo(str(run.path))
 
 
+@app.command("train-model")
+@user_errors
+def train_model(
+    config: ConfigArg,
+    set_: SetOpt = None,
+    out: OutOpt = "runs",
+    quiet: QuietOpt = False,
+) -> None:
+    """Collect random-motion data in the simulator and train the learned Jacobian model.
+
+    The config's estimator must be `learned` (its `data` and `training` sections say how).
+    Writes model.npz (numpy arrays + JSON, no pickles) and metrics.json (one-step prediction
+    errors, the set-up fingerprint, the model's sha256) into a new run directory and prints it
+    as the last line. Use it with --set estimator.checkpoint=RUN_DIR/model.npz.
+    """
+    from rodctl.estimation.learned_training import train_model as train
+    from rodctl.runs import RunDir
+
+    try:  # the model to be trained replaces any the config names (it is not checked)
+        cfg = load_config(config, [*(set_ or []), "estimator.checkpoint=null"])
+    except UserError:
+        cfg = load_config(config, set_ or [])  # its own error, or not a learned estimator
+    if cfg.estimator.type != "learned":
+        raise UserError(
+            f"{config}: train-model trains the learned Jacobian, but estimator.type is "
+            f"{cfg.estimator.type!r}; set estimator.type=learned"
+        )
+    run = RunDir.create(out, cfg, command="train-model", argv=sys.argv)
+    try:
+        with sigterm_as_interrupt():
+            metrics = train(cfg, run, progress=not quiet)
+    except KeyboardInterrupt:
+        run.finish("interrupted", error="interrupted by a signal (SIGINT or SIGTERM)")
+        typer.echo(f"error: interrupted; what was written is in {run.path}", err=True)
+        typer.echo(str(run.path))
+        raise typer.Exit(code=1) from None
+    except BaseException as exc:
+        run.finish("failed", error=f"{type(exc).__name__}: {exc}")
+        raise
+    run.finish("completed")
+    if not quiet:
+        for part in ("train", "validation"):
+            if metrics.get(part):
+                err = metrics[part]
+                typer.echo(
+                    f"{part}: one-step error {err['mean_error']:.4g} "
+                    f"({100 * err['relative_error']:.1f} % of |ds|)",
+                    err=True,
+                )
+        typer.echo(f"sha256: {metrics['sha256']}", err=True)
+    typer.echo(str(run.path))
+
+
 ExecutorOpt = Annotated[
     str,
     typer.Option(

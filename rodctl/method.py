@@ -89,10 +89,16 @@ class Method:
         self._target_pixels = np.array(task.target_pixels, dtype=float)
         self.s_target = self._encode(self._target_pixels)
         self.p = int(self.s_target.shape[0])
+        # q: 3 (the gripper's x, y, theta) or 6 (both ends moved), as the task's home pose has it
+        self.q = (
+            int(np.asarray(task.home_pose).reshape(-1).shape[0])
+            if task.home_pose is not None
+            else Q
+        )
         ctx = BuildContext(
             points=self.points,
             p=self.p,
-            q=Q,
+            q=self.q,
             home_pose=task.home_pose,
             max_step=task.max_step,
             camera=task.camera,
@@ -106,11 +112,11 @@ class Method:
         self.controller = CONTROLLERS.build(self.configs["controller"], ctx)
         for kind, registry in (("estimator", ESTIMATORS), ("controller", CONTROLLERS)):
             self.stages[kind] = registry.provenance(self.configs[kind].type)
-        self.J = np.zeros((self.p, Q))
+        self.J = np.zeros((self.p, self.q))
         self.s: np.ndarray | None = None
         self.phase = INITIAL
         self.failure: str | None = None
-        self._unseen = np.zeros(Q)  # gripper motion since the last good frame
+        self._unseen = np.zeros(self.q)  # gripper motion since the last good frame
         self._probes: list[np.ndarray] = []
         self._probe_pairs: tuple[list, list] = ([], [])
         self._probing_left = 0
@@ -162,7 +168,7 @@ class Method:
         if model is not None:
             self.J = np.array(model, dtype=float)
         elif not self.open_loop:
-            self._probes = list(probe_moves(Q, self.task.probe_size))
+            self._probes = list(probe_moves(self.q, self.task.probe_size))
             self._probing_left = len(self._probes)
 
     def _fold(self, obs: dict[str, Any]) -> None:
@@ -183,6 +189,9 @@ class Method:
         if ok:
             s_new = self._encode(obs["centerline"])
             t = time.perf_counter()
+            observe = getattr(self.estimator, "observe", None)
+            if observe is not None:  # a state-dependent model (the learned one) sees the state
+                observe(np.asarray(obs["centerline"]), np.asarray(obs["gripper"], dtype=float))
             self.J = self.estimator.update(s_new - self.s, self._unseen)
             self.times.control += time.perf_counter() - t
             self._unseen[:] = 0.0
@@ -191,14 +200,14 @@ class Method:
     def _fit_initial_jacobian(self) -> None:
         """J_0 from the probing moves (least squares); too few good frames end the episode."""
         dS, dR = self._probe_pairs
-        if len(dR) < Q:
+        if len(dR) < self.q:
             self.failure = "lost_tracking"
             return
         t = time.perf_counter()
         try:
             self.J = fit_jacobian(np.array(dS), np.array(dR))
         except ValueError as exc:
-            if len(dR) < Q + 1:
+            if len(dR) < self.q + 1:
                 # A lost frame merged two probing moves (the last one undoes the others, so
                 # e.g. +x with -(x+y+theta) leaves only 2 axes): the camera, not the set-up.
                 self.failure = "lost_tracking"

@@ -385,10 +385,12 @@ _BUILTIN_MODULES = (
     "rodctl.estimation.windowed_ls",
     "rodctl.estimation.asap",
     "rodctl.estimation.oracle",
+    "rodctl.estimation.learned",
     "rodctl.control.mfac",
     "rodctl.control.pinv",
     "rodctl.control.qp",
     "rodctl.control.scripted",
+    "rodctl.control.convex",
 )
 
 

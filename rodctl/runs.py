@@ -40,6 +40,7 @@ SEED_CONSUMERS = (
     "probing",
     "compare",
     "sweep",
+    "model-data",
 )
 
 #: Distributions whose versions meta.json records.

@@ -13,7 +13,8 @@ equal to the loop's saturation, so the loop's saturation never bites on this law
 With q = 3 the QP is solved exactly by enumerating the 3^q active sets (each axis at its lower
 bound, free, or at its upper bound): the objective is strictly convex, so exactly one set
 satisfies the KKT conditions and its solution is the unique minimiser. No iterative solver, no
-tolerance to tune, at most 27 solves of at most 3 x 3.
+tolerance to tune, at most 27 solves of at most 3 x 3 (q = 6, both ends moved: at most 729 of
+at most 6 x 6, fewest active bounds first, so usually the first).
 """
 
 from __future__ import annotations
@@ -94,7 +95,13 @@ class QpController:
             settings["r_weights"] = tuple(np.asarray(settings["r_weights"], dtype=float).tolist())
         cfg = QpControllerConfig(**settings)
         self._max = np.asarray(max_step, dtype=float)
-        self._R = np.diag(np.asarray(cfg.r_weights, dtype=float))
+        weights = np.asarray(cfg.r_weights, dtype=float)
+        if self._max.shape[0] % weights.shape[0]:
+            raise ValueError(
+                f"r_weights has {weights.shape[0]} values for a {self._max.shape[0]}-DoF command"
+            )
+        # 3 weights [dx, dy, dtheta] apply to each moved end (q = 6: both ends)
+        self._R = np.diag(np.tile(weights, self._max.shape[0] // weights.shape[0]))
         if not np.all(self._max > 0.0):
             raise ValueError(f"max_step must be positive, got {self._max.tolist()}")
         self._gain = float(cfg.gain)
@@ -135,8 +142,12 @@ class QpControllerConfig(StrictModel):
     gain: float = Field(
         0.3, gt=0.0, le=1.0, description="lambda: the fraction of the error one step aims at."
     )
-    r_weights: tuple[Weight, Weight, Weight] = Field(
-        (1.0, 1.0, 1.0), description="Diagonal of R: penalty on [dx, dy, dtheta] (feature^2/u^2)."
+    r_weights: (
+        tuple[Weight, Weight, Weight] | tuple[Weight, Weight, Weight, Weight, Weight, Weight]
+    ) = Field(
+        (1.0, 1.0, 1.0),
+        description="Diagonal of R: penalty on [dx, dy, dtheta] (feature^2/u^2), applied to each "
+        "moved end; 6 values set both ends of a dual-arm (q = 6) command apart.",
     )
 
 

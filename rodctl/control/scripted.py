@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
-from rodctl.config.base import Pose, StrictModel
+from rodctl.config.base import Angle, Coordinate, Pose, StrictModel
 from rodctl.registry import CONTROLLERS, BuildContext
 
 
@@ -39,12 +39,14 @@ class ScriptedController:
         max_step: (3,) per-axis bound on one increment.
         tolerance: (3,) per-axis distance at which a waypoint counts as reached.
         """
-        self._wp = np.atleast_2d(np.asarray(waypoints, dtype=float))
-        if self._wp.ndim != 2 or self._wp.shape[1] != 3 or self._wp.shape[0] < 1:
-            raise ValueError(f"waypoints must be (n >= 1, 3), got {self._wp.shape}")
         self._home = np.asarray(home_pose, dtype=float)
+        q = self._home.shape[0]  # 3, or 6 when both ends are moved
+        self._wp = np.atleast_2d(np.asarray(waypoints, dtype=float))
+        if self._wp.ndim != 2 or self._wp.shape[1] != q or self._wp.shape[0] < 1:
+            raise ValueError(f"waypoints must be (n >= 1, {q}), got {self._wp.shape}")
         self._max = np.asarray(max_step, dtype=float)
-        self._tol = np.asarray(tolerance, dtype=float)
+        tol = np.asarray(tolerance, dtype=float)
+        self._tol = np.tile(tol, q // tol.shape[0]) if q % tol.shape[0] == 0 else tol
         if not np.all(self._max > 0.0):
             raise ValueError(f"max_step must be positive, got {self._max.tolist()}")
         self.reset()
@@ -74,12 +76,15 @@ class ScriptedController:
         while not self.done and np.all(np.abs(self._wp[self._index] - pose) <= self._tol):
             self._index += 1
         if self.done:
-            return np.zeros(3)
+            return np.zeros_like(pose)
         return np.clip(self._wp[self._index] - pose, -self._max, self._max)
 
 
 # --- config and registration ------------------------------------------------------------
 
+
+#: Both ends' poses [x1, y1, theta1, x2, y2, theta2] (q = 6).
+DualPose = tuple[Coordinate, Coordinate, Angle, Coordinate, Coordinate, Angle]
 
 #: A per-axis tolerance [m or rad].
 Tol = Annotated[float, Field(gt=0.0, le=10.0)]
@@ -94,10 +99,11 @@ class ScriptedControllerConfig(StrictModel):
     """
 
     type: Literal["scripted"] = "scripted"
-    waypoints: list[Pose] = Field(
+    waypoints: list[Pose] | list[DualPose] = Field(
         ...,
         min_length=1,
-        description="Absolute gripper poses [[x, y, theta], ...] (world frame, m, rad), in order.",
+        description="Absolute gripper poses [[x, y, theta], ...] (world frame, m, rad), in order; "
+        "6 values each (both ends, in the command's order) when both ends are moved (q = 6).",
     )
     tolerance: tuple[Tol, Tol, Tol] = Field(
         (1e-4, 1e-4, 1e-3),

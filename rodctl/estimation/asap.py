@@ -141,7 +141,27 @@ def gripper_block(rest: np.ndarray) -> np.ndarray:
     )
 
 
-def asap_jacobian(rest: np.ndarray, servoed: Sequence[int], *, clamp_nodes: int = 2) -> np.ndarray:
+def clamp_block(rest: np.ndarray, clamp_nodes: int) -> np.ndarray:
+    """(2 c, 3) map from the clamp pose rate (xdot, ydot, thetadot) to its c held nodes.
+
+    For q = 6 (the clamp moved as a second gripper). The clamp pose is that of node 0 with
+    theta the tangent from node 0 to node 1; the held nodes are a rigid straight section, node
+    k at its rest distance from node 0 along theta.
+    """
+    rest = np.asarray(rest, dtype=float)
+    d = rest[1] - rest[0]
+    th = math.atan2(float(d[1]), float(d[0]))
+    rows = []
+    for k in range(clamp_nodes):
+        dist = math.hypot(*(float(v) for v in rest[k] - rest[0]))
+        rows.append([1.0, 0.0, -dist * math.sin(th)])
+        rows.append([0.0, 1.0, dist * math.cos(th)])
+    return np.array(rows)
+
+
+def asap_jacobian(
+    rest: np.ndarray, servoed: Sequence[int], *, clamp_nodes: int = 2, q: int = 3
+) -> np.ndarray:
     """ASAP Jacobian of servoed node positions w.r.t. the gripper pose (docs/baselines.md).
 
     The first `clamp_nodes` nodes are clamped (zero velocity), the last two are held by the
@@ -152,8 +172,12 @@ def asap_jacobian(rest: np.ndarray, servoed: Sequence[int], *, clamp_nodes: int 
         servoed: indices of the servoed nodes, none of them clamped or gripped.
         clamp_nodes: number of clamped nodes at the start, >= 1.
 
+        q: 3 (the gripper moves, the clamp is fixed) or 6 (both ends move: columns
+            [x, y, theta] of the gripper, then of the clamp, `clamp_block`).
+
     Returns:
-        (2 n_s, 3) Jacobian: rows [x_s1, y_s1, x_s2, ...], columns [x, y, theta] of the gripper.
+        (2 n_s, q) Jacobian: rows [x_s1, y_s1, x_s2, ...], columns [x, y, theta] of the gripper
+        (then of the clamp).
     """
     rest = np.asarray(rest, dtype=float)
     m = rest.shape[0]
@@ -161,9 +185,14 @@ def asap_jacobian(rest: np.ndarray, servoed: Sequence[int], *, clamp_nodes: int 
         raise ValueError(f"clamp_nodes={clamp_nodes} leaves no free node in a {m}-node chain")
     clamp = list(range(clamp_nodes))
     grip = [m - 2, m - 1]
+    if q not in (3, 6):
+        raise ValueError(f"the ASAP model moves one end (q = 3) or both (q = 6), not q = {q}")
     J_sg = asap_node_jacobian(rest, clamp + grip, servoed)
-    # clamp columns get zero velocity
-    return fla.matmul(J_sg[:, 2 * clamp_nodes :], gripper_block(rest))
+    J_grip = fla.matmul(J_sg[:, 2 * clamp_nodes :], gripper_block(rest))
+    if q == 3:
+        return J_grip  # clamp columns get zero velocity
+    J_clamp = fla.matmul(J_sg[:, : 2 * clamp_nodes], clamp_block(rest, clamp_nodes))
+    return np.concatenate([J_grip, J_clamp], axis=1)
 
 
 def servoed_indices(nodes: int, fractions: Sequence[float], *, clamp_nodes: int = 2) -> list[int]:
@@ -185,7 +214,12 @@ def servoed_indices(nodes: int, fractions: Sequence[float], *, clamp_nodes: int 
 
 
 def asap_from_centerline(
-    centerline: np.ndarray, nodes: int, fractions: Sequence[float], *, clamp_nodes: int = 2
+    centerline: np.ndarray,
+    nodes: int,
+    fractions: Sequence[float],
+    *,
+    clamp_nodes: int = 2,
+    q: int = 3,
 ) -> tuple[np.ndarray, np.ndarray]:
     """ASAP Jacobian from a rest centerline, as `OfflineEstimatorConfig` describes it.
 
@@ -194,14 +228,15 @@ def asap_from_centerline(
         nodes: number of nodes to resample it to.
         fractions: servoed points as arc-length fractions.
         clamp_nodes: clamped nodes at the start.
+        q: 3 or 6 (`asap_jacobian`).
 
     Returns:
-        J (2 n_s, 3) in world units and the servoed rest points (n_s, 2), at which the loop
+        J (2 n_s, q) in world units and the servoed rest points (n_s, 2), at which the loop
         evaluates the camera's projection Jacobian to compose J in pixels.
     """
     rest = resample_polyline(centerline, nodes)
     idx = servoed_indices(nodes, fractions, clamp_nodes=clamp_nodes)
-    return asap_jacobian(rest, idx, clamp_nodes=clamp_nodes), rest[idx]
+    return asap_jacobian(rest, idx, clamp_nodes=clamp_nodes, q=q), rest[idx]
 
 
 class OfflineJacobian:
@@ -268,7 +303,7 @@ class OfflineJacobian:
         if self._camera is None:
             return None if self._J is None else self.J
         rest = self._camera.unproject(pixels)
-        J_world, nodes = asap_from_centerline(rest, self._nodes, self._servoed)
+        J_world, nodes = asap_from_centerline(rest, self._nodes, self._servoed, q=self.q)
         proj = self._camera.projection_jacobian(nodes)  # (n, 2, 2)
         n = nodes.shape[0]
         J = np.einsum("nij,njq->niq", proj, J_world.reshape(n, 2, self.q)).reshape(2 * n, self.q)

@@ -1,0 +1,54 @@
+"""`rodctl train-model`: collects random motion, fits the learned Jacobian, writes the model."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from paths import REPO
+from typer.testing import CliRunner
+
+from rodctl.cli import app
+from rodctl.estimation.learned import RbfJacobianModel
+
+TINY = [
+    "--set", "rod.segments=12", "--set", "camera.points=20",
+    "--set", "estimator.data.samples=40", "--set", "estimator.data.chunk=20",
+    "--set", "estimator.data.workers=1", "--set", "estimator.training.centres=4",
+]  # fmt: skip
+
+
+def test_train_model_writes_a_model_the_config_then_accepts(tmp_path, monkeypatch):
+    monkeypatch.chdir(REPO)
+    runner = CliRunner()
+    res = runner.invoke(
+        app, ["train-model", "configs/yu2023.yaml", "-q", "-o", str(tmp_path), *TINY]
+    )
+    assert res.exit_code == 0, res.output
+    run = Path(res.output.strip().splitlines()[-1])
+    metrics = json.loads((run / "metrics.json").read_text())
+    model = RbfJacobianModel.load(run / "model.npz")
+    assert metrics["sha256"] == model.digest()
+    assert metrics["train_pairs"] > 0 and metrics["fingerprint"]["rod"]["length"] == 0.5
+    # The model fits the config it was trained with, and is refused for another rod.
+    from rodctl.config import load_config
+    from rodctl.errors import UserError
+
+    sets = [a for a in TINY if a != "--set"] + [f"estimator.checkpoint={run / 'model.npz'}"]
+    load_config("configs/yu2023.yaml", sets)
+    try:
+        load_config("configs/yu2023.yaml", [*sets, "rod.length=0.4"])
+    except UserError as exc:
+        assert "rod.length" in str(exc) and "other_setup=accept" in str(exc)
+    else:
+        raise AssertionError("a model trained for another rod length was accepted")
+    load_config("configs/yu2023.yaml", [*sets, "rod.length=0.4", "estimator.other_setup=accept"])
+
+
+def test_train_model_refuses_a_config_without_the_learned_estimator(tmp_path):
+    res = CliRunner().invoke(
+        app, ["train-model", str(REPO / "configs/default.yaml"), "-o", str(tmp_path)]
+    )
+    assert res.exit_code == 2
+    assert "estimator.type=learned" in res.output
+    assert not list(tmp_path.iterdir())  # no run directory for bad input
