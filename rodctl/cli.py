@@ -512,6 +512,79 @@ def sweep(
     )  # fmt: skip
 
 
+@app.command()
+@user_errors
+def estimate(
+    path: Annotated[
+        str,
+        typer.Argument(help="A run directory, its run.mcap, or a points recording (.csv/.npz)."),
+    ],
+    estimator: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--estimator", "-e", help="Registered estimator to run (repeat); default all."
+        ),
+    ] = None,
+    feature: Annotated[
+        str,
+        typer.Option(
+            "--feature",
+            help="Feature space: logged (a run's own s), points, or a registered feature type "
+            "(bezier, fourier, ...). Default: logged for a run, points for a recording.",
+        ),
+    ] = "",
+    init: Annotated[
+        int | None,
+        typer.Option("--init", min=1, help="Recording pairs J_0 is fitted from (default 10 q)."),
+    ] = None,
+    scaled: Annotated[
+        bool,
+        typer.Option(
+            "--scaled/--defaults",
+            help="Dead zones, Broyden's step and the ridge scaled to the data's motion and noise "
+            "(docs/recordings.md), or every estimator's config defaults.",
+        ),
+    ] = False,
+    out: Annotated[
+        str | None,
+        typer.Option("--out", "-o", help="Folder for results.csv and steps.csv."),
+    ] = None,
+) -> None:
+    """Run the online Jacobian estimators over a recorded (Delta s, Delta r), offline.
+
+    Reports each estimator's one-step-ahead prediction error of Delta s against the
+    zero-motion predictor and a least-squares J fitted in hindsight; writes results.csv and
+    steps.csv (default: RUN_DIR/estimate, or beside the recording) and prints the folder last.
+    """
+    from pathlib import Path
+
+    from rodctl import estimate as est
+
+    src = Path(path)
+    if src.suffix.lower() in (".csv", ".npz"):
+        from rodctl.recordings.points import read_points
+
+        pairs = est.pairs_from_recording(read_points(src), init=init, feature=feature or "points")
+        dest = Path(out) if out else src.with_name(src.stem + "-estimate")
+    else:
+        from rodctl.replay import read_run
+
+        pairs = est.pairs_from_run(read_run(src, images=False), feature=feature or "logged")
+        dest = Path(out) if out else (src if src.is_dir() else src.parent) / "estimate"
+    result = est.estimate(pairs, estimator or None, scaled=scaled)
+    try:
+        est.write_results(result, dest)
+    except OSError as exc:
+        raise UserError(
+            f"--out {dest}: cannot write the results: {describe_os_error(exc)}"
+        ) from None
+    typer.echo(est.format_table(result), err=True)
+    for r in result.runs:
+        if r.outcome not in ("completed",) and r.note:
+            typer.echo(f"{r.name}: {r.outcome}: {r.note}", err=True)
+    typer.echo(str(dest))
+
+
 def main() -> None:
     """Console-script entry point."""
     app(prog_name="rodctl")
