@@ -69,6 +69,8 @@ class Pairs:
         feature: the feature space's name.
         logged_J: (n, p, q) the live run's J after each pair (rodctl runs with the logged
             feature), else None.
+        run_settings: {estimator type: its settings} of the run's own estimator (a rodctl
+            run): `estimate` runs that type with them, as the live loop did.
     """
 
     init_ds: np.ndarray
@@ -78,6 +80,7 @@ class Pairs:
     steps: np.ndarray
     feature: str
     logged_J: np.ndarray | None = None
+    run_settings: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @property
     def p(self) -> int:
@@ -166,7 +169,21 @@ def pairs_from_run(run: Any, feature: str = "logged") -> Pairs:
         steps=np.array(at[n0:]),
         feature=feature,
         logged_J=logged,
+        run_settings=_run_estimator(run.header.config_yaml),
     )
+
+
+def _run_estimator(config_yaml: str) -> dict[str, dict[str, Any]]:
+    """{type: settings} of the estimator in a run's resolved config (empty if unreadable)."""
+    import yaml
+
+    try:
+        cfg = yaml.safe_load(config_yaml) or {}
+        est = dict(cfg.get("estimator") or {})
+        kind = est.pop("type")
+    except Exception:  # noqa: BLE001 - a run without a readable config: defaults
+        return {}
+    return {str(kind): est}
 
 
 def _encode_ok(fmap: Any, recs: Sequence[Any]) -> np.ndarray:
@@ -370,7 +387,8 @@ def estimate(
         names: registered estimator names (default: all of them; those that cannot run on a
             recording, the offline ASAP model and the simulator's oracle, get the outcome
             `not_applicable`).
-        scaled: use `data_scaled_settings` instead of each estimator's defaults.
+        scaled: use `data_scaled_settings` instead of each estimator's defaults (and instead
+            of a rodctl run's own estimator settings, which are used otherwise).
         settings: explicit settings per estimator name (override both).
         progress: called with each estimator's name before it runs.
     """
@@ -380,7 +398,7 @@ def estimate(
         J0 = fit_jacobian(pairs.init_ds, pairs.init_dr)
     except ValueError as exc:
         raise UserError(f"J_0 from the first pairs: {exc}") from None
-    chosen = dict(data_scaled_settings(pairs)) if scaled else {}
+    chosen = dict(data_scaled_settings(pairs)) if scaled else dict(pairs.run_settings)
     for k, v in (settings or {}).items():
         chosen[k] = {**chosen.get(k, {}), **v}
     runs = []

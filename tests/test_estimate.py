@@ -1,0 +1,93 @@
+"""`rodctl estimate`: offline estimation over a run or a points recording (issue #26)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from rodctl.cli import app
+from rodctl.estimate import estimate, pairs_from_run
+from rodctl.recordings.points import read_points, write_points_csv, write_points_npz
+from rodctl.recordings.synthetic import dual_arm_recording
+from rodctl.replay import read_run
+
+FAST = ["--set", "feature.type=bezier", "--set", "run.max_steps=30", "-q"]
+
+
+@pytest.fixture(scope="module")
+def sim_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("runs")
+    res = CliRunner().invoke(app, ["simulate", "configs/default.yaml", *FAST, "--out", str(out)])
+    assert res.exit_code in (0, 1), res.output
+    return Path(res.stdout.strip().splitlines()[-1])
+
+
+def test_estimate_on_a_simulated_run_reproduces_its_live_estimates_bit_for_bit(sim_run):
+    pairs = pairs_from_run(read_run(sim_run, images=False), feature="logged")
+    assert pairs.logged_J is not None and len(pairs.ds) > 5
+    res = estimate(pairs, ["akf"])
+    (akf,) = res.runs
+    assert akf.outcome == "completed"
+    assert len(akf.J) == len(pairs.logged_J)
+    for k, (mine, live) in enumerate(zip(akf.J, pairs.logged_J, strict=True)):
+        assert mine.tobytes() == live.tobytes(), f"pair {k} (step {pairs.steps[k]})"
+
+
+def test_estimate_command_on_a_run_writes_results_and_steps(sim_run, tmp_path):
+    out = tmp_path / "est"
+    res = CliRunner().invoke(
+        app, ["estimate", str(sim_run), "-e", "akf", "-e", "broyden", "--out", str(out)]
+    )
+    assert res.exit_code == 0, res.output
+    assert res.stdout.strip().splitlines()[-1] == str(out)
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    names = [r["estimator"] for r in rows]
+    assert names == ["zero_motion", "hindsight_ls", "akf", "broyden"]
+    assert all(r["outcome"] in ("reference", "completed") for r in rows)
+    steps = list(csv.reader((out / "steps.csv").open()))
+    assert steps[0] == ["step", *names]
+    assert len(steps) - 1 == int(rows[2]["updates"])
+
+
+def test_a_two_end_points_recording_reads_back_and_estimates(tmp_path):
+    rec = dual_arm_recording(150, seed=2, points=8)
+    path = write_points_csv(rec, tmp_path / "rec.csv")
+    back = read_points(path)
+    assert np.array_equal(back.points, rec.points) and np.array_equal(back.poses, rec.poses)
+    npz = read_points(write_points_npz(rec, tmp_path / "rec.npz"))
+    assert np.array_equal(npz.points, rec.points) and npz.q == 6
+    out = tmp_path / "est"
+    res = CliRunner().invoke(
+        app,
+        ["estimate", str(path), "-e", "broyden", "-e", "windowed_ls", "--scaled", "-o", str(out)],
+    )
+    assert res.exit_code == 0, res.output
+    rows = {r["estimator"]: r for r in csv.DictReader((out / "results.csv").open())}
+    assert rows["broyden"]["outcome"] == rows["windowed_ls"]["outcome"] == "completed"
+    assert int(rows["broyden"]["updates"]) == 150 - 60  # J_0 from the first 10 q pairs
+    assert float(rows["windowed_ls"]["ratio_to_zero_motion"]) < 1.0
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("t,x0,y0,x1,y1\n0,0,0,1,0\n", "e0_x"),
+        (
+            "t,x0,y0,x1,y1,e0_x,e0_y,e0_theta\n0,0,0,1,0,0,0,0\n0,0,0,1,0,0,0,0\n0,0,0,1,0,0,0,0\n",
+            "frame 1: t",
+        ),
+        ("t,x0,y0,x1,y1,e0_x,e0_y,e0_theta,zz\n", "column 'zz'"),
+        ("t,x0,y0,x1,y1,e0_x,e0_y,e0_theta\n0,0,0,1,0,0,0,0\n1,0,a,1,0,0,0,0\n", "not a number"),
+    ],
+)
+def test_a_bad_points_file_exits_2_naming_the_column_or_frame(tmp_path, text, needle):
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    res = CliRunner().invoke(app, ["estimate", str(path)])
+    assert res.exit_code == 2
+    assert needle in res.output and "bad.csv" in res.output
+    assert "Traceback" not in res.output
