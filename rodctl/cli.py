@@ -569,7 +569,8 @@ def estimate(
     else:
         from rodctl.replay import read_run
 
-        pairs = est.pairs_from_run(read_run(src, images=False), feature=feature or "logged")
+        run = read_run(src, images=False)
+        pairs = est.pairs_from_run(run, feature=feature or "logged", init=init)
         dest = Path(out) if out else (src if src.is_dir() else src.parent) / "estimate"
     result = est.estimate(pairs, estimator or None, scaled=scaled)
     try:
@@ -583,6 +584,27 @@ def estimate(
         if r.outcome not in ("completed",) and r.note:
             typer.echo(f"{r.name}: {r.outcome}: {r.note}", err=True)
     typer.echo(str(dest))
+
+
+@app.command("import")
+@user_errors
+def import_recording(
+    path: Annotated[str, typer.Argument(help="A points recording (.csv or .npz).")],
+    out: OutOpt = "runs",
+    name: Annotated[
+        str | None, typer.Option("--name", help="Run name (default import-<file stem>).")
+    ] = None,
+) -> None:
+    """Turn a recording into a rodctl run folder (config.yaml, meta.json, summary.json,
+    run.mcap with the contract topics) that replay, Foxglove and estimate read.
+
+    The points format (per-frame tracked points plus one or two end-effector poses) is
+    specified in docs/recordings.md. Prints the run directory last; exit 2 on a bad file,
+    1 when cut short (the frames converted so far are kept).
+    """
+    from rodctl.recordings.importer import import_points
+
+    typer.echo(str(import_points(path, out, name)))
 
 
 def main() -> None:

@@ -131,13 +131,15 @@ def _encoder(feature: str, points: int) -> Any:
     return make_feature_map(cfg, points=points)
 
 
-def pairs_from_run(run: Any, feature: str = "logged") -> Pairs:
+def pairs_from_run(run: Any, feature: str = "logged", init: int | None = None) -> Pairs:
     """The pairs of a rodctl run read back (`rodctl.replay.read_run`).
 
     Args:
         run: a `ReadRun`.
         feature: "logged" (the run's own s, which reproduces its J), "points" (the extracted
             pixel centerline flattened) or a registered feature type (default settings).
+        init: fit J_0 from the first `init` pairs instead of the run's probing moves (the
+            default for an imported recording, which has none: 10 q pairs).
     """
     recs = run.records
     if len(recs) < 2:
@@ -153,13 +155,19 @@ def pairs_from_run(run: Any, feature: str = "logged") -> Pairs:
     ds, dr, at = _fold(s, u, ok)
     phases = [recs[k].phase for k in at]
     n0 = sum(1 for ph in phases if ph == "probe")
-    if n0 == 0 or n0 == len(at):
+    if init is not None or n0 == 0:  # an imported recording (no probing): the first pairs
+        n0 = 10 * u.shape[1] if init is None else int(init)
+    if n0 < u.shape[1] or n0 >= len(at):
         raise UserError(
-            f"{run.path}: no probing phase followed by control steps (an open-loop or offline "
-            "method's run); estimate a recording with --init instead"
+            f"{run.path}: J_0 from {n0} pairs needs at least q = {u.shape[1]} of them and "
+            f"control steps after them; the run has {len(at)} pairs (--init sets the number)"
         )
     logged = None
-    if feature == "logged":
+    if (
+        feature == "logged"
+        and recs[-1].phase == "control"
+        and any(np.any(np.asarray(recs[k].J) != 0.0) for k in at[n0:])
+    ):
         logged = np.array([np.asarray(recs[k].J, dtype=float) for k in at[n0:]])
     return Pairs(
         init_ds=np.array(ds[:n0]),

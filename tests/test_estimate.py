@@ -91,3 +91,32 @@ def test_a_bad_points_file_exits_2_naming_the_column_or_frame(tmp_path, text, ne
     assert res.exit_code == 2
     assert needle in res.output and "bad.csv" in res.output
     assert "Traceback" not in res.output
+
+
+def test_an_imported_recording_replays_and_estimates_like_the_file(tmp_path):
+    rec = dual_arm_recording(90, seed=4, points=6)
+    path = write_points_csv(rec, tmp_path / "arm.csv")
+    runner = CliRunner()
+    res = runner.invoke(app, ["import", str(path), "--out", str(tmp_path / "runs")])
+    assert res.exit_code == 0, res.output
+    run_dir = Path(res.stdout.strip().splitlines()[-1])
+    assert {"config.yaml", "meta.json", "summary.json", "run.mcap"} <= {
+        p.name for p in run_dir.iterdir()
+    }
+    run = read_run(run_dir, images=False)
+    assert len(run.records) == 91 and run.status == "completed"
+    assert np.array_equal(run.records[5].centerline, rec.points[5])
+    assert np.asarray(run.records[5].u).shape == (6,)
+    res = runner.invoke(app, ["replay", str(run_dir), "--no-figures"])
+    assert res.exit_code == 0, res.output
+    assert (run_dir / "run.rrd").is_file()
+    from rodctl.estimate import pairs_from_recording
+
+    a = estimate(pairs_from_run(run), ["broyden"])
+    b = estimate(pairs_from_recording(read_points(path)), ["broyden"])
+    assert a.runs[0].errors.tobytes() == b.runs[0].errors.tobytes()
+
+
+def test_import_of_a_bad_file_exits_2(tmp_path):
+    res = CliRunner().invoke(app, ["import", str(tmp_path / "missing.csv")])
+    assert res.exit_code == 2 and "missing.csv" in res.output

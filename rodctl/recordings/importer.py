@@ -1,0 +1,184 @@
+"""`rodctl import`: a recording turned into a rodctl run folder with the contract topics.
+
+The run folder is what `rodctl simulate` writes (config.yaml, meta.json, summary.json,
+run.mcap), so `replay` rebuilds run.rrd and the figures from it, Foxglove opens its run.mcap and
+`estimate` reads its (Delta s, Delta r). What a recording does not have is said, not invented
+(docs/recordings.md, "What an imported run contains"):
+- one record per frame: step k, `sim_time` = t_k - t_0, phase "initial" then "control";
+- `gripper` = end effector 0's pose; `u` = the change of all end-effector poses since the
+  previous frame (q = 3 or 6 values, angles unwrapped);
+- `s` = the tracked points flattened (x0, y0, x1, ...; the `points` feature), `J` = zeros: no
+  estimate is made at import (`rodctl estimate` makes them offline);
+- there is no target: `s_target` and the target shape are the last frame's, so T1 is the
+  distance to the final shape;
+- points in pixels are the `extracted` centerline as they are; points in metres are the world
+  centerline, and `extracted` is their view through a nominal top-down camera of
+  `NOMINAL_PX_PER_M` pixels per metre (y down), recorded in config.yaml's `source`.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from rodctl.errors import RunFailed, UserError
+from rodctl.recordings.synthetic import PointsRecording
+
+#: Scale of the nominal top-down view of a recording in metres (pixels per metre).
+NOMINAL_PX_PER_M = 1000.0
+
+
+def _views(rec: PointsRecording) -> tuple[np.ndarray, np.ndarray, tuple[int, int], dict]:
+    """(world centerline (T, N, 2) m, pixels (T, N, 2), image size, the view's description)."""
+    pts = np.asarray(rec.points, dtype=float)
+    if rec.units == "px":
+        px = pts
+        lo = np.zeros(2)
+        size = (int(np.ceil(px[..., 0].max())) + 1, int(np.ceil(px[..., 1].max())) + 1)
+        world = np.stack([px[..., 0], -px[..., 1]], axis=-1) / NOMINAL_PX_PER_M
+        view = {"points_are": "pixels", "world": f"x / {NOMINAL_PX_PER_M:g}, -y / same"}
+    else:
+        world = pts
+        lo = world.reshape(-1, 2).min(axis=0) - 0.05
+        hi = world.reshape(-1, 2).max(axis=0) + 0.05
+        px = np.stack(
+            [
+                (world[..., 0] - lo[0]) * NOMINAL_PX_PER_M,
+                (hi[1] - world[..., 1]) * NOMINAL_PX_PER_M,
+            ],
+            axis=-1,
+        )
+        size = (
+            int(np.ceil((hi[0] - lo[0]) * NOMINAL_PX_PER_M)),
+            int(np.ceil((hi[1] - lo[1]) * NOMINAL_PX_PER_M)),
+        )
+        view = {
+            "points_are": "metres",
+            "nominal_camera": {
+                "px_per_m": NOMINAL_PX_PER_M,
+                "origin_m": [float(lo[0]), float(hi[1])],
+            },
+        }
+    return world, px, (max(size[0], 1), max(size[1], 1)), view
+
+
+def import_points(path: str | Path, out: str | Path, name: str | None = None) -> Path:
+    """Write the points recording at `path` as a run folder under `out`; return the folder.
+
+    Raises:
+        UserError: a bad recording (`read_points`) or an output folder that cannot be made.
+    """
+    from rodctl.logs.mcap import McapSink
+    from rodctl.recordings.points import read_points
+    from rodctl.records import RunHeader, RunSummary, StepRecord
+    from rodctl.runs import jsonable, write_json_atomic
+
+    src = Path(path)
+    rec = read_points(src)
+    world, px, size, view = _views(rec)
+    T, N = rec.points.shape[:2]
+    r = rec.r
+    stem = name or f"import-{src.stem}"
+    parent = Path(out)
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        run_dir = parent / f"{time.strftime('%Y%m%d-%H%M%S')}_{stem}"
+        for n in range(2, 10_000):
+            if not run_dir.exists():
+                break
+            run_dir = parent / f"{time.strftime('%Y%m%d-%H%M%S')}_{stem}-{n}"
+        run_dir.mkdir()
+    except OSError as exc:
+        raise UserError(f"--out {parent}: cannot create the run folder: {exc}") from None
+    source = {
+        "kind": "points",
+        "file": str(src),
+        "frames": int(T),
+        "points": int(N),
+        "end_effectors": int(rec.poses.shape[1]),
+        "q": rec.q,
+        **view,
+    }
+    config_yaml = yaml.safe_dump({"name": stem, "seed": 0, "source": source}, sort_keys=False)
+    (run_dir / "config.yaml").write_text(config_yaml, encoding="utf-8")
+    meta = {
+        "run_id": run_dir.name,
+        "command": "import",
+        "status": "running",
+        "source": str(src),
+        "started_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    write_json_atomic(run_dir / "meta.json", meta)
+
+    s_all = px.reshape(T, -1) if rec.units == "px" else world.reshape(T, -1)
+    s_target = s_all[-1]
+    header = RunHeader(
+        run_id=run_dir.name,
+        method="recording/points",
+        config_yaml=config_yaml,
+        image_size=size,
+        clamp_pose=np.asarray(rec.poses[0, -1] if rec.poses.shape[1] == 2 else np.zeros(3)),
+        home_pose=np.asarray(rec.poses[0, 0]),
+        target_centerline=world[-1],
+        target_pixels=px[-1],
+        target_feature=s_target,
+        target_pose=np.asarray(rec.poses[-1, 0]),
+        rod_length=float(np.sqrt((np.diff(world[0], axis=0) ** 2).sum(axis=1)).sum()),
+    )
+    sink = McapSink(run_dir / "run.mcap")
+    sink.open(header)
+    p, q = s_all.shape[1], rec.q
+    last = None
+    status, written = "completed", 0
+    t0 = time.perf_counter()
+    try:
+        for k in range(T):
+            u = np.zeros(q) if k == 0 else r[k] - r[k - 1]
+            err = float(np.sqrt(((px[k] - px[-1]) ** 2).sum(axis=1)).mean())
+            last = StepRecord(
+                step=k,
+                sim_time=float(rec.t[k] - rec.t[0]),
+                phase="initial" if k == 0 else "control",
+                gripper=np.asarray(rec.poses[k, 0]),
+                centerline=world[k],
+                extracted=px[k],
+                projected_truth=px[k],
+                u=u,
+                u_raw=u,
+                s=s_all[k],
+                s_target=s_target,
+                T1=float(np.sqrt(((s_target - s_all[k]) ** 2).sum())),
+                J=np.zeros((p, q)),
+                J_singular_values=np.zeros(min(p, q)),
+                pixel_error=err,
+            )
+            sink.write(last)
+            written = k + 1
+    except KeyboardInterrupt:
+        status = "interrupted"
+    wall = time.perf_counter() - t0
+    summary = RunSummary(
+        status=status,
+        outcome="recording",
+        method=header.method,
+        steps=max(written - 1, 0),
+        converged=False,
+        steps_to_converge=None,
+        final_T1=float(last.T1) if last is not None else float("nan"),
+        final_pixel_error=float(last.pixel_error) if last is not None else float("nan"),
+        wall_time_s=wall,
+        steps_per_s=written / wall if wall > 0 else 0.0,
+        extra={"run_id": run_dir.name, "frames_imported": written, "frames": int(T)},
+    )
+    sink.close(summary, status)
+    write_json_atomic(run_dir / "summary.json", jsonable(summary.to_json()))
+    meta.update(status=status, ended_at=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    write_json_atomic(run_dir / "meta.json", meta)
+    if status != "completed":
+        raise RunFailed(
+            f"import of {src} cut short after {written} of {T} frames; {run_dir} keeps them"
+        )
+    return run_dir
