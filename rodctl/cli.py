@@ -607,6 +607,25 @@ def import_recording(
     typer.echo(str(import_points(path, out, name)))
 
 
+@app.command("export")
+@user_errors
+def export_run(
+    path: Annotated[str, typer.Argument(help="A run directory or its run.mcap.")],
+    ros2: Annotated[str, typer.Option("--ros2", help="The ROS 2 bag folder to write (new).")],
+    storage: Annotated[
+        str, typer.Option("--storage", help="Bag storage: mcap or sqlite3.")
+    ] = "mcap",
+) -> None:
+    """Write a run as a ROS 2 bag (Image, CameraInfo, PoseStamped, MarkerArray; CDR), no
+    ROS 2 install needed (docs/recordings.md). Prints the messages per topic and the bag last."""
+    from rodctl.recordings.ros2 import export_ros2
+
+    counts = export_ros2(path, ros2, storage)
+    for topic, n in counts.items():
+        typer.echo(f"{topic}: {n} messages", err=True)
+    typer.echo(ros2)
+
+
 def main() -> None:
     """Console-script entry point."""
     app(prog_name="rodctl")

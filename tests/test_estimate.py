@@ -120,3 +120,48 @@ def test_an_imported_recording_replays_and_estimates_like_the_file(tmp_path):
 def test_import_of_a_bad_file_exits_2(tmp_path):
     res = CliRunner().invoke(app, ["import", str(tmp_path / "missing.csv")])
     assert res.exit_code == 2 and "missing.csv" in res.output
+
+
+# --- export to a ROS 2 bag (shares the simulated run above) -------------------------------
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_export_writes_a_ros2_bag_that_rosbags_reads_back(sim_run, tmp_path, storage):
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    bag = tmp_path / f"bag-{storage}"
+    res = CliRunner().invoke(
+        app, ["export", str(sim_run), "--ros2", str(bag), "--storage", storage]
+    )
+    assert res.exit_code == 0, res.output
+    run = read_run(sim_run, images=True)
+    frames = [r for r in run.records if r.image is not None]
+    assert frames
+    got: dict[str, list] = {}
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        for conn, t_ns, raw in reader.messages():
+            got.setdefault(conn.topic, []).append((t_ns, reader.deserialize(raw, conn.msgtype)))
+    assert len(got["/gripper/pose"]) == len(got["/rod/centerline"]) == len(run.records)
+    assert len(got["/camera/image_raw"]) == len(got["/camera/camera_info"]) == len(frames)
+    for rec, (_, pose) in zip(run.records, got["/gripper/pose"], strict=True):
+        o = pose.pose.orientation
+        theta = 2 * np.arctan2(o.z, o.w)
+        assert [pose.pose.position.x, pose.pose.position.y] == list(rec.gripper[:2])
+        assert abs(np.angle(np.exp(1j * (theta - rec.gripper[2])))) < 1e-12
+    last = got["/rod/centerline"][-1][1].markers[0]
+    pts = np.array([[p.x, p.y] for p in last.points])
+    assert np.array_equal(pts, run.records[-1].centerline)
+    img = got["/camera/image_raw"][0][1]
+    assert img.encoding == "rgb8"
+    pixels = np.asarray(img.data).reshape(img.height, img.width, 3)
+    assert np.array_equal(pixels, frames[0].image)
+    info = got["/camera/camera_info"][0][1]
+    assert (
+        info.k[0] > 0 and info.k[8] == 1.0 and (info.width, info.height) == (img.width, img.height)
+    )
+
+
+def test_export_refuses_an_existing_bag_folder(sim_run, tmp_path):
+    res = CliRunner().invoke(app, ["export", str(sim_run), "--ros2", str(tmp_path)])
+    assert res.exit_code == 2 and "exists already" in res.output
