@@ -589,11 +589,25 @@ def estimate(
 @app.command("import")
 @user_errors
 def import_recording(
-    path: Annotated[str, typer.Argument(help="A points recording (.csv or .npz).")],
+    path: Annotated[
+        str, typer.Argument(help="A points recording (.csv/.npz) or a ROS 2 bag folder.")
+    ],
     out: OutOpt = "runs",
     name: Annotated[
         str | None, typer.Option("--name", help="Run name (default import-<file stem>).")
     ] = None,
+    points_topic: Annotated[
+        str | None,
+        typer.Option("--points-topic", help="Bag: the tracked points (MarkerArray, Path, ...)."),
+    ] = None,
+    pose_topic: Annotated[
+        list[str] | None,
+        typer.Option("--pose-topic", help="Bag: an end effector's PoseStamped (once or twice)."),
+    ] = None,
+    tolerance: Annotated[
+        float,
+        typer.Option("--tolerance", min=0.0, help="Bag: largest pose gap (s) around a frame."),
+    ] = 0.2,
 ) -> None:
     """Turn a recording into a rodctl run folder (config.yaml, meta.json, summary.json,
     run.mcap with the contract topics) that replay, Foxglove and estimate read.
@@ -602,8 +616,20 @@ def import_recording(
     specified in docs/recordings.md. Prints the run directory last; exit 2 on a bad file,
     1 when cut short (the frames converted so far are kept).
     """
-    from rodctl.recordings.importer import import_points
+    from pathlib import Path
 
+    from rodctl.recordings.importer import import_bag, import_points
+
+    if Path(path).is_dir():
+        if not points_topic or not pose_topic:
+            raise UserError(f"{path}: a bag needs --points-topic and --pose-topic")
+        run_dir, notes = import_bag(
+            path, out, points_topic, pose_topic, tolerance=tolerance, name=name
+        )
+        for note in notes:
+            typer.echo(f"note: {note}", err=True)
+        typer.echo(str(run_dir))
+        return
     typer.echo(str(import_points(path, out, name)))
 
 

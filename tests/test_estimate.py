@@ -165,3 +165,102 @@ def test_export_writes_a_ros2_bag_that_rosbags_reads_back(sim_run, tmp_path, sto
 def test_export_refuses_an_existing_bag_folder(sim_run, tmp_path):
     res = CliRunner().invoke(app, ["export", str(sim_run), "--ros2", str(tmp_path)])
     assert res.exit_code == 2 and "exists already" in res.output
+
+
+# --- import of tracked points and poses from a ROS 2 bag -----------------------------------
+
+
+def test_a_bag_exported_from_a_run_imports_back_to_the_same_shapes_and_poses(sim_run, tmp_path):
+    run = read_run(sim_run, images=False)
+    for storage in ("mcap", "sqlite3"):
+        bag = tmp_path / f"bag-{storage}"
+        runner = CliRunner()
+        assert (
+            runner.invoke(
+                app, ["export", str(sim_run), "--ros2", str(bag), "--storage", storage]
+            ).exit_code
+            == 0
+        )
+        res = runner.invoke(
+            app,
+            ["import", str(bag), "--points-topic", "/rod/centerline", "--pose-topic",
+             "/gripper/pose", "-o", str(tmp_path / storage)],
+        )  # fmt: skip
+        assert res.exit_code == 0, res.output
+        back = read_run(Path(res.stdout.strip().splitlines()[-1]), images=False)
+        assert len(back.records) == len(run.records)
+        for a, b in zip(run.records, back.records, strict=True):
+            assert np.array_equal(a.centerline, b.centerline)
+            assert np.array_equal(a.gripper[:2], b.gripper[:2])
+            assert abs(a.gripper[2] - b.gripper[2]) < 1e-12
+            assert abs((a.sim_time - run.records[0].sim_time) - b.sim_time) < 1e-8
+
+
+def _bag(path: Path, frames: list[tuple[float, np.ndarray]], poses: list[tuple[float, list]]):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from rodctl.recordings.ros2 import line_marker, pose_stamped
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    with Writer(path, version=8) as w:
+        c_pts = w.add_connection(
+            "/tracker/points", "visualization_msgs/msg/MarkerArray", typestore=ts
+        )
+        c_pose = w.add_connection("/arm/pose", "geometry_msgs/msg/PoseStamped", typestore=ts)
+        for t, xy in frames:
+            ns = int(round(t * 1e9)) + 10**18
+            msg = ts.types["visualization_msgs/msg/MarkerArray"](markers=[line_marker(ts, ns, xy)])
+            w.write(c_pts, ns, ts.serialize_cdr(msg, c_pts.msgtype))
+        for t, pose in poses:
+            ns = int(round(t * 1e9)) + 10**18
+            msg = pose_stamped(ts, ns, np.array(pose))
+            w.write(c_pose, ns, ts.serialize_cdr(msg, c_pose.msgtype))
+
+
+def _import(bag: Path, out: Path, tol: str = "0.2"):
+    return CliRunner().invoke(
+        app,
+        ["import", str(bag), "--points-topic", "/tracker/points", "--pose-topic", "/arm/pose",
+         "--tolerance", tol, "-o", str(out)],
+    )  # fmt: skip
+
+
+def test_bag_poses_are_interpolated_at_the_frame_times(tmp_path):
+    line = np.array([[0.0, 0.0], [0.1, 0.02], [0.2, 0.0]])
+    frames = [(0.1 * k, line + 0.001 * k) for k in range(12)]
+    # the pose moves linearly in time, sampled at 7 Hz from before the first frame
+    poses = [(t, [0.3 + 0.05 * t, -0.1 * t, 0.2 * t]) for t in np.arange(-0.05, 1.3, 1 / 7)]
+    _bag(tmp_path / "bag", frames, poses)
+    res = _import(tmp_path / "bag", tmp_path / "runs")
+    assert res.exit_code == 0, res.output
+    run = read_run(Path(res.stdout.strip().splitlines()[-1]), images=False)
+    assert len(run.records) == 12
+    for k, r in enumerate(run.records):
+        t = 0.1 * k
+        assert np.allclose(r.gripper, [0.3 + 0.05 * t, -0.1 * t, 0.2 * t], atol=1e-9)
+        assert np.array_equal(r.centerline, frames[k][1])
+
+
+@pytest.mark.parametrize(
+    ("pose_times", "needle"),
+    [
+        (np.arange(5.0, 6.0, 0.1), "do not overlap"),
+        (np.r_[np.arange(0.0, 0.45, 0.1), np.arange(0.95, 1.3, 0.1)], "t = 0.500000 s"),
+    ],
+)
+def test_bag_poses_that_miss_the_frames_exit_2_naming_the_time(tmp_path, pose_times, needle):
+    line = np.array([[0.0, 0.0], [0.1, 0.0]])
+    _bag(
+        tmp_path / "bag", [(0.1 * k, line) for k in range(12)], [(t, [0, 0, 0]) for t in pose_times]
+    )
+    res = _import(tmp_path / "bag", tmp_path / "runs")
+    assert res.exit_code == 2, res.output
+    assert needle in res.output and "/arm/pose" in res.output
+
+
+def test_a_bag_frame_with_another_point_count_exits_2_naming_it(tmp_path):
+    frames = [(0.1 * k, np.zeros((3 if k != 4 else 2, 2))) for k in range(8)]
+    _bag(tmp_path / "bag", frames, [(0.05 * k, [0, 0, 0]) for k in range(20)])
+    res = _import(tmp_path / "bag", tmp_path / "runs")
+    assert res.exit_code == 2 and "frame 4" in res.output and "/tracker/points" in res.output

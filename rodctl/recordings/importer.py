@@ -71,13 +71,46 @@ def import_points(path: str | Path, out: str | Path, name: str | None = None) ->
     Raises:
         UserError: a bad recording (`read_points`) or an output folder that cannot be made.
     """
-    from rodctl.logs.mcap import McapSink
     from rodctl.recordings.points import read_points
+
+    src = Path(path)
+    return write_run(read_points(src), src, out, name, {"kind": "points"})
+
+
+def import_bag(
+    bag: str | Path,
+    out: str | Path,
+    points_topic: str,
+    pose_topics: list[str],
+    *,
+    tolerance: float = 0.2,
+    name: str | None = None,
+) -> tuple[Path, list[str]]:
+    """Write the tracked points and poses of a ROS 2 bag as a run folder under `out`
+    (`rodctl.recordings.ros2.read_bag_points`); return the folder and the notes.
+    """
+    from rodctl.recordings.ros2 import read_bag_points
+
+    src = Path(bag)
+    rec, notes = read_bag_points(src, points_topic, pose_topics, tolerance)
+    source = {
+        "kind": "ros2_bag",
+        "points_topic": points_topic,
+        "pose_topics": list(pose_topics),
+        "tolerance_s": tolerance,
+        "notes": notes,
+    }
+    return write_run(rec, src, out, name, source), notes
+
+
+def write_run(
+    rec: PointsRecording, src: Path, out: str | Path, name: str | None, source: dict
+) -> Path:
+    """Write a checked points recording as a run folder under `out` (the module docstring)."""
+    from rodctl.logs.mcap import McapSink
     from rodctl.records import RunHeader, RunSummary, StepRecord
     from rodctl.runs import jsonable, write_json_atomic
 
-    src = Path(path)
-    rec = read_points(src)
     world, px, size, view = _views(rec)
     T, N = rec.points.shape[:2]
     r = rec.r
@@ -94,7 +127,7 @@ def import_points(path: str | Path, out: str | Path, name: str | None = None) ->
     except OSError as exc:
         raise UserError(f"--out {parent}: cannot create the run folder: {exc}") from None
     source = {
-        "kind": "points",
+        **source,
         "file": str(src),
         "frames": int(T),
         "points": int(N),

@@ -47,6 +47,58 @@ def _intrinsics(config_yaml: str, size: tuple[int, int]) -> np.ndarray:
     return np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
 
 
+def _header(ts: Any, t_ns: int, frame: str) -> Any:
+    T = ts.types
+    stamp = T["builtin_interfaces/msg/Time"](
+        sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000
+    )
+    return T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+
+def pose_stamped(ts: Any, t_ns: int, pose: np.ndarray, frame: str = "world") -> Any:
+    """geometry_msgs/msg/PoseStamped of a planar pose [x, y, theta] (z = 0, yaw = theta)."""
+    T = ts.types
+    x, y, th = (float(v) for v in pose)
+    q = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(th / 2.0), w=math.cos(th / 2.0))
+    p = T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0)
+    return T["geometry_msgs/msg/PoseStamped"](
+        _header(ts, t_ns, frame), T["geometry_msgs/msg/Pose"](position=p, orientation=q)
+    )
+
+
+def line_marker(ts: Any, t_ns: int, line: np.ndarray, frame: str = "world") -> Any:
+    """visualization_msgs/msg/Marker: a LINE_STRIP through the (N, 2) points (z = 0)."""
+    T = ts.types
+    Point, Quat = T["geometry_msgs/msg/Point"], T["geometry_msgs/msg/Quaternion"]
+    return T["visualization_msgs/msg/Marker"](
+        header=_header(ts, t_ns, frame),
+        ns="rod",
+        id=0,
+        type=4,  # LINE_STRIP
+        action=0,
+        pose=T["geometry_msgs/msg/Pose"](
+            position=Point(x=0.0, y=0.0, z=0.0), orientation=Quat(0.0, 0.0, 0.0, 1.0)
+        ),
+        scale=T["geometry_msgs/msg/Vector3"](x=0.004, y=0.0, z=0.0),
+        color=T["std_msgs/msg/ColorRGBA"](r=0.85, g=0.2, b=0.1, a=1.0),
+        lifetime=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+        frame_locked=False,
+        points=[Point(x=float(p[0]), y=float(p[1]), z=0.0) for p in line],
+        colors=[],
+        texture_resource="",
+        texture=T["sensor_msgs/msg/CompressedImage"](
+            header=_header(ts, t_ns, ""), format="", data=np.zeros(0, dtype=np.uint8)
+        ),
+        uv_coordinates=[],
+        text="",
+        mesh_resource="",
+        mesh_file=T["visualization_msgs/msg/MeshFile"](
+            filename="", data=np.zeros(0, dtype=np.uint8)
+        ),
+        mesh_use_embedded_materials=False,
+    )
+
+
 def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") -> dict[str, int]:
     """Write the run at `run_path` as the ROS 2 bag folder `bag`; return messages per topic.
 
@@ -68,19 +120,9 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
     run = read_run(run_path, images=True)
     ts = get_typestore(Stores.ROS2_HUMBLE)
     T = ts.types
-    Time, Header = T["builtin_interfaces/msg/Time"], T["std_msgs/msg/Header"]
-    Point, Quat, Pose = (
-        T["geometry_msgs/msg/Point"],
-        T["geometry_msgs/msg/Quaternion"],
-        T["geometry_msgs/msg/Pose"],
-    )
     K = _intrinsics(run.header.config_yaml, tuple(run.header.image_size))
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     counts = {TOPIC_IMAGE: 0, TOPIC_INFO: 0, TOPIC_POSE: 0, TOPIC_CENTERLINE: 0}
-
-    def header(t_ns: int, frame: str) -> Any:
-        return Header(stamp=Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000),
-                      frame_id=frame)  # fmt: skip
 
     try:
         writer = Writer(out, version=8, storage_plugin=plugin)
@@ -106,38 +148,8 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
 
         for r in run.records:
             t_ns = int(log_time_ns(r.sim_time))
-            x, y, th = (float(v) for v in np.asarray(r.gripper)[:3])
-            q = Quat(x=0.0, y=0.0, z=math.sin(th / 2.0), w=math.cos(th / 2.0))
-            pose = Pose(position=Point(x=x, y=y, z=0.0), orientation=q)
-            put(TOPIC_POSE, t_ns, T["geometry_msgs/msg/PoseStamped"](header(t_ns, "world"), pose))
-            line = np.asarray(r.centerline, dtype=float)
-            marker = T["visualization_msgs/msg/Marker"](
-                header=header(t_ns, "world"),
-                ns="rod",
-                id=0,
-                type=4,  # LINE_STRIP
-                action=0,
-                pose=Pose(
-                    position=Point(x=0.0, y=0.0, z=0.0), orientation=Quat(0.0, 0.0, 0.0, 1.0)
-                ),
-                scale=T["geometry_msgs/msg/Vector3"](x=0.004, y=0.0, z=0.0),
-                color=T["std_msgs/msg/ColorRGBA"](r=0.85, g=0.2, b=0.1, a=1.0),
-                lifetime=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
-                frame_locked=False,
-                points=[Point(x=float(p[0]), y=float(p[1]), z=0.0) for p in line],
-                colors=[],
-                texture_resource="",
-                texture=T["sensor_msgs/msg/CompressedImage"](
-                    header=header(t_ns, ""), format="", data=np.zeros(0, dtype=np.uint8)
-                ),
-                uv_coordinates=[],
-                text="",
-                mesh_resource="",
-                mesh_file=T["visualization_msgs/msg/MeshFile"](
-                    filename="", data=np.zeros(0, dtype=np.uint8)
-                ),
-                mesh_use_embedded_materials=False,
-            )
+            put(TOPIC_POSE, t_ns, pose_stamped(ts, t_ns, np.asarray(r.gripper)[:3]))
+            marker = line_marker(ts, t_ns, np.asarray(r.centerline, dtype=float))
             put(TOPIC_CENTERLINE, t_ns, T["visualization_msgs/msg/MarkerArray"](markers=[marker]))
             if r.image is None:
                 continue
@@ -147,7 +159,7 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
                 TOPIC_IMAGE,
                 t_ns,
                 T["sensor_msgs/msg/Image"](
-                    header=header(t_ns, "camera"),
+                    header=_header(ts, t_ns, "camera"),
                     height=h,
                     width=w,
                     encoding="rgb8",
@@ -161,7 +173,7 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
                 TOPIC_INFO,
                 t_ns,
                 T["sensor_msgs/msg/CameraInfo"](
-                    header=header(t_ns, "camera"),
+                    header=_header(ts, t_ns, "camera"),
                     height=h,
                     width=w,
                     distortion_model="plumb_bob",
@@ -177,3 +189,166 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
                 ),
             )
     return counts
+
+
+# --- reading tracked points and poses from a bag ------------------------------------------
+
+#: Message types a tracked-points topic may have: the (N, 2) x, y of each message.
+POINTS_TYPES = (
+    "visualization_msgs/msg/MarkerArray",
+    "visualization_msgs/msg/Marker",
+    "nav_msgs/msg/Path",
+    "geometry_msgs/msg/PoseArray",
+)
+
+
+def _stamp_ns(msg: Any, log_ns: int) -> int:
+    """The message's header stamp (ns), or its log time when it has none (or a zero one)."""
+    h = getattr(msg, "header", None)
+    if h is None and getattr(msg, "markers", None):
+        h = msg.markers[0].header
+    if h is None:
+        return int(log_ns)
+    t = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
+    return t if t > 0 else int(log_ns)
+
+
+def _xy(msg: Any, msgtype: str) -> np.ndarray:
+    if msgtype.endswith("MarkerArray"):
+        pts = msg.markers[0].points if msg.markers else []
+        return np.array([[p.x, p.y] for p in pts], dtype=float).reshape(-1, 2)
+    if msgtype.endswith("/Marker"):
+        return np.array([[p.x, p.y] for p in msg.points], dtype=float).reshape(-1, 2)
+    if msgtype.endswith("Path"):
+        return np.array([[p.pose.position.x, p.pose.position.y] for p in msg.poses]).reshape(-1, 2)
+    return np.array([[p.position.x, p.position.y] for p in msg.poses], dtype=float).reshape(-1, 2)
+
+
+def _yaw(o: Any) -> float:
+    return math.atan2(2.0 * (o.w * o.z + o.x * o.y), 1.0 - 2.0 * (o.y * o.y + o.z * o.z))
+
+
+def sync_poses(
+    frame_t: np.ndarray, pose_t: np.ndarray, poses: np.ndarray, topic: str, tolerance: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (K, 3) interpolated at the frame times inside the poses' time span, and the mask
+    of those frames (T,). Linear in x, y and the unwrapped angle.
+
+    Raises:
+        UserError: no frame inside the span (they do not overlap), or two poses around a frame
+            further apart than `tolerance` seconds (the frame's time is named).
+    """
+    order = np.argsort(pose_t, kind="stable")
+    pt, pv = pose_t[order], poses[order].copy()
+    pv[:, 2] = np.unwrap(pv[:, 2])
+    inside = (frame_t >= pt[0]) & (frame_t <= pt[-1])
+    if not inside.any():
+        raise UserError(
+            f"{topic}: poses (t {pt[0]:.6f}..{pt[-1]:.6f} s) and frames (t {frame_t[0]:.6f}.."
+            f"{frame_t[-1]:.6f} s) do not overlap"
+        )
+    ft = frame_t[inside]
+    idx = np.searchsorted(pt, ft, side="left")  # pt[idx - 1] < ft <= pt[idx]
+    exact = pt[np.minimum(idx, len(pt) - 1)] == ft
+    hi = np.where(exact, idx, np.clip(idx, 1, len(pt) - 1))
+    lo = np.where(exact, idx, hi - 1)
+    gap = np.where(exact, 0.0, pt[hi] - pt[lo])
+    if (gap > tolerance).any():
+        k = int(np.argmax(gap > tolerance))
+        raise UserError(
+            f"{topic}: no pose within {tolerance:g} s of the frame at t = {ft[k]:.6f} s (poses "
+            f"at {pt[lo[k]]:.6f} and {pt[hi[k]]:.6f} s); raise --tolerance or fill the gap"
+        )
+    w = np.where(exact, 1.0, (ft - pt[lo]) / np.where(gap > 0, gap, 1.0))[:, None]
+    return (1.0 - w) * pv[lo] + w * pv[hi], inside
+
+
+def read_bag_points(
+    bag: str | Path, points_topic: str, pose_topics: list[str], tolerance: float = 0.2
+) -> tuple[Any, list[str]]:
+    """A points recording from a ROS 2 bag (sqlite3 or MCAP storage): the tracked points of
+    `points_topic` (MarkerArray, Marker, nav_msgs/Path or PoseArray; x, y, world metres) and
+    the PoseStamped of one or two end effectors, interpolated at the points' times.
+
+    Returns:
+        (the `PointsRecording`, notes: e.g. frames outside the poses' span that were left out).
+
+    Raises:
+        UserError: not a bag, a topic missing or of another type (the bag's topics are listed),
+            a frame with another number of points, the sync errors of `sync_poses`.
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from rodctl.recordings.synthetic import PointsRecording
+
+    path = Path(bag)
+    if not 1 <= len(pose_topics) <= 2:
+        raise UserError("--pose-topic: give one or two end-effector pose topics")
+    try:
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:  # noqa: BLE001 - rosbags' errors for a missing/foreign folder
+        raise UserError(f"{path}: not a readable ROS 2 bag ({exc})") from None
+    try:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        listing = ", ".join(f"{t} ({m})" for t, m in sorted(types.items())) or "none"
+        for topic, allowed in [(points_topic, POINTS_TYPES)] + [
+            (t, ("geometry_msgs/msg/PoseStamped",)) for t in pose_topics
+        ]:
+            if topic not in types:
+                raise UserError(f"{path}: no topic {topic}; the bag has: {listing}")
+            if types[topic] not in allowed:
+                raise UserError(
+                    f"{path}: topic {topic} is {types[topic]}, expected {' or '.join(allowed)}"
+                )
+        frames: list[tuple[int, np.ndarray]] = []
+        poses: dict[str, list[tuple[int, list[float]]]] = {t: [] for t in pose_topics}
+        wanted = [c for c in reader.connections if c.topic in {points_topic, *pose_topics}]
+        for conn, log_ns, raw in reader.messages(connections=wanted):
+            msg = reader.deserialize(raw, conn.msgtype)
+            t = _stamp_ns(msg, log_ns)
+            if conn.topic == points_topic:
+                frames.append((t, _xy(msg, conn.msgtype)))
+            else:
+                p = msg.pose
+                poses[conn.topic].append((t, [p.position.x, p.position.y, _yaw(p.orientation)]))
+    finally:
+        reader.close()
+    if not frames:
+        raise UserError(f"{path}: topic {points_topic} has no messages")
+    frames.sort(key=lambda f: f[0])
+    n = len(frames[0][1])
+    for k, (t, xy) in enumerate(frames):
+        if len(xy) != n or n < 2:
+            raise UserError(
+                f"{path}: {points_topic}: frame {k} (t = {t / 1e9:.6f} s) has {len(xy)} points, "
+                f"frame 0 has {n} (need the same N >= 2 in every frame)"
+            )
+    ft = np.array([f[0] for f in frames], dtype=np.int64)
+    t0 = int(ft[0])
+    frame_t = (ft - t0) / 1e9
+    mask = np.ones(len(frames), dtype=bool)
+    synced = []
+    for topic in pose_topics:
+        if not poses[topic]:
+            raise UserError(f"{path}: topic {topic} has no messages")
+        pt = (np.array([p[0] for p in poses[topic]], dtype=np.int64) - t0) / 1e9
+        pv = np.array([p[1] for p in poses[topic]], dtype=float)
+        vals, inside = sync_poses(frame_t, pt, pv, topic, tolerance)
+        full = np.full((len(frames), 3), np.nan)
+        full[inside] = vals
+        synced.append(full)
+        mask &= inside
+    notes = []
+    if not mask.all():
+        notes.append(
+            f"{int((~mask).sum())} of {len(frames)} frames lie outside the poses' time span "
+            "and were left out"
+        )
+    pts = np.stack([f[1] for f in frames])[mask]
+    pose_arr = np.stack(synced, axis=1)[mask]
+    t = frame_t[mask]
+    if len(t) < 3:
+        raise UserError(f"{path}: only {len(t)} frames overlap the poses; need at least 3")
+    return PointsRecording(t=t, points=pts, poses=pose_arr, units="m"), notes
