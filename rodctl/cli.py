@@ -608,6 +608,28 @@ def import_recording(
         float,
         typer.Option("--tolerance", min=0.0, help="Bag: largest pose gap (s) around a frame."),
     ] = 0.2,
+    image_topic: Annotated[
+        str | None,
+        typer.Option("--image-topic", help="Bag: camera frames (Image or CompressedImage)."),
+    ] = None,
+    camera_info_topic: Annotated[
+        str | None, typer.Option("--camera-info-topic", help="Bag: CameraInfo (K, D).")
+    ] = None,
+    camera: Annotated[
+        str | None,
+        typer.Option(
+            "--camera", help="Images: YAML with the camera's pose and extraction settings."
+        ),
+    ] = None,
+    clamp_pose: Annotated[
+        str | None, typer.Option("--clamp-pose", help="Images: the fixed end's X,Y,THETA (world).")
+    ] = None,
+    hsv_low: Annotated[
+        str, typer.Option("--hsv-low", help="Images: rod colour H,S,V low.")
+    ] = "170,120,50",
+    hsv_high: Annotated[
+        str, typer.Option("--hsv-high", help="Images: rod colour H,S,V high.")
+    ] = "10,255,255",
 ) -> None:
     """Turn a recording into a rodctl run folder (config.yaml, meta.json, summary.json,
     run.mcap with the contract topics) that replay, Foxglove and estimate read.
@@ -620,6 +642,32 @@ def import_recording(
 
     from rodctl.recordings.importer import import_bag, import_points
 
+    if Path(path).is_dir() and image_topic:
+        from rodctl.recordings.importer import import_bag_images
+
+        def numbers(flag: str, text: str | None, n: int, kind: type) -> list:
+            try:
+                vals = [kind(v) for v in (text or "").split(",")]
+            except ValueError:
+                vals = []
+            if len(vals) != n:
+                raise UserError(f"{flag} {text}: give {n} comma-separated numbers")
+            return vals
+
+        if not camera or not pose_topic or len(pose_topic) != 1:
+            raise UserError(f"{path}: images need --camera FILE and one --pose-topic (the gripper)")
+        run_dir, notes = import_bag_images(
+            path, out, image_topic=image_topic, info_topic=camera_info_topic,
+            pose_topic=pose_topic[0], camera=camera,
+            clamp_pose=numbers("--clamp-pose", clamp_pose, 3, float),
+            hsv_low=numbers("--hsv-low", hsv_low, 3, int),
+            hsv_high=numbers("--hsv-high", hsv_high, 3, int),
+            tolerance=tolerance, name=name,
+        )  # fmt: skip
+        for note in notes:
+            typer.echo(f"note: {note}", err=True)
+        typer.echo(str(run_dir))
+        return
     if Path(path).is_dir():
         if not points_topic or not pose_topic:
             raise UserError(f"{path}: a bag needs --points-topic and --pose-topic")

@@ -264,3 +264,128 @@ def test_a_bag_frame_with_another_point_count_exits_2_naming_it(tmp_path):
     _bag(tmp_path / "bag", frames, [(0.05 * k, [0, 0, 0]) for k in range(20)])
     res = _import(tmp_path / "bag", tmp_path / "runs")
     assert res.exit_code == 2 and "frame 4" in res.output and "/tracker/points" in res.output
+
+
+# --- camera images from a bag: segmentation and extraction on a textured scene ------------
+
+
+def _textured(frames, cam_cfg, header, seed=0):
+    """rodctl's frames re-lit on a textured background: the rod's coverage (exact, from the
+    renderer's known colours) composited over smooth colour noise, under a left-to-right
+    lighting gradient, plus pixel noise."""
+    import cv2
+
+    from rodctl.vision.camera import Camera
+    from rodctl.vision.centerline import CenterlineExtractor
+
+    cam = Camera(cam_cfg)
+    ext = CenterlineExtractor(cam_cfg, cam, header.clamp_pose)
+    rng = np.random.default_rng(seed)
+    h, w = cam.height, cam.width
+    tex = rng.uniform(0, 255, (h // 8, w // 8, 3)).astype(np.float32)
+    tex = cv2.resize(cv2.GaussianBlur(tex, (0, 0), 1.5), (w, h), interpolation=cv2.INTER_CUBIC)
+    tex = 0.5 * tex + 90.0
+    light = (0.6 + 0.5 * np.linspace(0.0, 1.0, w))[None, :, None]
+    out = []
+    for img in frames:
+        a = ext.coverage(img)[..., None].clip(0.0, 1.0)
+        mix = (a * np.array([200.0, 40.0, 40.0]) + (1 - a) * tex) * light
+        out.append((mix + rng.normal(0.0, 4.0, mix.shape)).clip(0, 255).astype(np.uint8))
+    return out
+
+
+def _image_bag(path, storage, run, images, K, blank_at=None):
+    import cv2
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from rodctl.logs.codec import log_time_ns
+    from rodctl.recordings.ros2 import _header, pose_stamped
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    T = ts.types
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    kind = "sensor_msgs/msg/CompressedImage" if storage == "mcap" else "sensor_msgs/msg/Image"
+    with Writer(path, version=8, storage_plugin=plugin) as w:
+        c_img = w.add_connection("/cam/image", kind, typestore=ts)
+        c_info = w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+        c_pose = w.add_connection("/arm/pose", "geometry_msgs/msg/PoseStamped", typestore=ts)
+        for r in run.records:
+            ns = int(log_time_ns(r.sim_time))
+            w.write(c_pose, ns, ts.serialize_cdr(pose_stamped(ts, ns, r.gripper), c_pose.msgtype))
+        for k, (r, img) in enumerate(images):
+            ns = int(log_time_ns(r.sim_time))
+            if k == blank_at:
+                img = np.full_like(img, 120)
+            hd = _header(ts, ns, "camera")
+            if kind.endswith("CompressedImage"):
+                ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+                msg = T[kind](header=hd, format="png", data=png.reshape(-1))
+            else:
+                h, wd = img.shape[:2]
+                msg = T[kind](header=hd, height=h, width=wd, encoding="rgb8", is_bigendian=0,
+                              step=3 * wd, data=img.reshape(-1))  # fmt: skip
+            w.write(c_img, ns, ts.serialize_cdr(msg, kind))
+            info = T["sensor_msgs/msg/CameraInfo"](
+                header=hd, height=img.shape[0], width=img.shape[1], distortion_model="plumb_bob",
+                d=np.zeros(5), k=K.reshape(-1), r=np.eye(3).reshape(-1),
+                p=np.hstack([K, np.zeros((3, 1))]).reshape(-1), binning_x=0, binning_y=0,
+                roi=T["sensor_msgs/msg/RegionOfInterest"](
+                    x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+            )  # fmt: skip
+            w.write(c_info, ns, ts.serialize_cdr(info, c_info.msgtype))
+
+
+def _image_import(bag, out, clamp, cfg_path):
+    return CliRunner().invoke(
+        app,
+        ["import", str(bag), "--image-topic", "/cam/image", "--camera-info-topic", "/cam/info",
+         "--pose-topic", "/arm/pose", "--camera", str(cfg_path),
+         "--clamp-pose", ",".join(repr(float(v)) for v in clamp), "--tolerance", "1",
+         "-o", str(out)],
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_bag_images_segment_and_extract_within_a_pixel_of_the_truth(sim_run, tmp_path, storage):
+    import yaml
+
+    from rodctl.config.camera import CameraConfig
+    from rodctl.vision.camera import Camera
+
+    run = read_run(sim_run, images=True)
+    cam_cfg = CameraConfig.model_validate(yaml.safe_load(run.header.config_yaml)["camera"])
+    framed = [r for r in run.records if r.image is not None]
+    images = list(
+        zip(framed, _textured([r.image for r in framed], cam_cfg, run.header), strict=True)
+    )
+    bag = tmp_path / "bag"
+    _image_bag(bag, storage, run, images, Camera(cam_cfg).camera_matrix)
+    res = _image_import(bag, tmp_path / "runs", run.header.clamp_pose, sim_run / "config.yaml")
+    assert res.exit_code == 0, res.output
+    back = read_run(Path(res.stdout.strip().splitlines()[-1]), images=False)
+    assert len(back.records) == len(framed) >= 3
+    for r, b in zip(framed, back.records, strict=True):
+        err = np.sqrt(((b.extracted - r.projected_truth) ** 2).sum(axis=1))
+        assert err.max() <= 1.0, (r.step, err.max())
+        assert np.allclose(b.gripper, r.gripper, atol=1e-9)  # synced at the frame's own time
+
+
+def test_a_bag_frame_without_the_rod_exits_2_naming_it(sim_run, tmp_path):
+    import yaml
+
+    from rodctl.config.camera import CameraConfig
+    from rodctl.vision.camera import Camera
+
+    run = read_run(sim_run, images=True)
+    cam_cfg = CameraConfig.model_validate(yaml.safe_load(run.header.config_yaml)["camera"])
+    framed = [r for r in run.records if r.image is not None][:3]
+    images = list(
+        zip(framed, _textured([r.image for r in framed], cam_cfg, run.header), strict=True)
+    )
+    _image_bag(tmp_path / "bag", "sqlite3", run, images, Camera(cam_cfg).camera_matrix, blank_at=1)
+    res = _image_import(
+        tmp_path / "bag", tmp_path / "runs", run.header.clamp_pose, sim_run / "config.yaml"
+    )
+    assert res.exit_code == 2, res.output
+    assert "/cam/image: frame 1" in res.output and "no rod" in res.output

@@ -103,15 +103,67 @@ def import_bag(
     return write_run(rec, src, out, name, source), notes
 
 
+def import_bag_images(
+    bag: str | Path,
+    out: str | Path,
+    *,
+    image_topic: str,
+    info_topic: str | None,
+    pose_topic: str,
+    camera: str | Path,
+    clamp_pose: list[float],
+    hsv_low: list[int],
+    hsv_high: list[int],
+    tolerance: float = 0.2,
+    name: str | None = None,
+) -> tuple[Path, list[str]]:
+    """Segment and extract the rod in a bag's camera frames; write the run folder
+    (`rodctl.recordings.ros2.read_bag_images`). The world centerline is the extracted one
+    unprojected onto the rod's plane by the calibrated camera."""
+    from rodctl.recordings.ros2 import camera_config, read_bag_images
+
+    src = Path(bag)
+    cam_cfg = camera_config(camera)
+    rec, world, used, notes = read_bag_images(
+        src, image_topic, info_topic, pose_topic, cam_cfg, clamp_pose,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+    )  # fmt: skip
+    source = {
+        "kind": "ros2_bag_images",
+        "image_topic": image_topic,
+        "camera_info_topic": info_topic,
+        "pose_topics": [pose_topic],
+        "clamp_pose": [float(v) for v in clamp_pose],
+        "hsv_low": [int(v) for v in hsv_low],
+        "hsv_high": [int(v) for v in hsv_high],
+        "tolerance_s": tolerance,
+        "notes": notes,
+    }
+    views = (world, rec.points, (used.width, used.height), {"camera": used.model_dump(mode="json")})
+    clamp = np.asarray(clamp_pose, dtype=float)
+    return write_run(rec, src, out, name, source, views=views, clamp=clamp), notes
+
+
 def write_run(
-    rec: PointsRecording, src: Path, out: str | Path, name: str | None, source: dict
+    rec: PointsRecording,
+    src: Path,
+    out: str | Path,
+    name: str | None,
+    source: dict,
+    views: tuple | None = None,
+    clamp: np.ndarray | None = None,
 ) -> Path:
-    """Write a checked points recording as a run folder under `out` (the module docstring)."""
+    """Write a checked points recording as a run folder under `out` (the module docstring).
+
+    `views` = (world (T, N, 2), pixels (T, N, 2), image size, description) replaces the nominal
+    views of `_views` when a calibrated camera gave both; `clamp` is the fixed end's pose
+    (default: end effector 1's first pose for two ends, else zeros).
+    """
     from rodctl.logs.mcap import McapSink
     from rodctl.records import RunHeader, RunSummary, StepRecord
     from rodctl.runs import jsonable, write_json_atomic
 
-    world, px, size, view = _views(rec)
+    world, px, size, view = views if views is not None else _views(rec)
     T, N = rec.points.shape[:2]
     r = rec.r
     stem = name or f"import-{src.stem}"
@@ -153,7 +205,12 @@ def write_run(
         method="recording/points",
         config_yaml=config_yaml,
         image_size=size,
-        clamp_pose=np.asarray(rec.poses[0, -1] if rec.poses.shape[1] == 2 else np.zeros(3)),
+        clamp_pose=np.asarray(
+            clamp
+            if clamp is not None
+            else (rec.poses[0, -1] if rec.poses.shape[1] == 2 else np.zeros(3)),
+            dtype=float,
+        ),
         home_pose=np.asarray(rec.poses[0, 0]),
         target_centerline=world[-1],
         target_pixels=px[-1],

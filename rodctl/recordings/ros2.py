@@ -17,6 +17,7 @@ same bytes each time (sqlite3 aside, whose pages are the database's business).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -352,3 +353,175 @@ def read_bag_points(
     if len(t) < 3:
         raise UserError(f"{path}: only {len(t)} frames overlap the poses; need at least 3")
     return PointsRecording(t=t, points=pts, poses=pose_arr, units="m"), notes
+
+
+# --- camera images from a bag ---------------------------------------------------------------
+
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+
+
+def _rgb(msg: Any, msgtype: str, where: str) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of an Image (rgb8, bgr8, mono8) or CompressedImage (PNG, JPEG)."""
+    import cv2
+
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if msgtype.endswith("CompressedImage"):
+        img = cv2.imdecode(data, cv2.IMREAD_COLOR)
+        if img is None:
+            raise UserError(f"{where}: the compressed image ({msg.format!r}) does not decode")
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    h, w, enc = int(msg.height), int(msg.width), str(msg.encoding)
+    ch = {"rgb8": 3, "bgr8": 3, "mono8": 1}.get(enc)
+    if ch is None:
+        raise UserError(f"{where}: image encoding {enc!r}; rgb8, bgr8 or mono8 are read")
+    rows = data.reshape(h, int(msg.step))[:, : w * ch]
+    img = rows.reshape(h, w, ch)
+    if enc == "bgr8":
+        return np.ascontiguousarray(img[..., ::-1])
+    if enc == "mono8":
+        return np.repeat(img, 3, axis=2)
+    return np.ascontiguousarray(img)
+
+
+def camera_config(path: str | Path) -> Any:
+    """The rodctl camera (pose, rendering colours, extraction settings) in a YAML file: an
+    experiment config's `camera` section or a camera section alone."""
+    from rodctl.config.camera import CameraConfig
+
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise UserError(f"--camera {p}: cannot read: {exc}") from None
+    section = data.get("camera", data) if isinstance(data, dict) else None
+    try:
+        return CameraConfig.model_validate(section)
+    except Exception as exc:  # noqa: BLE001 - pydantic's message names the field
+        raise UserError(f"--camera {p}: not a camera config: {exc}") from None
+
+
+def read_bag_images(
+    bag: str | Path,
+    image_topic: str,
+    info_topic: str | None,
+    pose_topic: str,
+    camera: Any,
+    clamp_pose: Sequence[float],
+    *,
+    hsv_low: Sequence[int],
+    hsv_high: Sequence[int],
+    tolerance: float = 0.2,
+) -> tuple[Any, np.ndarray, Any, list[str]]:
+    """Frames of a bag's image topic segmented and their centerline extracted.
+
+    The camera's intrinsics come from the first CameraInfo on `info_topic` (K; D undistorts
+    each frame), its pose and the extraction settings from `camera` (a `CameraConfig`); the
+    gripper pose (`pose_topic`, PoseStamped) is interpolated at each frame's time and given to
+    the extractor as its hint; the walk starts at the fixed `clamp_pose` [x, y, theta].
+
+    Returns:
+        (PointsRecording of the pixel centerlines, (T, N, 2) world centerlines on the rod's
+        plane, the camera config used, notes).
+
+    Raises:
+        UserError: the errors of `read_bag_points` for topics and sync, and a frame where
+            the segmentation finds no rod or the extractor loses it (topic and time named).
+    """
+    import cv2
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from rodctl.recordings.segment import hsv_mask, mask_image
+    from rodctl.recordings.synthetic import PointsRecording
+    from rodctl.vision.camera import Camera
+    from rodctl.vision.centerline import CenterlineExtractor
+
+    path = Path(bag)
+    try:
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:  # noqa: BLE001
+        raise UserError(f"{path}: not a readable ROS 2 bag ({exc})") from None
+    frames: list[tuple[int, np.ndarray]] = []
+    poses: list[tuple[int, list[float]]] = []
+    info = None
+    try:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        listing = ", ".join(f"{t} ({m})" for t, m in sorted(types.items())) or "none"
+        need = [(image_topic, IMAGE_TYPES), (pose_topic, ("geometry_msgs/msg/PoseStamped",))]
+        if info_topic:
+            need.append((info_topic, ("sensor_msgs/msg/CameraInfo",)))
+        for topic, allowed in need:
+            if topic not in types:
+                raise UserError(f"{path}: no topic {topic}; the bag has: {listing}")
+            if types[topic] not in allowed:
+                raise UserError(
+                    f"{path}: topic {topic} is {types[topic]}, expected {' or '.join(allowed)}"
+                )
+        wanted = [c for c in reader.connections if c.topic in {image_topic, pose_topic, info_topic}]
+        for conn, log_ns, raw in reader.messages(connections=wanted):
+            msg = reader.deserialize(raw, conn.msgtype)
+            t = _stamp_ns(msg, log_ns)
+            if conn.topic == image_topic:
+                frames.append((t, _rgb(msg, conn.msgtype, f"{image_topic} at t = {t / 1e9:.6f} s")))
+            elif conn.topic == pose_topic:
+                p = msg.pose
+                poses.append((t, [p.position.x, p.position.y, _yaw(p.orientation)]))
+            elif info is None:
+                info = msg
+    finally:
+        reader.close()
+    if not frames:
+        raise UserError(f"{path}: topic {image_topic} has no messages")
+    if not poses:
+        raise UserError(f"{path}: topic {pose_topic} has no messages")
+    if info_topic and info is None:
+        raise UserError(f"{path}: topic {info_topic} has no messages")
+    frames.sort(key=lambda f: f[0])
+    h, w = frames[0][1].shape[:2]
+    K = D = None
+    if info is not None:
+        K = np.asarray(info.k, dtype=float).reshape(3, 3)
+        D = np.asarray(info.d, dtype=float)
+        camera = camera.model_copy(
+            update={"width": int(info.width) or w, "height": int(info.height) or h,
+                    "fx": float(K[0, 0]), "fy": float(K[1, 1]),
+                    "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+        )  # fmt: skip
+    if (camera.width, camera.height) != (w, h):
+        raise UserError(
+            f"{path}: {image_topic} frames are {w}x{h}, the camera is "
+            f"{camera.width}x{camera.height}"
+        )
+    cam = Camera(camera)
+    extractor = CenterlineExtractor(camera, cam, np.asarray(clamp_pose, dtype=float))
+    t0 = frames[0][0]
+    ft = (np.array([f[0] for f in frames], dtype=np.int64) - t0) / 1e9
+    pt = (np.array([p[0] for p in poses], dtype=np.int64) - t0) / 1e9
+    grip, inside = sync_poses(ft, pt, np.array([p[1] for p in poses]), pose_topic, tolerance)
+    notes = []
+    if not inside.all():
+        notes.append(
+            f"{int((~inside).sum())} of {len(frames)} frames lie outside the poses' time span "
+            "and were left out"
+        )
+    rod, bg = camera.render.rod_color, camera.render.background_color
+    pts = []
+    undistort = D is not None and np.any(D != 0.0)
+    for k, (t_ns, img), g in zip(
+        np.flatnonzero(inside), [frames[i] for i in np.flatnonzero(inside)], grip, strict=True
+    ):
+        if undistort:
+            img = cv2.undistort(img, K, D)
+        mask = hsv_mask(img, hsv_low, hsv_high)
+        where = f"{image_topic}: frame {int(k)} (t = {(t_ns - t0) / 1e9:.6f} s)"
+        if not mask.any():
+            raise UserError(f"{where}: the HSV threshold finds no rod (--hsv-low/--hsv-high)")
+        ex = extractor.extract(mask_image(mask, rod, bg), g)
+        if not ex.ok:
+            raise UserError(f"{where}: the centerline was not extracted: {ex.note}")
+        pts.append(ex.points)
+    px = np.stack(pts)
+    world = np.stack([cam.unproject(p) for p in px])
+    rec = PointsRecording(t=ft[inside], points=px, poses=grip[:, None, :], units="px")
+    return rec, world, camera, notes
