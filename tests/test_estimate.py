@@ -389,3 +389,40 @@ def test_a_bag_frame_without_the_rod_exits_2_naming_it(sim_run, tmp_path):
     )
     assert res.exit_code == 2, res.output
     assert "/cam/image: frame 1" in res.output and "no rod" in res.output
+
+
+def test_an_image_import_cut_short_keeps_the_frames_it_converted(sim_run, tmp_path, monkeypatch):
+    import yaml
+
+    from rodctl.config.camera import CameraConfig
+    from rodctl.errors import RunFailed
+    from rodctl.recordings.importer import import_bag_images
+    from rodctl.vision import centerline
+    from rodctl.vision.camera import Camera
+
+    run = read_run(sim_run, images=True)
+    cam_cfg = CameraConfig.model_validate(yaml.safe_load(run.header.config_yaml)["camera"])
+    framed = [r for r in run.records if r.image is not None][:6]
+    images = list(
+        zip(framed, _textured([r.image for r in framed], cam_cfg, run.header), strict=True)
+    )
+    _image_bag(tmp_path / "bag", "sqlite3", run, images, Camera(cam_cfg).camera_matrix)
+    real, calls = centerline.CenterlineExtractor.extract, []
+
+    def ctrl_c_at_the_fifth(self, image, gripper_pose=None):
+        calls.append(1)
+        if len(calls) == 5:
+            raise KeyboardInterrupt
+        return real(self, image, gripper_pose)
+
+    monkeypatch.setattr(centerline.CenterlineExtractor, "extract", ctrl_c_at_the_fifth)
+    with pytest.raises(RunFailed, match="cut short .*4 of 6 frames") as err:
+        import_bag_images(
+            tmp_path / "bag", tmp_path / "runs", image_topic="/cam/image", info_topic="/cam/info",
+            pose_topic="/arm/pose", camera=sim_run / "config.yaml",
+            clamp_pose=list(run.header.clamp_pose), hsv_low=[170, 120, 50],
+            hsv_high=[10, 255, 255], tolerance=1.0,
+        )  # fmt: skip
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    assert str(run_dir) in str(err.value)
+    assert len(read_run(run_dir, images=False).records) == 4

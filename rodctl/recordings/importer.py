@@ -120,7 +120,7 @@ def import_bag_images(
     """Segment and extract the rod in a bag's camera frames; write the run folder
     (`rodctl.recordings.ros2.read_bag_images`). The world centerline is the extracted one
     unprojected onto the rod's plane by the calibrated camera."""
-    from rodctl.recordings.ros2 import camera_config, read_bag_images
+    from rodctl.recordings.ros2 import INTERRUPTED, camera_config, read_bag_images
 
     src = Path(bag)
     cam_cfg = camera_config(camera)
@@ -141,7 +141,11 @@ def import_bag_images(
     }
     views = (world, rec.points, (used.width, used.height), {"camera": used.model_dump(mode="json")})
     clamp = np.asarray(clamp_pose, dtype=float)
-    return write_run(rec, src, out, name, source, views=views, clamp=clamp), notes
+    run_dir = write_run(rec, src, out, name, source, views=views, clamp=clamp)
+    cut = [n for n in notes if n.startswith(INTERRUPTED)]
+    if cut:
+        raise RunFailed(f"import of {src} cut short ({cut[0]}); {run_dir} keeps them")
+    return run_dir, notes
 
 
 def write_run(

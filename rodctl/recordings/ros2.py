@@ -508,20 +508,30 @@ def read_bag_images(
     rod, bg = camera.render.rod_color, camera.render.background_color
     pts = []
     undistort = D is not None and np.any(D != 0.0)
-    for k, (t_ns, img), g in zip(
-        np.flatnonzero(inside), [frames[i] for i in np.flatnonzero(inside)], grip, strict=True
-    ):
-        if undistort:
-            img = cv2.undistort(img, K, D)
-        mask = hsv_mask(img, hsv_low, hsv_high)
-        where = f"{image_topic}: frame {int(k)} (t = {(t_ns - t0) / 1e9:.6f} s)"
-        if not mask.any():
-            raise UserError(f"{where}: the HSV threshold finds no rod (--hsv-low/--hsv-high)")
-        ex = extractor.extract(mask_image(mask, rod, bg), g)
-        if not ex.ok:
-            raise UserError(f"{where}: the centerline was not extracted: {ex.note}")
-        pts.append(ex.points)
+    chosen = np.flatnonzero(inside)
+    try:
+        for k, g in zip(chosen, grip, strict=True):
+            t_ns, img = frames[k]
+            if undistort:
+                img = cv2.undistort(img, K, D)
+            mask = hsv_mask(img, hsv_low, hsv_high)
+            where = f"{image_topic}: frame {int(k)} (t = {(t_ns - t0) / 1e9:.6f} s)"
+            if not mask.any():
+                raise UserError(f"{where}: the HSV threshold finds no rod (--hsv-low/--hsv-high)")
+            ex = extractor.extract(mask_image(mask, rod, bg), g)
+            if not ex.ok:
+                raise UserError(f"{where}: the centerline was not extracted: {ex.note}")
+            pts.append(ex.points)
+    except KeyboardInterrupt:
+        notes.append(f"{INTERRUPTED}: {len(pts)} of {len(chosen)} frames converted")
+        if len(pts) < 3:
+            raise
+    n = len(pts)
     px = np.stack(pts)
     world = np.stack([cam.unproject(p) for p in px])
-    rec = PointsRecording(t=ft[inside], points=px, poses=grip[:, None, :], units="px")
+    rec = PointsRecording(t=ft[chosen[:n]], points=px, poses=grip[:n, None, :], units="px")
     return rec, world, camera, notes
+
+
+#: The note `read_bag_images` leaves when Ctrl-C cut the extraction short.
+INTERRUPTED = "interrupted"
