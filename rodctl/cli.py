@@ -590,7 +590,8 @@ def estimate(
 @user_errors
 def import_recording(
     path: Annotated[
-        str, typer.Argument(help="A points recording (.csv/.npz) or a ROS 2 bag folder.")
+        str,
+        typer.Argument(help="A points recording (.csv/.npz), a ROS 2 bag or an image folder."),
     ],
     out: OutOpt = "runs",
     name: Annotated[
@@ -630,6 +631,10 @@ def import_recording(
     hsv_high: Annotated[
         str, typer.Option("--hsv-high", help="Images: rod colour H,S,V high.")
     ] = "10,255,255",
+    poses: Annotated[
+        str | None,
+        typer.Option("--poses", help="Image folder: CSV of gripper poses t,x,y,theta."),
+    ] = None,
 ) -> None:
     """Turn a recording into a rodctl run folder (config.yaml, meta.json, summary.json,
     run.mcap with the contract topics) that replay, Foxglove and estimate read.
@@ -642,6 +647,31 @@ def import_recording(
 
     from rodctl.recordings.importer import import_bag, import_points
 
+    if Path(path).is_dir() and poses:
+        from rodctl.recordings.importer import import_image_folder
+
+        def nums(flag: str, text: str | None, n: int, kind: type) -> list:
+            try:
+                vals = [kind(v) for v in (text or "").split(",")]
+            except ValueError:
+                vals = []
+            if len(vals) != n:
+                raise UserError(f"{flag} {text}: give {n} comma-separated numbers")
+            return vals
+
+        if not camera:
+            raise UserError(f"{path}: an image folder needs --camera FILE (its intrinsics, pose)")
+        run_dir, notes = import_image_folder(
+            path, out, poses=poses, camera=camera,
+            clamp_pose=nums("--clamp-pose", clamp_pose, 3, float),
+            hsv_low=nums("--hsv-low", hsv_low, 3, int),
+            hsv_high=nums("--hsv-high", hsv_high, 3, int),
+            tolerance=tolerance, name=name,
+        )  # fmt: skip
+        for note in notes:
+            typer.echo(f"note: {note}", err=True)
+        typer.echo(str(run_dir))
+        return
     if Path(path).is_dir() and image_topic:
         from rodctl.recordings.importer import import_bag_images
 

@@ -426,3 +426,54 @@ def test_an_image_import_cut_short_keeps_the_frames_it_converted(sim_run, tmp_pa
     (run_dir,) = (tmp_path / "runs").iterdir()
     assert str(run_dir) in str(err.value)
     assert len(read_run(run_dir, images=False).records) == 4
+
+
+# --- an image folder with a CSV of poses -----------------------------------------------------
+
+
+def _folder(tmp_path, sim_run, missing_at=None):
+    import cv2
+    import yaml
+
+    from rodctl.config.camera import CameraConfig
+
+    run = read_run(sim_run, images=True)
+    cam_cfg = CameraConfig.model_validate(yaml.safe_load(run.header.config_yaml)["camera"])
+    framed = [r for r in run.records if r.image is not None]
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    lines = ["file,t"]
+    for k, (r, img) in enumerate(
+        zip(framed, _textured([r.image for r in framed], cam_cfg, run.header, seed=1), strict=True)
+    ):
+        name = f"f{k:03d}.png"
+        if k != missing_at:
+            cv2.imwrite(str(folder / name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        lines.append(f"{name},{float(r.sim_time)!r}")
+    (folder / "frames.csv").write_text("\n".join(lines) + "\n")
+    poses = tmp_path / "poses.csv"
+    rows = ["t,x,y,theta"] + [",".join(repr(float(v)) for v in (r.sim_time, *r.gripper))
+                              for r in run.records]  # fmt: skip
+    poses.write_text("\n".join(rows) + "\n")
+    args = ["import", str(folder), "--poses", str(poses), "--camera", str(sim_run / "config.yaml"),
+            "--clamp-pose", ",".join(repr(float(v)) for v in run.header.clamp_pose),
+            "--tolerance", "1", "-o", str(tmp_path / "runs")]  # fmt: skip
+    return run, framed, args
+
+
+def test_an_image_folder_with_poses_imports_within_a_pixel_of_the_truth(sim_run, tmp_path):
+    run, framed, args = _folder(tmp_path, sim_run)
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    back = read_run(Path(res.stdout.strip().splitlines()[-1]), images=False)
+    assert len(back.records) == len(framed) >= 3
+    for r, b in zip(framed, back.records, strict=True):
+        err = np.sqrt(((b.extracted - r.projected_truth) ** 2).sum(axis=1))
+        assert err.max() <= 1.0, (r.step, err.max())
+        assert np.allclose(b.gripper, r.gripper, atol=1e-9)
+
+
+def test_an_image_folder_missing_a_frame_file_exits_2_naming_it(sim_run, tmp_path):
+    _, _, args = _folder(tmp_path, sim_run, missing_at=1)
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2 and "f001.png" in res.output and "frames.csv" in res.output

@@ -148,6 +148,49 @@ def import_bag_images(
     return run_dir, notes
 
 
+def import_image_folder(
+    folder: str | Path,
+    out: str | Path,
+    *,
+    poses: str | Path,
+    camera: str | Path,
+    clamp_pose: list[float],
+    hsv_low: list[int],
+    hsv_high: list[int],
+    tolerance: float = 0.2,
+    name: str | None = None,
+) -> tuple[Path, list[str]]:
+    """The camera-frame import of `import_bag_images` for an image folder with frames.csv
+    and a poses CSV (`rodctl.recordings.folder`); the intrinsics come from `camera`."""
+    from rodctl.recordings.folder import read_folder
+    from rodctl.recordings.ros2 import INTERRUPTED, camera_config, extract_frames
+
+    src = Path(folder)
+    cam_cfg = camera_config(camera)
+    frames, pose_rows = read_folder(src, poses)
+    rec, world, used, notes = extract_frames(
+        str(src), "frames.csv", frames, str(poses), pose_rows, cam_cfg, clamp_pose, None,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+    )  # fmt: skip
+    source = {
+        "kind": "image_folder",
+        "poses": str(poses),
+        "clamp_pose": [float(v) for v in clamp_pose],
+        "hsv_low": [int(v) for v in hsv_low],
+        "hsv_high": [int(v) for v in hsv_high],
+        "tolerance_s": tolerance,
+        "notes": notes,
+    }
+    views = (world, rec.points, (used.width, used.height), {"camera": used.model_dump(mode="json")})
+    run_dir = write_run(
+        rec, src, out, name, source, views=views, clamp=np.asarray(clamp_pose, dtype=float)
+    )
+    cut = [n for n in notes if n.startswith(INTERRUPTED)]
+    if cut:
+        raise RunFailed(f"import of {src} cut short ({cut[0]}); {run_dir} keeps them")
+    return run_dir, notes
+
+
 def write_run(
     rec: PointsRecording,
     src: Path,

@@ -427,14 +427,8 @@ def read_bag_images(
         UserError: the errors of `read_bag_points` for topics and sync, and a frame where
             the segmentation finds no rod or the extractor loses it (topic and time named).
     """
-    import cv2
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
-
-    from rodctl.recordings.segment import hsv_mask, mask_image
-    from rodctl.recordings.synthetic import PointsRecording
-    from rodctl.vision.camera import Camera
-    from rodctl.vision.centerline import CenterlineExtractor
 
     path = Path(bag)
     try:
@@ -478,14 +472,56 @@ def read_bag_images(
     if info_topic and info is None:
         raise UserError(f"{path}: topic {info_topic} has no messages")
     frames.sort(key=lambda f: f[0])
-    h, w = frames[0][1].shape[:2]
-    K = D = None
+    KD = None
     if info is not None:
-        K = np.asarray(info.k, dtype=float).reshape(3, 3)
-        D = np.asarray(info.d, dtype=float)
+        KD = (np.asarray(info.k, dtype=float).reshape(3, 3), np.asarray(info.d, dtype=float))
         camera = camera.model_copy(
-            update={"width": int(info.width) or w, "height": int(info.height) or h,
-                    "fx": float(K[0, 0]), "fy": float(K[1, 1]),
+            update={"width": int(info.width) or camera.width,
+                    "height": int(info.height) or camera.height}
+        )  # fmt: skip
+    return extract_frames(
+        str(path), image_topic, frames, pose_topic, poses, camera, clamp_pose, KD,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+    )  # fmt: skip
+
+
+def extract_frames(
+    source: str,
+    image_label: str,
+    frames: list[tuple[int, Any]],
+    pose_label: str,
+    poses: list[tuple[int, list[float]]],
+    camera: Any,
+    clamp_pose: Sequence[float],
+    KD: tuple[np.ndarray, np.ndarray] | None,
+    *,
+    hsv_low: Sequence[int],
+    hsv_high: Sequence[int],
+    tolerance: float,
+) -> tuple[Any, np.ndarray, Any, list[str]]:
+    """Segment and extract time-sorted frames [(t_ns, RGB image or a () -> image loader)]
+    with the gripper poses [(t_ns, [x, y, theta])] interpolated at their times; K, D (when
+    given) replace the camera's intrinsics and undistort. The body of `read_bag_images` and of
+    the image-folder import; see `read_bag_images` for the result and the errors."""
+    import cv2
+
+    from rodctl.recordings.segment import hsv_mask, mask_image
+    from rodctl.recordings.synthetic import PointsRecording
+    from rodctl.vision.camera import Camera
+    from rodctl.vision.centerline import CenterlineExtractor
+
+    path, image_topic, pose_topic = source, image_label, pose_label
+
+    def load(f: Any) -> np.ndarray:
+        return f() if callable(f) else f
+
+    first = load(frames[0][1])
+    h, w = first.shape[:2]
+    K = D = None
+    if KD is not None:
+        K, D = KD
+        camera = camera.model_copy(
+            update={"fx": float(K[0, 0]), "fy": float(K[1, 1]),
                     "cx": float(K[0, 2]), "cy": float(K[1, 2])}
         )  # fmt: skip
     if (camera.width, camera.height) != (w, h):
@@ -511,7 +547,7 @@ def read_bag_images(
     chosen = np.flatnonzero(inside)
     try:
         for k, g in zip(chosen, grip, strict=True):
-            t_ns, img = frames[k]
+            t_ns, img = frames[k][0], load(frames[k][1])
             if undistort:
                 img = cv2.undistort(img, K, D)
             mask = hsv_mask(img, hsv_low, hsv_high)
