@@ -8,6 +8,8 @@ eigenvalue clip has a defined fallback when its QL iteration hits the cap.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -103,8 +105,13 @@ def test_every_estimator_runs_a_noisy_p20_q6_recording_to_the_end():
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(
+    not os.environ.get("RODCTL_LONG_TESTS"),
+    reason="3-20 minutes (the AKF's clip of a 120 x 120 Q at every step): set RODCTL_LONG_TESTS=1",
+)
 def test_every_estimator_runs_3000_noisy_p20_q6_steps_and_the_akf_beats_zero_motion():
-    # About 2-10 minutes: the AKF's eigenvalue clip of a 120 x 120 Q at every step.
+    # Opt-in: `make test` runs `slow` tests too, and this one alone would exceed the suite's
+    # time budget. docs/recordings.md has its figures (the same recording through the CLI).
     pairs = _long_recording(3000)
     res = estimate(pairs)  # every registered estimator, defaults
     rows = {r["estimator"]: r for r in res.rows()}
