@@ -639,9 +639,10 @@ def import_recording(
     """Turn a recording into a rodctl run folder (config.yaml, meta.json, summary.json,
     run.mcap with the contract topics) that replay, Foxglove and estimate read.
 
-    The points format (per-frame tracked points plus one or two end-effector poses) is
-    specified in docs/recordings.md. Prints the run directory last; exit 2 on a bad file,
-    1 when cut short (the frames converted so far are kept).
+    Reads the points format (per-frame tracked points plus one or two end-effector poses), a
+    ROS 2 bag (tracked points or camera frames, with PoseStamped) or an image folder with a CSV
+    of poses; docs/recordings.md specifies each. Prints the run directory last; exit 2 on a
+    bad file, 1 when cut short (the frames converted so far are kept).
     """
     from pathlib import Path
 
@@ -700,7 +701,10 @@ def import_recording(
         return
     if Path(path).is_dir():
         if not points_topic or not pose_topic:
-            raise UserError(f"{path}: a bag needs --points-topic and --pose-topic")
+            raise UserError(
+                f"{path}: a folder is a ROS 2 bag (give --points-topic or --image-topic, and "
+                "--pose-topic) or an image folder (give --poses CSV and --camera FILE)"
+            )
         run_dir, notes = import_bag(
             path, out, points_topic, pose_topic, tolerance=tolerance, name=name
         )
