@@ -718,6 +718,228 @@ def sweep(
     )  # fmt: skip
 
 
+@app.command()
+@user_errors
+def estimate(
+    path: Annotated[
+        str,
+        typer.Argument(help="A run directory, its run.mcap, or a points recording (.csv/.npz)."),
+    ],
+    estimator: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--estimator", "-e", help="Registered estimator to run (repeat); default all."
+        ),
+    ] = None,
+    feature: Annotated[
+        str,
+        typer.Option(
+            "--feature",
+            help="Feature space: logged (a run's own s), points, or a registered feature type "
+            "(bezier, fourier, ...). Default: logged for a run, points for a recording.",
+        ),
+    ] = "",
+    init: Annotated[
+        int | None,
+        typer.Option("--init", min=1, help="Recording pairs J_0 is fitted from (default 10 q)."),
+    ] = None,
+    scaled: Annotated[
+        bool,
+        typer.Option(
+            "--scaled/--defaults",
+            help="Dead zones, Broyden's step and the ridge scaled to the data's motion and noise "
+            "(docs/recordings.md), or every estimator's config defaults.",
+        ),
+    ] = False,
+    out: Annotated[
+        str | None,
+        typer.Option("--out", "-o", help="Folder for results.csv and steps.csv."),
+    ] = None,
+) -> None:
+    """Run the online Jacobian estimators over a recorded (Delta s, Delta r), offline.
+
+    Reports each estimator's one-step-ahead prediction error of Delta s against the
+    zero-motion predictor and a least-squares J fitted in hindsight; writes results.csv and
+    steps.csv (default: RUN_DIR/estimate, or beside the recording) and prints the folder last.
+    """
+    from pathlib import Path
+
+    from rodctl import estimate as est
+
+    src = Path(path)
+    if src.suffix.lower() in (".csv", ".npz"):
+        from rodctl.recordings.points import read_points
+
+        pairs = est.pairs_from_recording(read_points(src), init=init, feature=feature or "points")
+        dest = Path(out) if out else src.with_name(src.stem + "-estimate")
+    else:
+        from rodctl.replay import read_run
+
+        run = read_run(src, images=False)
+        pairs = est.pairs_from_run(run, feature=feature or "logged", init=init)
+        dest = Path(out) if out else (src if src.is_dir() else src.parent) / "estimate"
+    result = est.estimate(pairs, estimator or None, scaled=scaled)
+    try:
+        est.write_results(result, dest)
+    except OSError as exc:
+        raise UserError(
+            f"--out {dest}: cannot write the results: {describe_os_error(exc)}"
+        ) from None
+    typer.echo(est.format_table(result), err=True)
+    for r in result.runs:
+        if r.outcome not in ("completed",) and r.note:
+            typer.echo(f"{r.name}: {r.outcome}: {r.note}", err=True)
+    typer.echo(str(dest))
+
+
+@app.command("import")
+@user_errors
+def import_recording(
+    path: Annotated[
+        str,
+        typer.Argument(help="A points recording (.csv/.npz), a ROS 2 bag or an image folder."),
+    ],
+    out: OutOpt = "runs",
+    name: Annotated[
+        str | None, typer.Option("--name", help="Run name (default import-<file stem>).")
+    ] = None,
+    points_topic: Annotated[
+        str | None,
+        typer.Option("--points-topic", help="Bag: the tracked points (MarkerArray, Path, ...)."),
+    ] = None,
+    pose_topic: Annotated[
+        list[str] | None,
+        typer.Option("--pose-topic", help="Bag: an end effector's PoseStamped (once or twice)."),
+    ] = None,
+    tolerance: Annotated[
+        float,
+        typer.Option("--tolerance", min=0.0, help="Bag: largest pose gap (s) around a frame."),
+    ] = 0.2,
+    image_topic: Annotated[
+        str | None,
+        typer.Option("--image-topic", help="Bag: camera frames (Image or CompressedImage)."),
+    ] = None,
+    camera_info_topic: Annotated[
+        str | None, typer.Option("--camera-info-topic", help="Bag: CameraInfo (K, D).")
+    ] = None,
+    camera: Annotated[
+        str | None,
+        typer.Option(
+            "--camera", help="Images: YAML with the camera's pose and extraction settings."
+        ),
+    ] = None,
+    clamp_pose: Annotated[
+        str | None, typer.Option("--clamp-pose", help="Images: the fixed end's X,Y,THETA (world).")
+    ] = None,
+    hsv_low: Annotated[
+        str, typer.Option("--hsv-low", help="Images: rod colour H,S,V low.")
+    ] = "170,120,50",
+    hsv_high: Annotated[
+        str, typer.Option("--hsv-high", help="Images: rod colour H,S,V high.")
+    ] = "10,255,255",
+    poses: Annotated[
+        str | None,
+        typer.Option("--poses", help="Image folder: CSV of gripper poses t,x,y,theta."),
+    ] = None,
+) -> None:
+    """Turn a recording into a rodctl run folder (config.yaml, meta.json, summary.json,
+    run.mcap with the contract topics) that replay, Foxglove and estimate read.
+
+    Reads the points format (per-frame tracked points plus one or two end-effector poses), a
+    ROS 2 bag (tracked points or camera frames, with PoseStamped) or an image folder with a CSV
+    of poses; docs/recordings.md specifies each. Prints the run directory last; exit 2 on a
+    bad file, 1 when cut short (the frames converted so far are kept).
+    """
+    from pathlib import Path
+
+    from rodctl.recordings.importer import import_bag, import_points
+
+    if Path(path).is_dir() and poses:
+        from rodctl.recordings.importer import import_image_folder
+
+        def nums(flag: str, text: str | None, n: int, kind: type) -> list:
+            try:
+                vals = [kind(v) for v in (text or "").split(",")]
+            except ValueError:
+                vals = []
+            if len(vals) != n:
+                raise UserError(f"{flag} {text}: give {n} comma-separated numbers")
+            return vals
+
+        if not camera:
+            raise UserError(f"{path}: an image folder needs --camera FILE (its intrinsics, pose)")
+        run_dir, notes = import_image_folder(
+            path, out, poses=poses, camera=camera,
+            clamp_pose=nums("--clamp-pose", clamp_pose, 3, float),
+            hsv_low=nums("--hsv-low", hsv_low, 3, int),
+            hsv_high=nums("--hsv-high", hsv_high, 3, int),
+            tolerance=tolerance, name=name,
+        )  # fmt: skip
+        for note in notes:
+            typer.echo(f"note: {note}", err=True)
+        typer.echo(str(run_dir))
+        return
+    if Path(path).is_dir() and image_topic:
+        from rodctl.recordings.importer import import_bag_images
+
+        def numbers(flag: str, text: str | None, n: int, kind: type) -> list:
+            try:
+                vals = [kind(v) for v in (text or "").split(",")]
+            except ValueError:
+                vals = []
+            if len(vals) != n:
+                raise UserError(f"{flag} {text}: give {n} comma-separated numbers")
+            return vals
+
+        if not camera or not pose_topic or len(pose_topic) != 1:
+            raise UserError(f"{path}: images need --camera FILE and one --pose-topic (the gripper)")
+        run_dir, notes = import_bag_images(
+            path, out, image_topic=image_topic, info_topic=camera_info_topic,
+            pose_topic=pose_topic[0], camera=camera,
+            clamp_pose=numbers("--clamp-pose", clamp_pose, 3, float),
+            hsv_low=numbers("--hsv-low", hsv_low, 3, int),
+            hsv_high=numbers("--hsv-high", hsv_high, 3, int),
+            tolerance=tolerance, name=name,
+        )  # fmt: skip
+        for note in notes:
+            typer.echo(f"note: {note}", err=True)
+        typer.echo(str(run_dir))
+        return
+    if Path(path).is_dir():
+        if not points_topic or not pose_topic:
+            raise UserError(
+                f"{path}: a folder is a ROS 2 bag (give --points-topic or --image-topic, and "
+                "--pose-topic) or an image folder (give --poses CSV and --camera FILE)"
+            )
+        run_dir, notes = import_bag(
+            path, out, points_topic, pose_topic, tolerance=tolerance, name=name
+        )
+        for note in notes:
+            typer.echo(f"note: {note}", err=True)
+        typer.echo(str(run_dir))
+        return
+    typer.echo(str(import_points(path, out, name)))
+
+
+@app.command("export")
+@user_errors
+def export_run(
+    path: Annotated[str, typer.Argument(help="A run directory or its run.mcap.")],
+    ros2: Annotated[str, typer.Option("--ros2", help="The ROS 2 bag folder to write (new).")],
+    storage: Annotated[
+        str, typer.Option("--storage", help="Bag storage: mcap or sqlite3.")
+    ] = "mcap",
+) -> None:
+    """Write a run as a ROS 2 bag (Image, CameraInfo, PoseStamped, MarkerArray; CDR), no
+    ROS 2 install needed (docs/recordings.md). Prints the messages per topic and the bag last."""
+    from rodctl.recordings.ros2 import export_ros2
+
+    counts = export_ros2(path, ros2, storage)
+    for topic, n in counts.items():
+        typer.echo(f"{topic}: {n} messages", err=True)
+    typer.echo(ros2)
+
+
 def main() -> None:
     """Console-script entry point."""
     app(prog_name="rodctl")

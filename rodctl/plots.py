@@ -213,7 +213,8 @@ def _series(records: Sequence[StepRecord]) -> tuple[np.ndarray, np.ndarray, np.n
     steps = np.array([r.step for r in records], dtype=int)
     t1 = np.array([r.T1 for r in records], dtype=float)
     px = np.array([r.pixel_error for r in records], dtype=float)
-    u = np.array([r.u for r in records], dtype=float).reshape(len(records), 3)
+    # the first end effector's dx, dy, dtheta (a two-end recording logs q = 6 values)
+    u = np.array([np.asarray(r.u)[:3] for r in records], dtype=float).reshape(len(records), 3)
     return steps, t1, px, u
 
 

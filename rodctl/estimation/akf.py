@@ -30,7 +30,7 @@ from pydantic import Field, PositiveFloat, model_validator
 
 from rodctl import fixedla
 from rodctl.config.base import StrictModel
-from rodctl.estimation.base import DEAD_ZONE_DOC, checked_jacobian
+from rodctl.estimation.base import DEAD_ZONE_DOC, EstimatorDiverged, checked_jacobian
 from rodctl.registry import ESTIMATORS, BuildContext
 
 
@@ -87,6 +87,25 @@ def clip_psd(a: np.ndarray, floor: float, test_first: bool = True) -> np.ndarray
         if fixedla.cholesky(a - floor * np.eye(n)) is not None:
             return a
     return fixedla.clip_eigenvalues(a, floor)
+
+
+def _joseph(
+    P_pred: np.ndarray, inv_a: float, PMt: np.ndarray, Li: np.ndarray, R: np.ndarray, u: np.ndarray
+) -> np.ndarray:
+    """The Joseph form of the covariance update, (I - K M) P' (I - K M)^T + K R K^T.
+
+    P' = (1/alpha) P- is the inflated prior of eq. 13, K = P' M^T S^-1 its gain (S^-1 =
+    Li^T Li) and M = I_p kron u^T. Equal to (I - K M) P' in exact arithmetic (K is the optimal
+    gain) but a sum of two positive semidefinite products, so rounding cannot make it
+    indefinite the way the subtraction can; fixed-order `einsum` throughout (no BLAS).
+    """
+    n = PMt.shape[0]
+    Sinv = np.einsum("ki,kj->ij", Li, Li)
+    K = inv_a * np.einsum("nk,kj->nj", PMt, Sinv)  # (n, p)
+    A = np.eye(n) - np.einsum("ai,j->aij", K, u).reshape(n, n)  # I - K M
+    AP = np.einsum("ab,bc->ac", A, inv_a * P_pred)
+    out = np.einsum("ac,dc->ad", AP, A) + np.einsum("ai,ij,bj->ab", K, R, K)
+    return 0.5 * (out + out.T)
 
 
 class AdaptiveKalmanJacobian:
@@ -198,7 +217,21 @@ class AdaptiveKalmanJacobian:
         self._J = self._J + Keps.reshape(p, q)
         # (1/alpha)(I - K M) P- with K M P- = (1/alpha) P- M^T S^-1 M P- = (1/alpha) W^T W
         # (exactly symmetric as computed: entry (i, j) and (j, i) sum the same products)
-        self._P = inv_a * (P_pred - inv_a * np.einsum("ki,kj->ij", W, W))
+        P_new = inv_a * (P_pred - inv_a * np.einsum("ki,kj->ij", W, W))
+        repaired = 0.0
+        if not fixedla.cholesky_ok(P_new):
+            # The subtraction cancelled below rounding (large p q, a covariance spanning many
+            # orders): the Joseph form is a sum of positive semidefinite terms instead.
+            P_new = _joseph(P_pred, inv_a, PMt, Li, self._R, u)
+            repaired = 1.0
+            if not fixedla.cholesky_ok(P_new):
+                if not np.isfinite(P_new).all():
+                    raise EstimatorDiverged(
+                        f"akf: the state covariance P became non-finite at update {self._k + 1}"
+                    )
+                P_new = clip_psd(P_new, self._q_min, test_first=False)
+                repaired = 2.0
+        self._P = P_new
 
         self._k += 1
         b = self._b
@@ -206,11 +239,17 @@ class AdaptiveKalmanJacobian:
         R = (1.0 - d) * self._R + d * (eps[:, None] * eps)  # eq. 18
         if self._eq32:
             R -= d * G  # eq. 17: the unbiased form
-        self._R = clip_psd(R, self._r_min)
         Q = (1.0 - d) * self._Q + d * (Keps[:, None] * Keps + self._P - P_pred)  # eq. 17 (Q)
+        if not (np.isfinite(Q).all() and np.isfinite(R).all() and np.isfinite(self._J).all()):
+            raise EstimatorDiverged(
+                f"akf: J or the noise estimates Q, R became non-finite at update {self._k}"
+            )
+        self._R = clip_psd(R, self._r_min)
         self._Q = clip_psd(Q, self._q_min, test_first=False)
 
         self._info = {"alpha": alpha, "innovation": stat, "skipped": 0.0}
+        if repaired:
+            self._info["repaired"] = repaired
         return self._J.copy()
 
     def info(self) -> dict[str, float]:

@@ -48,3 +48,12 @@ DEAD_ZONE_DOC = (
     "Skip the update when ||dr|| (Euclidean, metres and radians mixed) is below this: a tiny "
     "move carries no information about J and would amplify feature noise."
 )
+
+
+class EstimatorDiverged(ArithmeticError):
+    """An estimator's state left the finite numbers (a NaN or infinite J or covariance).
+
+    The named failure an estimator raises instead of a numerical library's error: the closed
+    loop ends the episode with it (outcome "error", this message), `rodctl estimate` ends that
+    estimator's row with outcome "diverged" and keeps its errors up to the step before.
+    """

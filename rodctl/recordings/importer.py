@@ -1,0 +1,321 @@
+"""`rodctl import`: a recording turned into a rodctl run folder with the contract topics.
+
+The run folder is what `rodctl simulate` writes (config.yaml, meta.json, summary.json,
+run.mcap), so `replay` rebuilds run.rrd and the figures from it, Foxglove opens its run.mcap and
+`estimate` reads its (Delta s, Delta r). What a recording does not have is said, not invented
+(docs/recordings.md, "What an imported run contains"):
+- one record per frame: step k, `sim_time` = t_k - t_0, phase "initial" then "control";
+- `gripper` = end effector 0's pose; `u` = the change of all end-effector poses since the
+  previous frame (q = 3 or 6 values, angles unwrapped);
+- `s` = the tracked points flattened (x0, y0, x1, ...; the `points` feature), `J` = zeros: no
+  estimate is made at import (`rodctl estimate` makes them offline);
+- there is no target: `s_target` and the target shape are the last frame's, so T1 is the
+  distance to the final shape;
+- points in pixels are the `extracted` centerline as they are; points in metres are the world
+  centerline, and `extracted` is their view through a nominal top-down camera of
+  `NOMINAL_PX_PER_M` pixels per metre (y down), recorded in config.yaml's `source`.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from rodctl.errors import RunFailed, UserError
+from rodctl.recordings.synthetic import PointsRecording
+
+#: Scale of the nominal top-down view of a recording in metres (pixels per metre).
+NOMINAL_PX_PER_M = 1000.0
+
+
+def _views(rec: PointsRecording) -> tuple[np.ndarray, np.ndarray, tuple[int, int], dict]:
+    """(world centerline (T, N, 2) m, pixels (T, N, 2), image size, the view's description)."""
+    pts = np.asarray(rec.points, dtype=float)
+    if rec.units == "px":
+        px = pts
+        lo = np.zeros(2)
+        size = (int(np.ceil(px[..., 0].max())) + 1, int(np.ceil(px[..., 1].max())) + 1)
+        world = np.stack([px[..., 0], -px[..., 1]], axis=-1) / NOMINAL_PX_PER_M
+        view = {"points_are": "pixels", "world": f"x / {NOMINAL_PX_PER_M:g}, -y / same"}
+    else:
+        world = pts
+        lo = world.reshape(-1, 2).min(axis=0) - 0.05
+        hi = world.reshape(-1, 2).max(axis=0) + 0.05
+        px = np.stack(
+            [
+                (world[..., 0] - lo[0]) * NOMINAL_PX_PER_M,
+                (hi[1] - world[..., 1]) * NOMINAL_PX_PER_M,
+            ],
+            axis=-1,
+        )
+        size = (
+            int(np.ceil((hi[0] - lo[0]) * NOMINAL_PX_PER_M)),
+            int(np.ceil((hi[1] - lo[1]) * NOMINAL_PX_PER_M)),
+        )
+        view = {
+            "points_are": "metres",
+            "nominal_camera": {
+                "px_per_m": NOMINAL_PX_PER_M,
+                "origin_m": [float(lo[0]), float(hi[1])],
+            },
+        }
+    return world, px, (max(size[0], 1), max(size[1], 1)), view
+
+
+def import_points(path: str | Path, out: str | Path, name: str | None = None) -> Path:
+    """Write the points recording at `path` as a run folder under `out`; return the folder.
+
+    Raises:
+        UserError: a bad recording (`read_points`) or an output folder that cannot be made.
+    """
+    from rodctl.recordings.points import read_points
+
+    src = Path(path)
+    return write_run(read_points(src), src, out, name, {"kind": "points"})
+
+
+def import_bag(
+    bag: str | Path,
+    out: str | Path,
+    points_topic: str,
+    pose_topics: list[str],
+    *,
+    tolerance: float = 0.2,
+    name: str | None = None,
+) -> tuple[Path, list[str]]:
+    """Write the tracked points and poses of a ROS 2 bag as a run folder under `out`
+    (`rodctl.recordings.ros2.read_bag_points`); return the folder and the notes.
+    """
+    from rodctl.recordings.ros2 import read_bag_points
+
+    src = Path(bag)
+    rec, notes = read_bag_points(src, points_topic, pose_topics, tolerance)
+    source = {
+        "kind": "ros2_bag",
+        "points_topic": points_topic,
+        "pose_topics": list(pose_topics),
+        "tolerance_s": tolerance,
+        "notes": notes,
+    }
+    return write_run(rec, src, out, name, source), notes
+
+
+def import_bag_images(
+    bag: str | Path,
+    out: str | Path,
+    *,
+    image_topic: str,
+    info_topic: str | None,
+    pose_topic: str,
+    camera: str | Path,
+    clamp_pose: list[float],
+    hsv_low: list[int],
+    hsv_high: list[int],
+    tolerance: float = 0.2,
+    name: str | None = None,
+) -> tuple[Path, list[str]]:
+    """Segment and extract the rod in a bag's camera frames; write the run folder
+    (`rodctl.recordings.ros2.read_bag_images`). The world centerline is the extracted one
+    unprojected onto the rod's plane by the calibrated camera."""
+    from rodctl.recordings.ros2 import INTERRUPTED, camera_config, read_bag_images
+
+    src = Path(bag)
+    cam_cfg = camera_config(camera)
+    rec, world, used, notes = read_bag_images(
+        src, image_topic, info_topic, pose_topic, cam_cfg, clamp_pose,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+    )  # fmt: skip
+    source = {
+        "kind": "ros2_bag_images",
+        "image_topic": image_topic,
+        "camera_info_topic": info_topic,
+        "pose_topics": [pose_topic],
+        "clamp_pose": [float(v) for v in clamp_pose],
+        "hsv_low": [int(v) for v in hsv_low],
+        "hsv_high": [int(v) for v in hsv_high],
+        "tolerance_s": tolerance,
+        "notes": notes,
+    }
+    views = (world, rec.points, (used.width, used.height), {"camera": used.model_dump(mode="json")})
+    clamp = np.asarray(clamp_pose, dtype=float)
+    run_dir = write_run(rec, src, out, name, source, views=views, clamp=clamp)
+    cut = [n for n in notes if n.startswith(INTERRUPTED)]
+    if cut:
+        raise RunFailed(f"import of {src} cut short ({cut[0]}); {run_dir} keeps them")
+    return run_dir, notes
+
+
+def import_image_folder(
+    folder: str | Path,
+    out: str | Path,
+    *,
+    poses: str | Path,
+    camera: str | Path,
+    clamp_pose: list[float],
+    hsv_low: list[int],
+    hsv_high: list[int],
+    tolerance: float = 0.2,
+    name: str | None = None,
+) -> tuple[Path, list[str]]:
+    """The camera-frame import of `import_bag_images` for an image folder with frames.csv
+    and a poses CSV (`rodctl.recordings.folder`); the intrinsics come from `camera`."""
+    from rodctl.recordings.folder import read_folder
+    from rodctl.recordings.ros2 import INTERRUPTED, camera_config, extract_frames
+
+    src = Path(folder)
+    cam_cfg = camera_config(camera)
+    frames, pose_rows = read_folder(src, poses)
+    rec, world, used, notes = extract_frames(
+        str(src), "frames.csv", frames, str(poses), pose_rows, cam_cfg, clamp_pose, None,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+    )  # fmt: skip
+    source = {
+        "kind": "image_folder",
+        "poses": str(poses),
+        "clamp_pose": [float(v) for v in clamp_pose],
+        "hsv_low": [int(v) for v in hsv_low],
+        "hsv_high": [int(v) for v in hsv_high],
+        "tolerance_s": tolerance,
+        "notes": notes,
+    }
+    views = (world, rec.points, (used.width, used.height), {"camera": used.model_dump(mode="json")})
+    run_dir = write_run(
+        rec, src, out, name, source, views=views, clamp=np.asarray(clamp_pose, dtype=float)
+    )
+    cut = [n for n in notes if n.startswith(INTERRUPTED)]
+    if cut:
+        raise RunFailed(f"import of {src} cut short ({cut[0]}); {run_dir} keeps them")
+    return run_dir, notes
+
+
+def write_run(
+    rec: PointsRecording,
+    src: Path,
+    out: str | Path,
+    name: str | None,
+    source: dict,
+    views: tuple | None = None,
+    clamp: np.ndarray | None = None,
+) -> Path:
+    """Write a checked points recording as a run folder under `out` (the module docstring).
+
+    `views` = (world (T, N, 2), pixels (T, N, 2), image size, description) replaces the nominal
+    views of `_views` when a calibrated camera gave both; `clamp` is the fixed end's pose
+    (default: end effector 1's first pose for two ends, else zeros).
+    """
+    from rodctl.logs.mcap import McapSink
+    from rodctl.records import RunHeader, RunSummary, StepRecord
+    from rodctl.runs import jsonable, write_json_atomic
+
+    world, px, size, view = views if views is not None else _views(rec)
+    T, N = rec.points.shape[:2]
+    r = rec.r
+    stem = name or f"import-{src.stem}"
+    parent = Path(out)
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        run_dir = parent / f"{time.strftime('%Y%m%d-%H%M%S')}_{stem}"
+        for n in range(2, 10_000):
+            if not run_dir.exists():
+                break
+            run_dir = parent / f"{time.strftime('%Y%m%d-%H%M%S')}_{stem}-{n}"
+        run_dir.mkdir()
+    except OSError as exc:
+        raise UserError(f"--out {parent}: cannot create the run folder: {exc}") from None
+    source = {
+        **source,
+        "file": str(src),
+        "frames": int(T),
+        "points": int(N),
+        "end_effectors": int(rec.poses.shape[1]),
+        "q": rec.q,
+        **view,
+    }
+    config_yaml = yaml.safe_dump({"name": stem, "seed": 0, "source": source}, sort_keys=False)
+    (run_dir / "config.yaml").write_text(config_yaml, encoding="utf-8")
+    meta = {
+        "run_id": run_dir.name,
+        "command": "import",
+        "status": "running",
+        "source": str(src),
+        "started_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    write_json_atomic(run_dir / "meta.json", meta)
+
+    s_all = px.reshape(T, -1) if rec.units == "px" else world.reshape(T, -1)
+    s_target = s_all[-1]
+    header = RunHeader(
+        run_id=run_dir.name,
+        method="recording/points",
+        config_yaml=config_yaml,
+        image_size=size,
+        clamp_pose=np.asarray(
+            clamp
+            if clamp is not None
+            else (rec.poses[0, -1] if rec.poses.shape[1] == 2 else np.zeros(3)),
+            dtype=float,
+        ),
+        home_pose=np.asarray(rec.poses[0, 0]),
+        target_centerline=world[-1],
+        target_pixels=px[-1],
+        target_feature=s_target,
+        target_pose=np.asarray(rec.poses[-1, 0]),
+        rod_length=float(np.sqrt((np.diff(world[0], axis=0) ** 2).sum(axis=1)).sum()),
+    )
+    sink = McapSink(run_dir / "run.mcap")
+    sink.open(header)
+    p, q = s_all.shape[1], rec.q
+    last = None
+    status, written = "completed", 0
+    t0 = time.perf_counter()
+    try:
+        for k in range(T):
+            u = np.zeros(q) if k == 0 else r[k] - r[k - 1]
+            err = float(np.sqrt(((px[k] - px[-1]) ** 2).sum(axis=1)).mean())
+            last = StepRecord(
+                step=k,
+                sim_time=float(rec.t[k] - rec.t[0]),
+                phase="initial" if k == 0 else "control",
+                gripper=np.asarray(rec.poses[k, 0]),
+                centerline=world[k],
+                extracted=px[k],
+                projected_truth=px[k],
+                u=u,
+                u_raw=u,
+                s=s_all[k],
+                s_target=s_target,
+                T1=float(np.sqrt(((s_target - s_all[k]) ** 2).sum())),
+                J=np.zeros((p, q)),
+                J_singular_values=np.zeros(min(p, q)),
+                pixel_error=err,
+            )
+            sink.write(last)
+            written = k + 1
+    except KeyboardInterrupt:
+        status = "interrupted"
+    wall = time.perf_counter() - t0
+    summary = RunSummary(
+        status=status,
+        outcome="recording",
+        method=header.method,
+        steps=max(written - 1, 0),
+        converged=False,
+        steps_to_converge=None,
+        final_T1=float(last.T1) if last is not None else float("nan"),
+        final_pixel_error=float(last.pixel_error) if last is not None else float("nan"),
+        wall_time_s=wall,
+        steps_per_s=written / wall if wall > 0 else 0.0,
+        extra={"run_id": run_dir.name, "frames_imported": written, "frames": int(T)},
+    )
+    sink.close(summary, status)
+    write_json_atomic(run_dir / "summary.json", jsonable(summary.to_json()))
+    meta.update(status=status, ended_at=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    write_json_atomic(run_dir / "meta.json", meta)
+    if status != "completed":
+        raise RunFailed(
+            f"import of {src} cut short after {written} of {T} frames; {run_dir} keeps them"
+        )
+    return run_dir

@@ -1,0 +1,198 @@
+"""rodctl's points dataset format: per-frame tracked points plus one or two end-effector poses.
+
+docs/recordings.md is the specification. Two encodings of the same content:
+- CSV: a header row, then one row per frame. Columns `t` (seconds, strictly increasing),
+  `x0, y0, x1, y1, ..., x{N-1}, y{N-1}` (the tracked points, end 0's side first) and
+  `e0_x, e0_y, e0_theta` (end effector 0), optionally `e1_x, e1_y, e1_theta` (a second one:
+  q = 6). Lines starting with `#` are comments; `# units: px` says the points are pixels
+  (default metres). Extra columns are refused (a misspelt name would otherwise be ignored).
+- NPZ: arrays `t` (T,), `points` (T, N, 2), `poses` (T, E, 3) with E = 1 or 2, optionally a
+  string `units`.
+Poses are [x, y, theta] in the world frame, metres and radians (the contract's convention).
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+from pathlib import Path
+
+import numpy as np
+
+from rodctl.errors import UserError
+from rodctl.recordings.synthetic import PointsRecording
+
+__all__ = ["read_points", "write_points_csv", "write_points_npz"]
+
+_POINT = re.compile(r"^([xy])(\d+)$")
+_POSE = re.compile(r"^e([01])_(x|y|theta)$")
+
+
+def _check(path: Path, rec: PointsRecording) -> PointsRecording:
+    t, pts, poses = rec.t, rec.points, rec.poses
+    n_frames = len(t)
+    if n_frames < 3:
+        raise UserError(f"{path}: {n_frames} frame(s); a recording needs at least 3")
+    if pts.ndim != 3 or pts.shape[0] != n_frames or pts.shape[2] != 2 or pts.shape[1] < 2:
+        raise UserError(
+            f"{path}: points must be (T, N >= 2, 2) for T = {n_frames}, got {pts.shape}"
+        )
+    if (
+        poses.ndim != 3
+        or poses.shape[0] != n_frames
+        or poses.shape[1] not in (1, 2)
+        or (poses.shape[2] != 3)
+    ):
+        raise UserError(
+            f"{path}: poses must be (T, 1 or 2, 3) for T = {n_frames}, got {poses.shape}"
+        )
+    for name, arr in (("t", t), ("points", pts), ("poses", poses)):
+        bad = np.argwhere(~np.isfinite(arr.reshape(n_frames, -1)))
+        if len(bad):
+            raise UserError(f"{path}: frame {int(bad[0][0])}: {name} is not a finite number")
+    steps = np.diff(t)
+    if (steps <= 0).any():
+        k = int(np.argmax(steps <= 0)) + 1
+        raise UserError(
+            f"{path}: frame {k}: t = {t[k]!r} does not increase (previous {t[k - 1]!r})"
+        )
+    if rec.units not in ("m", "px"):
+        raise UserError(f"{path}: units {rec.units!r}: must be m or px")
+    return rec
+
+
+def _read_csv(path: Path) -> PointsRecording:
+    units = "m"
+    rows: list[list[str]] = []
+    header: list[str] | None = None
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            for line_no, row in enumerate(csv.reader(fh), start=1):
+                if not row or not "".join(row).strip():
+                    continue
+                if row[0].lstrip().startswith("#"):
+                    m = re.match(r"#\s*units\s*:\s*(\S+)", ",".join(row).strip())
+                    if m:
+                        units = m.group(1)
+                    continue
+                if header is None:
+                    header = [c.strip() for c in row]
+                    continue
+                if len(row) != len(header):
+                    raise UserError(
+                        f"{path}: line {line_no}: {len(row)} values for {len(header)} columns"
+                    )
+                rows.append(row)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: cannot read: {exc}") from None
+    if header is None:
+        raise UserError(f"{path}: empty file (no header row)")
+    if "t" not in header:
+        raise UserError(f"{path}: no column t (the frame time in seconds)")
+    points: dict[int, dict[str, int]] = {}
+    ends: dict[int, dict[str, int]] = {}
+    for i, name in enumerate(header):
+        if name == "t":
+            continue
+        m, e = _POINT.match(name), _POSE.match(name)
+        if m:
+            points.setdefault(int(m.group(2)), {})[m.group(1)] = i
+        elif e:
+            ends.setdefault(int(e.group(1)), {})[e.group(2)] = i
+        else:
+            raise UserError(
+                f"{path}: column {name!r}: not t, x<i>/y<i> (a point) or e<0|1>_x/_y/_theta"
+            )
+    n = len(points)
+    for k in range(n):
+        for axis in "xy":
+            if axis not in points.get(k, {}):
+                raise UserError(f"{path}: no column {axis}{k} (points are numbered 0..{n - 1})")
+    if 0 not in ends:
+        raise UserError(f"{path}: no columns e0_x, e0_y, e0_theta (end effector 0's pose)")
+    for e, cols in ends.items():
+        for f in ("x", "y", "theta"):
+            if f not in cols:
+                raise UserError(f"{path}: no column e{e}_{f}")
+    try:
+        data = np.array([[float(v) for v in row] for row in rows], dtype=float)
+    except ValueError as exc:
+        raise UserError(f"{path}: a value is not a number ({exc})") from None
+    if data.size == 0:
+        raise UserError(f"{path}: no frames after the header")
+    t = data[:, header.index("t")]
+    pts = np.stack(
+        [np.stack([data[:, points[k]["x"]], data[:, points[k]["y"]]], axis=-1) for k in range(n)],
+        axis=1,
+    )
+    poses = np.stack(
+        [
+            np.stack([data[:, ends[e][f]] for f in ("x", "y", "theta")], axis=-1)
+            for e in sorted(ends)
+        ],
+        axis=1,
+    )
+    return PointsRecording(t=t, points=pts, poses=poses, units=units)
+
+
+def _read_npz(path: Path) -> PointsRecording:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in ("t", "points", "poses") if k not in z.files]
+            if missing:
+                raise UserError(f"{path}: no array {missing[0]!r} (needs t, points, poses)")
+            units = str(z["units"]) if "units" in z.files else "m"
+            return PointsRecording(
+                t=np.asarray(z["t"], dtype=float).reshape(-1),
+                points=np.asarray(z["points"], dtype=float),
+                poses=np.asarray(z["poses"], dtype=float),
+                units=units,
+            )
+    except UserError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - not a zip, a pickled object array, ...
+        raise UserError(f"{path}: not a points NPZ file ({type(exc).__name__}: {exc})") from None
+
+
+def read_points(path: str | Path) -> PointsRecording:
+    """Read a points recording (CSV or NPZ by its suffix), checked; angles unwrapped.
+
+    Raises:
+        UserError: missing file, column or array, a non-number, a time that does not increase,
+            fewer than 3 frames; the message names the file and the column or frame.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"{p}: no such file")
+    if p.suffix.lower() == ".npz":
+        rec = _read_npz(p)
+    elif p.suffix.lower() == ".csv":
+        rec = _read_csv(p)
+    else:
+        raise UserError(f"{p}: a points recording is a .csv or .npz file (docs/recordings.md)")
+    rec = _check(p, rec)
+    rec.poses[:, :, 2] = np.unwrap(rec.poses[:, :, 2], axis=0)
+    return rec
+
+
+def write_points_csv(rec: PointsRecording, path: str | Path) -> Path:
+    """Write `rec` as a points CSV (repr floats: reading it back gives the same bits)."""
+    p = Path(path)
+    n, e = rec.points.shape[1], rec.poses.shape[1]
+    header = ["t"] + [f"{a}{k}" for k in range(n) for a in "xy"]
+    header += [f"e{j}_{f}" for j in range(e) for f in ("x", "y", "theta")]
+    with p.open("w", newline="", encoding="utf-8") as fh:
+        fh.write(f"# units: {rec.units}\n")
+        w = csv.writer(fh)
+        w.writerow(header)
+        for k in range(len(rec.t)):
+            vals = [rec.t[k], *rec.points[k].reshape(-1), *rec.poses[k].reshape(-1)]
+            w.writerow([repr(float(v)) for v in vals])
+    return p
+
+
+def write_points_npz(rec: PointsRecording, path: str | Path) -> Path:
+    """Write `rec` as a points NPZ."""
+    p = Path(path)
+    np.savez(p, t=rec.t, points=rec.points, poses=rec.poses, units=np.array(rec.units))
+    return p

@@ -1,0 +1,573 @@
+"""`rodctl export RUN --ros2 BAG`: a run written as a ROS 2 bag (CDR), through `rosbags`.
+
+No ROS 2 runtime is needed: `rosbags` (pure Python, pinned in pyproject.toml) serialises the
+messages with its built-in ROS 2 Humble type definitions and writes either storage (sqlite3 or
+MCAP). Topics (docs/recordings.md, "Export to a ROS 2 bag"):
+- `/camera/image_raw` sensor_msgs/msg/Image (rgb8), every logged camera frame;
+- `/camera/camera_info` sensor_msgs/msg/CameraInfo beside each frame: K from the run's camera
+  config, no distortion (plumb_bob, D = 0; rodctl's camera is a pinhole);
+- `/gripper/pose` geometry_msgs/msg/PoseStamped, the gripper pose of every step (x, y, z = 0,
+  theta as a rotation about z), frame `world`;
+- `/rod/centerline` visualization_msgs/msg/MarkerArray, one LINE_STRIP of the rod's centerline
+  (`/rod/state.centerline`, world metres) per step.
+Message times are the MCAP log times (2000-01-01 + simulated time), so a bag of a run is the
+same bytes each time (sqlite3 aside, whose pages are the database's business).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from rodctl.errors import UserError
+
+STORAGES = ("sqlite3", "mcap")
+TOPIC_IMAGE = "/camera/image_raw"
+TOPIC_INFO = "/camera/camera_info"
+TOPIC_POSE = "/gripper/pose"
+TOPIC_CENTERLINE = "/rod/centerline"
+
+
+def _intrinsics(config_yaml: str, size: tuple[int, int]) -> np.ndarray:
+    """K (3, 3) of the run's camera (its config's camera section; defaults where absent)."""
+    from rodctl.config.camera import CameraConfig
+
+    try:
+        cam = (yaml.safe_load(config_yaml) or {}).get("camera") or {}
+        cfg = CameraConfig.model_validate(cam)
+    except Exception:  # noqa: BLE001 - a foreign config: rodctl's default camera
+        cfg = CameraConfig()
+    w, h = size
+    cx = (w - 1) / 2.0 if cfg.cx is None else float(cfg.cx)
+    cy = (h - 1) / 2.0 if cfg.cy is None else float(cfg.cy)
+    return np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
+
+
+def _header(ts: Any, t_ns: int, frame: str) -> Any:
+    T = ts.types
+    stamp = T["builtin_interfaces/msg/Time"](
+        sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000
+    )
+    return T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+
+def pose_stamped(ts: Any, t_ns: int, pose: np.ndarray, frame: str = "world") -> Any:
+    """geometry_msgs/msg/PoseStamped of a planar pose [x, y, theta] (z = 0, yaw = theta)."""
+    T = ts.types
+    x, y, th = (float(v) for v in pose)
+    q = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(th / 2.0), w=math.cos(th / 2.0))
+    p = T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0)
+    return T["geometry_msgs/msg/PoseStamped"](
+        _header(ts, t_ns, frame), T["geometry_msgs/msg/Pose"](position=p, orientation=q)
+    )
+
+
+def line_marker(ts: Any, t_ns: int, line: np.ndarray, frame: str = "world") -> Any:
+    """visualization_msgs/msg/Marker: a LINE_STRIP through the (N, 2) points (z = 0)."""
+    T = ts.types
+    Point, Quat = T["geometry_msgs/msg/Point"], T["geometry_msgs/msg/Quaternion"]
+    return T["visualization_msgs/msg/Marker"](
+        header=_header(ts, t_ns, frame),
+        ns="rod",
+        id=0,
+        type=4,  # LINE_STRIP
+        action=0,
+        pose=T["geometry_msgs/msg/Pose"](
+            position=Point(x=0.0, y=0.0, z=0.0), orientation=Quat(0.0, 0.0, 0.0, 1.0)
+        ),
+        scale=T["geometry_msgs/msg/Vector3"](x=0.004, y=0.0, z=0.0),
+        color=T["std_msgs/msg/ColorRGBA"](r=0.85, g=0.2, b=0.1, a=1.0),
+        lifetime=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+        frame_locked=False,
+        points=[Point(x=float(p[0]), y=float(p[1]), z=0.0) for p in line],
+        colors=[],
+        texture_resource="",
+        texture=T["sensor_msgs/msg/CompressedImage"](
+            header=_header(ts, t_ns, ""), format="", data=np.zeros(0, dtype=np.uint8)
+        ),
+        uv_coordinates=[],
+        text="",
+        mesh_resource="",
+        mesh_file=T["visualization_msgs/msg/MeshFile"](
+            filename="", data=np.zeros(0, dtype=np.uint8)
+        ),
+        mesh_use_embedded_materials=False,
+    )
+
+
+def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") -> dict[str, int]:
+    """Write the run at `run_path` as the ROS 2 bag folder `bag`; return messages per topic.
+
+    Raises:
+        UserError: not a run, a bag folder that exists already, an unknown storage.
+    """
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.rosbag2.errors import WriterError
+    from rosbags.typesys import Stores, get_typestore
+
+    from rodctl.logs.codec import log_time_ns
+    from rodctl.replay import read_run
+
+    if storage not in STORAGES:
+        raise UserError(f"--storage {storage}: choose one of {', '.join(STORAGES)}")
+    out = Path(bag)
+    if out.exists():
+        raise UserError(f"{out}: exists already; a bag is written to a new folder")
+    run = read_run(run_path, images=True)
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    T = ts.types
+    K = _intrinsics(run.header.config_yaml, tuple(run.header.image_size))
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    counts = {TOPIC_IMAGE: 0, TOPIC_INFO: 0, TOPIC_POSE: 0, TOPIC_CENTERLINE: 0}
+
+    try:
+        writer = Writer(out, version=8, storage_plugin=plugin)
+    except WriterError as exc:
+        raise UserError(f"{out}: {exc}") from None
+    with writer:
+        conns = {
+            TOPIC_IMAGE: writer.add_connection(TOPIC_IMAGE, "sensor_msgs/msg/Image", typestore=ts),
+            TOPIC_INFO: writer.add_connection(
+                TOPIC_INFO, "sensor_msgs/msg/CameraInfo", typestore=ts
+            ),
+            TOPIC_POSE: writer.add_connection(
+                TOPIC_POSE, "geometry_msgs/msg/PoseStamped", typestore=ts
+            ),
+            TOPIC_CENTERLINE: writer.add_connection(
+                TOPIC_CENTERLINE, "visualization_msgs/msg/MarkerArray", typestore=ts
+            ),
+        }
+
+        def put(topic: str, t_ns: int, msg: Any) -> None:
+            writer.write(conns[topic], t_ns, ts.serialize_cdr(msg, conns[topic].msgtype))
+            counts[topic] += 1
+
+        for r in run.records:
+            t_ns = int(log_time_ns(r.sim_time))
+            put(TOPIC_POSE, t_ns, pose_stamped(ts, t_ns, np.asarray(r.gripper)[:3]))
+            marker = line_marker(ts, t_ns, np.asarray(r.centerline, dtype=float))
+            put(TOPIC_CENTERLINE, t_ns, T["visualization_msgs/msg/MarkerArray"](markers=[marker]))
+            if r.image is None:
+                continue
+            img = np.ascontiguousarray(r.image, dtype=np.uint8)
+            h, w = img.shape[:2]
+            put(
+                TOPIC_IMAGE,
+                t_ns,
+                T["sensor_msgs/msg/Image"](
+                    header=_header(ts, t_ns, "camera"),
+                    height=h,
+                    width=w,
+                    encoding="rgb8",
+                    is_bigendian=0,
+                    step=3 * w,
+                    data=img.reshape(-1),
+                ),
+            )
+            P = np.hstack([K, np.zeros((3, 1))])
+            put(
+                TOPIC_INFO,
+                t_ns,
+                T["sensor_msgs/msg/CameraInfo"](
+                    header=_header(ts, t_ns, "camera"),
+                    height=h,
+                    width=w,
+                    distortion_model="plumb_bob",
+                    d=np.zeros(5),
+                    k=K.reshape(-1),
+                    r=np.eye(3).reshape(-1),
+                    p=P.reshape(-1),
+                    binning_x=0,
+                    binning_y=0,
+                    roi=T["sensor_msgs/msg/RegionOfInterest"](
+                        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+                    ),
+                ),
+            )
+    return counts
+
+
+# --- reading tracked points and poses from a bag ------------------------------------------
+
+#: Message types a tracked-points topic may have: the (N, 2) x, y of each message.
+POINTS_TYPES = (
+    "visualization_msgs/msg/MarkerArray",
+    "visualization_msgs/msg/Marker",
+    "nav_msgs/msg/Path",
+    "geometry_msgs/msg/PoseArray",
+)
+
+
+def _stamp_ns(msg: Any, log_ns: int) -> int:
+    """The message's header stamp (ns), or its log time when it has none (or a zero one)."""
+    h = getattr(msg, "header", None)
+    if h is None and getattr(msg, "markers", None):
+        h = msg.markers[0].header
+    if h is None:
+        return int(log_ns)
+    t = int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec)
+    return t if t > 0 else int(log_ns)
+
+
+def _xy(msg: Any, msgtype: str) -> np.ndarray:
+    if msgtype.endswith("MarkerArray"):
+        pts = msg.markers[0].points if msg.markers else []
+        return np.array([[p.x, p.y] for p in pts], dtype=float).reshape(-1, 2)
+    if msgtype.endswith("/Marker"):
+        return np.array([[p.x, p.y] for p in msg.points], dtype=float).reshape(-1, 2)
+    if msgtype.endswith("Path"):
+        return np.array([[p.pose.position.x, p.pose.position.y] for p in msg.poses]).reshape(-1, 2)
+    return np.array([[p.position.x, p.position.y] for p in msg.poses], dtype=float).reshape(-1, 2)
+
+
+def _yaw(o: Any) -> float:
+    return math.atan2(2.0 * (o.w * o.z + o.x * o.y), 1.0 - 2.0 * (o.y * o.y + o.z * o.z))
+
+
+def sync_poses(
+    frame_t: np.ndarray, pose_t: np.ndarray, poses: np.ndarray, topic: str, tolerance: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (K, 3) interpolated at the frame times inside the poses' time span, and the mask
+    of those frames (T,). Linear in x, y and the unwrapped angle.
+
+    Raises:
+        UserError: no frame inside the span (they do not overlap), or two poses around a frame
+            further apart than `tolerance` seconds (the frame's time is named).
+    """
+    order = np.argsort(pose_t, kind="stable")
+    pt, pv = pose_t[order], poses[order].copy()
+    pv[:, 2] = np.unwrap(pv[:, 2])
+    inside = (frame_t >= pt[0]) & (frame_t <= pt[-1])
+    if not inside.any():
+        raise UserError(
+            f"{topic}: poses (t {pt[0]:.6f}..{pt[-1]:.6f} s) and frames (t {frame_t[0]:.6f}.."
+            f"{frame_t[-1]:.6f} s) do not overlap"
+        )
+    ft = frame_t[inside]
+    idx = np.searchsorted(pt, ft, side="left")  # pt[idx - 1] < ft <= pt[idx]
+    exact = pt[np.minimum(idx, len(pt) - 1)] == ft
+    hi = np.where(exact, idx, np.clip(idx, 1, len(pt) - 1))
+    lo = np.where(exact, idx, hi - 1)
+    gap = np.where(exact, 0.0, pt[hi] - pt[lo])
+    if (gap > tolerance).any():
+        k = int(np.argmax(gap > tolerance))
+        raise UserError(
+            f"{topic}: no pose within {tolerance:g} s of the frame at t = {ft[k]:.6f} s (poses "
+            f"at {pt[lo[k]]:.6f} and {pt[hi[k]]:.6f} s); raise --tolerance or fill the gap"
+        )
+    w = np.where(exact, 1.0, (ft - pt[lo]) / np.where(gap > 0, gap, 1.0))[:, None]
+    return (1.0 - w) * pv[lo] + w * pv[hi], inside
+
+
+def read_bag_points(
+    bag: str | Path, points_topic: str, pose_topics: list[str], tolerance: float = 0.2
+) -> tuple[Any, list[str]]:
+    """A points recording from a ROS 2 bag (sqlite3 or MCAP storage): the tracked points of
+    `points_topic` (MarkerArray, Marker, nav_msgs/Path or PoseArray; x, y, world metres) and
+    the PoseStamped of one or two end effectors, interpolated at the points' times.
+
+    Returns:
+        (the `PointsRecording`, notes: e.g. frames outside the poses' span that were left out).
+
+    Raises:
+        UserError: not a bag, a topic missing or of another type (the bag's topics are listed),
+            a frame with another number of points, the sync errors of `sync_poses`.
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from rodctl.recordings.synthetic import PointsRecording
+
+    path = Path(bag)
+    if not 1 <= len(pose_topics) <= 2:
+        raise UserError("--pose-topic: give one or two end-effector pose topics")
+    try:
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:  # noqa: BLE001 - rosbags' errors for a missing/foreign folder
+        raise UserError(f"{path}: not a readable ROS 2 bag ({exc})") from None
+    try:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        listing = ", ".join(f"{t} ({m})" for t, m in sorted(types.items())) or "none"
+        for topic, allowed in [(points_topic, POINTS_TYPES)] + [
+            (t, ("geometry_msgs/msg/PoseStamped",)) for t in pose_topics
+        ]:
+            if topic not in types:
+                raise UserError(f"{path}: no topic {topic}; the bag has: {listing}")
+            if types[topic] not in allowed:
+                raise UserError(
+                    f"{path}: topic {topic} is {types[topic]}, expected {' or '.join(allowed)}"
+                )
+        frames: list[tuple[int, np.ndarray]] = []
+        poses: dict[str, list[tuple[int, list[float]]]] = {t: [] for t in pose_topics}
+        wanted = [c for c in reader.connections if c.topic in {points_topic, *pose_topics}]
+        for conn, log_ns, raw in reader.messages(connections=wanted):
+            msg = reader.deserialize(raw, conn.msgtype)
+            t = _stamp_ns(msg, log_ns)
+            if conn.topic == points_topic:
+                frames.append((t, _xy(msg, conn.msgtype)))
+            else:
+                p = msg.pose
+                poses[conn.topic].append((t, [p.position.x, p.position.y, _yaw(p.orientation)]))
+    finally:
+        reader.close()
+    if not frames:
+        raise UserError(f"{path}: topic {points_topic} has no messages")
+    frames.sort(key=lambda f: f[0])
+    n = len(frames[0][1])
+    for k, (t, xy) in enumerate(frames):
+        if len(xy) != n or n < 2:
+            raise UserError(
+                f"{path}: {points_topic}: frame {k} (t = {t / 1e9:.6f} s) has {len(xy)} points, "
+                f"frame 0 has {n} (need the same N >= 2 in every frame)"
+            )
+    ft = np.array([f[0] for f in frames], dtype=np.int64)
+    t0 = int(ft[0])
+    frame_t = (ft - t0) / 1e9
+    mask = np.ones(len(frames), dtype=bool)
+    synced = []
+    for topic in pose_topics:
+        if not poses[topic]:
+            raise UserError(f"{path}: topic {topic} has no messages")
+        pt = (np.array([p[0] for p in poses[topic]], dtype=np.int64) - t0) / 1e9
+        pv = np.array([p[1] for p in poses[topic]], dtype=float)
+        vals, inside = sync_poses(frame_t, pt, pv, topic, tolerance)
+        full = np.full((len(frames), 3), np.nan)
+        full[inside] = vals
+        synced.append(full)
+        mask &= inside
+    notes = []
+    if not mask.all():
+        notes.append(
+            f"{int((~mask).sum())} of {len(frames)} frames lie outside the poses' time span "
+            "and were left out"
+        )
+    pts = np.stack([f[1] for f in frames])[mask]
+    pose_arr = np.stack(synced, axis=1)[mask]
+    t = frame_t[mask]
+    if len(t) < 3:
+        raise UserError(f"{path}: only {len(t)} frames overlap the poses; need at least 3")
+    return PointsRecording(t=t, points=pts, poses=pose_arr, units="m"), notes
+
+
+# --- camera images from a bag ---------------------------------------------------------------
+
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+
+
+def _rgb(msg: Any, msgtype: str, where: str) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of an Image (rgb8, bgr8, mono8) or CompressedImage (PNG, JPEG)."""
+    import cv2
+
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if msgtype.endswith("CompressedImage"):
+        img = cv2.imdecode(data, cv2.IMREAD_COLOR)
+        if img is None:
+            raise UserError(f"{where}: the compressed image ({msg.format!r}) does not decode")
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    h, w, enc = int(msg.height), int(msg.width), str(msg.encoding)
+    ch = {"rgb8": 3, "bgr8": 3, "mono8": 1}.get(enc)
+    if ch is None:
+        raise UserError(f"{where}: image encoding {enc!r}; rgb8, bgr8 or mono8 are read")
+    rows = data.reshape(h, int(msg.step))[:, : w * ch]
+    img = rows.reshape(h, w, ch)
+    if enc == "bgr8":
+        return np.ascontiguousarray(img[..., ::-1])
+    if enc == "mono8":
+        return np.repeat(img, 3, axis=2)
+    return np.ascontiguousarray(img)
+
+
+def camera_config(path: str | Path) -> Any:
+    """The rodctl camera (pose, rendering colours, extraction settings) in a YAML file: an
+    experiment config's `camera` section or a camera section alone."""
+    from rodctl.config.camera import CameraConfig
+
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise UserError(f"--camera {p}: cannot read: {exc}") from None
+    section = data.get("camera", data) if isinstance(data, dict) else None
+    try:
+        return CameraConfig.model_validate(section)
+    except Exception as exc:  # noqa: BLE001 - pydantic's message names the field
+        raise UserError(f"--camera {p}: not a camera config: {exc}") from None
+
+
+def read_bag_images(
+    bag: str | Path,
+    image_topic: str,
+    info_topic: str | None,
+    pose_topic: str,
+    camera: Any,
+    clamp_pose: Sequence[float],
+    *,
+    hsv_low: Sequence[int],
+    hsv_high: Sequence[int],
+    tolerance: float = 0.2,
+) -> tuple[Any, np.ndarray, Any, list[str]]:
+    """Frames of a bag's image topic segmented and their centerline extracted.
+
+    The camera's intrinsics come from the first CameraInfo on `info_topic` (K; D undistorts
+    each frame), its pose and the extraction settings from `camera` (a `CameraConfig`); the
+    gripper pose (`pose_topic`, PoseStamped) is interpolated at each frame's time and given to
+    the extractor as its hint; the walk starts at the fixed `clamp_pose` [x, y, theta].
+
+    Returns:
+        (PointsRecording of the pixel centerlines, (T, N, 2) world centerlines on the rod's
+        plane, the camera config used, notes).
+
+    Raises:
+        UserError: the errors of `read_bag_points` for topics and sync, and a frame where
+            the segmentation finds no rod or the extractor loses it (topic and time named).
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = Path(bag)
+    try:
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:  # noqa: BLE001
+        raise UserError(f"{path}: not a readable ROS 2 bag ({exc})") from None
+    frames: list[tuple[int, np.ndarray]] = []
+    poses: list[tuple[int, list[float]]] = []
+    info = None
+    try:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        listing = ", ".join(f"{t} ({m})" for t, m in sorted(types.items())) or "none"
+        need = [(image_topic, IMAGE_TYPES), (pose_topic, ("geometry_msgs/msg/PoseStamped",))]
+        if info_topic:
+            need.append((info_topic, ("sensor_msgs/msg/CameraInfo",)))
+        for topic, allowed in need:
+            if topic not in types:
+                raise UserError(f"{path}: no topic {topic}; the bag has: {listing}")
+            if types[topic] not in allowed:
+                raise UserError(
+                    f"{path}: topic {topic} is {types[topic]}, expected {' or '.join(allowed)}"
+                )
+        wanted = [c for c in reader.connections if c.topic in {image_topic, pose_topic, info_topic}]
+        for conn, log_ns, raw in reader.messages(connections=wanted):
+            msg = reader.deserialize(raw, conn.msgtype)
+            t = _stamp_ns(msg, log_ns)
+            if conn.topic == image_topic:
+                frames.append((t, _rgb(msg, conn.msgtype, f"{image_topic} at t = {t / 1e9:.6f} s")))
+            elif conn.topic == pose_topic:
+                p = msg.pose
+                poses.append((t, [p.position.x, p.position.y, _yaw(p.orientation)]))
+            elif info is None:
+                info = msg
+    finally:
+        reader.close()
+    if not frames:
+        raise UserError(f"{path}: topic {image_topic} has no messages")
+    if not poses:
+        raise UserError(f"{path}: topic {pose_topic} has no messages")
+    if info_topic and info is None:
+        raise UserError(f"{path}: topic {info_topic} has no messages")
+    frames.sort(key=lambda f: f[0])
+    KD = None
+    if info is not None:
+        KD = (np.asarray(info.k, dtype=float).reshape(3, 3), np.asarray(info.d, dtype=float))
+        camera = camera.model_copy(
+            update={"width": int(info.width) or camera.width,
+                    "height": int(info.height) or camera.height}
+        )  # fmt: skip
+    return extract_frames(
+        str(path), image_topic, frames, pose_topic, poses, camera, clamp_pose, KD,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+    )  # fmt: skip
+
+
+def extract_frames(
+    source: str,
+    image_label: str,
+    frames: list[tuple[int, Any]],
+    pose_label: str,
+    poses: list[tuple[int, list[float]]],
+    camera: Any,
+    clamp_pose: Sequence[float],
+    KD: tuple[np.ndarray, np.ndarray] | None,
+    *,
+    hsv_low: Sequence[int],
+    hsv_high: Sequence[int],
+    tolerance: float,
+) -> tuple[Any, np.ndarray, Any, list[str]]:
+    """Segment and extract time-sorted frames [(t_ns, RGB image or a () -> image loader)]
+    with the gripper poses [(t_ns, [x, y, theta])] interpolated at their times; K, D (when
+    given) replace the camera's intrinsics and undistort. The body of `read_bag_images` and of
+    the image-folder import; see `read_bag_images` for the result and the errors."""
+    import cv2
+
+    from rodctl.recordings.segment import hsv_mask, mask_image
+    from rodctl.recordings.synthetic import PointsRecording
+    from rodctl.vision.camera import Camera
+    from rodctl.vision.centerline import CenterlineExtractor
+
+    path, image_topic, pose_topic = source, image_label, pose_label
+
+    def load(f: Any) -> np.ndarray:
+        return f() if callable(f) else f
+
+    first = load(frames[0][1])
+    h, w = first.shape[:2]
+    K = D = None
+    if KD is not None:
+        K, D = KD
+        camera = camera.model_copy(
+            update={"fx": float(K[0, 0]), "fy": float(K[1, 1]),
+                    "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+        )  # fmt: skip
+    if (camera.width, camera.height) != (w, h):
+        raise UserError(
+            f"{path}: {image_topic} frames are {w}x{h}, the camera is "
+            f"{camera.width}x{camera.height}"
+        )
+    cam = Camera(camera)
+    extractor = CenterlineExtractor(camera, cam, np.asarray(clamp_pose, dtype=float))
+    t0 = frames[0][0]
+    ft = (np.array([f[0] for f in frames], dtype=np.int64) - t0) / 1e9
+    pt = (np.array([p[0] for p in poses], dtype=np.int64) - t0) / 1e9
+    grip, inside = sync_poses(ft, pt, np.array([p[1] for p in poses]), pose_topic, tolerance)
+    notes = []
+    if not inside.all():
+        notes.append(
+            f"{int((~inside).sum())} of {len(frames)} frames lie outside the poses' time span "
+            "and were left out"
+        )
+    rod, bg = camera.render.rod_color, camera.render.background_color
+    pts = []
+    undistort = D is not None and np.any(D != 0.0)
+    chosen = np.flatnonzero(inside)
+    try:
+        for k, g in zip(chosen, grip, strict=True):
+            t_ns, img = frames[k][0], load(frames[k][1])
+            if undistort:
+                img = cv2.undistort(img, K, D)
+            mask = hsv_mask(img, hsv_low, hsv_high)
+            where = f"{image_topic}: frame {int(k)} (t = {(t_ns - t0) / 1e9:.6f} s)"
+            if not mask.any():
+                raise UserError(f"{where}: the HSV threshold finds no rod (--hsv-low/--hsv-high)")
+            ex = extractor.extract(mask_image(mask, rod, bg), g)
+            if not ex.ok:
+                raise UserError(f"{where}: the centerline was not extracted: {ex.note}")
+            pts.append(ex.points)
+    except KeyboardInterrupt:
+        notes.append(f"{INTERRUPTED}: {len(pts)} of {len(chosen)} frames converted")
+        if len(pts) < 3:
+            raise
+    n = len(pts)
+    px = np.stack(pts)
+    world = np.stack([cam.unproject(p) for p in px])
+    rec = PointsRecording(t=ft[chosen[:n]], points=px, poses=grip[:n, None, :], units="px")
+    return rec, world, camera, notes
+
+
+#: The note `read_bag_images` leaves when Ctrl-C cut the extraction short.
+INTERRUPTED = "interrupted"
