@@ -10,6 +10,11 @@ from paths import REPO
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("RERUN_STRICT", "1")
+# Before anything imports Ray: Ray reads this when it is imported, and without it a one-node
+# Ray advertises the machine's network address (found by routing towards a public address)
+# instead of the loopback one once the machine has a default route.
+os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
 
 @pytest.fixture

@@ -74,6 +74,12 @@ def _import_ray(local: bool) -> Any:
         raise UserError(
             "--executor ray needs Ray, which is an optional extra: pip install 'rodctl[ray]'"
         ) from None
+    if local:
+        # Ray read the variable above when it was first imported; imported earlier (a notebook,
+        # a test process) it did not see it, so set the constant it became (ray==2.60.0).
+        from ray._private import ray_constants
+
+        ray_constants.ENABLE_RAY_CLUSTER = False
     return ray
 
 
