@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rodctl.records import StepRecord
+from rodctl.records import StepRecord, scheduled_events
 
 
 def pose_steps(home: np.ndarray, target: np.ndarray, max_step: np.ndarray) -> int:
@@ -71,7 +71,7 @@ def finished_before_event(records: Sequence[StepRecord], has_events: bool) -> bo
     are scheduled."""
     if not has_events:
         return None
-    return not any(r.events for r in records)
+    return not any(scheduled_events(r.events) for r in records)
 
 
 def after_event(records: Sequence[StepRecord], converged: bool) -> tuple[float | None, int | None]:
@@ -82,7 +82,7 @@ def after_event(records: Sequence[StepRecord], converged: bool) -> tuple[float |
     are None when no event happened (the episode ended first); the steps are None unless the
     episode converged.
     """
-    first = next((r.step for r in records if r.events), None)
+    first = next((r.step for r in records if scheduled_events(r.events)), None)
     if first is None:
         return None, None
     errors = [r.pixel_error for r in records if r.step >= first and r.extraction_ok]

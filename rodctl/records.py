@@ -17,6 +17,16 @@ from typing import Any
 import numpy as np
 
 
+#: How the quasi-static engine's snap-through notes begin. They travel with a step's event
+#: lines (to /log) but are not mid-run events: `scheduled_events` leaves them out.
+SNAP_NOTE = "snap-through:"
+
+
+def scheduled_events(lines: list[str]) -> list[str]:
+    """The lines of a step's `events` that are mid-run events (`run.events`), not engine notes."""
+    return [line for line in lines if not line.startswith(SNAP_NOTE)]
+
+
 @dataclass
 class RunHeader:
     """What is fixed for a whole run; sinks receive it once, before the first step.

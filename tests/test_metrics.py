@@ -11,7 +11,7 @@ import pytest
 from rodctl import metrics
 from rodctl.config.run import RunConfig
 from rodctl.episode import Outcome, StopRule
-from rodctl.records import StepRecord
+from rodctl.records import SNAP_NOTE, StepRecord
 
 MAX = np.array([0.01, 0.01, 0.05])
 
@@ -94,3 +94,15 @@ def test_an_episode_no_event_reached_is_flagged():
     assert metrics.finished_before_event(recs, has_events=False) is None
     recs[3].events = ["stiffness x 0.5"]
     assert metrics.finished_before_event(recs, has_events=True) is False
+
+
+def test_a_snap_note_of_the_engine_is_not_a_mid_run_event():
+    """The quasi-static engine's snap-through notes travel with a step's event lines (to /log);
+    they must neither mark an episode as reached by an event nor start the event metrics."""
+    recs = [rec(i + 1, px=e) for i, e in enumerate([9.0, 6.0, 4.0, 2.0])]
+    recs[1].events = [f"{SNAP_NOTE} the equilibrium path lost stability at gripper [...]"]
+    assert metrics.finished_before_event(recs, has_events=True) is True
+    assert metrics.after_event(recs, converged=True) == (None, None)
+    recs[2].events = [*recs[2].events, "stiffness x 0.5"]
+    assert metrics.finished_before_event(recs, has_events=True) is False
+    assert metrics.after_event(recs, converged=True) == (4.0, 1)

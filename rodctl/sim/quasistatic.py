@@ -50,6 +50,7 @@ import numpy as np
 from scipy.linalg import get_lapack_funcs
 
 from rodctl.config.rod import RodConfig
+from rodctl.records import SNAP_NOTE
 from rodctl.sim.rod import ApplyResult, RodSim
 
 #: LAPACK's tridiagonal solver (Gaussian elimination with partial pivoting): the banded solve of
@@ -429,6 +430,10 @@ class QuasiStaticChain:
             self._grip, self._clamp = grip, clamp
             return False
         g0, c0 = self._grip, self._clamp
+        # Unchanged end poses (a change of the rod itself, or a free end): there is no path to
+        # sub-step along, so where Newton does not reach a stable state near the old one the
+        # overdamped gradient flow from the old shape is the rod's response, not a snap.
+        moving = not (np.array_equal(grip, g0) and np.array_equal(clamp, c0))
         done, frac = 0.0, 1.0
         ok = True
         while done < 1.0:
@@ -456,15 +461,19 @@ class QuasiStaticChain:
                 done = f
                 frac = min(2.0 * frac, 1.0)
                 continue
-            if frac > MIN_FRACTION:
+            if moving and frac > MIN_FRACTION:
                 frac *= 0.5
                 continue
             # The path has lost stability here: follow the gradient flow to a stable state.
             theta, lam, conv = self._flow(self.theta.copy(), self.lam.copy(), g, c)
             jump = float(np.max(np.abs(theta - self.theta)))
+            if not moving:
+                self.theta, self.lam = theta, lam
+                ok = conv
+                break
             self.snaps += 1
             self.snap_notes.append(
-                f"snap-through: the equilibrium path lost stability at gripper "
+                f"{SNAP_NOTE} the equilibrium path lost stability at gripper "
                 f"{[round(float(v), 5) for v in g]}, clamp {[round(float(v), 5) for v in c]}; "
                 f"followed the gradient flow to the next stable equilibrium (largest segment "
                 f"turn {jump:.3f} rad{'' if conv else ', NOT converged'})"
@@ -677,6 +686,10 @@ class QuasiStaticSim(RodSim):
     def _move_steps(self) -> int:
         return 1
 
+    def _is_slow(self) -> bool:
+        """Settled means solved: a quasi-static state has no speed to wait on."""
+        return bool(self.chain.converged)
+
     def _settle(self, target: np.ndarray) -> tuple[bool, bool]:
         """Nothing to wait for: the step's solve already is the settled state."""
         if not np.all(np.isfinite(self.chain.theta)):
@@ -702,6 +715,7 @@ class QuasiStaticSim(RodSim):
             "state": (c.theta.copy(), c.lam.copy(), c._grip.copy(), c._clamp.copy()),
             "steps": c.steps,
             "snaps": (c.snaps, len(c.snap_notes)),
+            "converged": c.converged,
             "diverged": self._diverged,
         }
 
@@ -714,7 +728,8 @@ class QuasiStaticSim(RodSim):
         c.steps = snap["steps"]
         c.snaps = snap["snaps"][0]
         del c.snap_notes[snap["snaps"][1] :]
-        c.converged = True
+        self._snap_seen = min(self._snap_seen, len(c.snap_notes))  # later notes are reported
+        c.converged = snap["converged"]
         self._diverged = snap["diverged"]
 
     def _rebuild(self, held: int, movable_clamp: bool) -> None:

@@ -18,6 +18,7 @@ from pydantic import ValidationError
 
 from rodctl.config import load_config
 from rodctl.config.rod import RodConfig, WorkspaceConfig
+from rodctl.records import SNAP_NOTE
 from rodctl.sim import RodSim
 from rodctl.sim.elastica import (
     cantilever_tip_load,
@@ -128,6 +129,7 @@ def test_cantilever_matches_the_elastica_table(alpha: float) -> None:
         L, EI, 0.0785, 50, (0.0, 0.0, 0.0), gripped=False, tip_force=(0.0, alpha * EI / L**2)
     )
     assert chain.equilibrate()
+    assert chain.snaps == 0, chain.snap_notes  # relaxing under a new load is not a snap
     ref = cantilever_tip_load(alpha)
     tip = chain.joint_points()[-1]
     assert tip[1] / L == pytest.approx(ref.deflection, rel=1e-3)
@@ -361,3 +363,22 @@ def test_two_quasistatic_runs_are_bit_identical() -> None:
     np.testing.assert_array_equal(runs[0][0], runs[1][0])
     np.testing.assert_array_equal(runs[0][1], runs[1][1])
     assert runs[0][2] == runs[1][2]
+
+
+def test_a_change_of_the_rod_is_no_snap_and_a_restore_keeps_later_notes() -> None:
+    """A stiffness or weight change at fixed end poses relaxes the rod (the gradient flow from
+    the old shape where Newton does not reach); it is not a snap-through. A snapshot restored
+    after its notes were taken must not swallow the notes of later snaps."""
+    cfg = RodConfig(segments=20, engine="quasistatic", gravity=(0.0, -G))
+    sim = RodSim(cfg.model_copy(update={"mass_per_length": rho_a_for(1.7)}))
+    for _ in range(8):
+        sim.apply(np.array([-0.006, 0.005, 0.04]))
+    for res in (sim.set_bending_stiffness(0.15 * sim.bending_stiffness),
+                sim.set_mass_per_length(20.0 * sim.mass_per_length)):  # fmt: skip
+        assert res.snaps == 0 and res.settled
+    snap = sim.snapshot()
+    sim.chain.snap_notes.append(f"{SNAP_NOTE} a note taken before the restore")
+    assert sim.take_snap_notes()
+    sim.restore(snap)
+    sim.chain.snap_notes.append(f"{SNAP_NOTE} a later snap")
+    assert sim.take_snap_notes() == [f"{SNAP_NOTE} a later snap"]
