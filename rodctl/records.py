@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 
-
 #: How the quasi-static engine's snap-through notes begin. They travel with a step's event
 #: lines (to /log) but are not mid-run events: `scheduled_events` leaves them out.
 SNAP_NOTE = "snap-through:"
