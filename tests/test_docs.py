@@ -1,4 +1,5 @@
-"""The README, docs/ and the shipped configs cite only files that are in the repository."""
+"""The README, docs/, results/, the changelog and the shipped configs cite only files that are in
+the repository."""
 
 from __future__ import annotations
 
@@ -10,11 +11,14 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [
     ROOT / "README.md",
+    ROOT / "CHANGELOG.md",
     *sorted((ROOT / "docs").glob("*.md")),
+    *sorted((ROOT / "results").glob("**/*.md")),
     *sorted((ROOT / "configs").glob("*.yaml")),
 ]
 #: A repository path as the docs write it: a top-level folder, then path characters.
-_PATH = re.compile(r"(?<![\w/.-])((?:rodctl|docs|benchmarks|tests|configs)/[\w./*{},-]*[\w*}])")
+_TOP = "rodctl|docs|benchmarks|tests|configs|results|examples"
+_PATH = re.compile(rf"(?<![\w/.-])((?:{_TOP})/[\w./*{{}},-]*[\w*}}])")
 
 
 def _expand(path: str) -> list[str]:

@@ -1,6 +1,6 @@
 """run.mcap read back with the standard `mcap` reader: the topic contract, units, timing, schemas.
 
-The contract is the README's "The MCAP log" table; field names are checked exactly.
+The contract is the "The MCAP log" table of docs/outputs.md; field names are checked exactly.
 """
 
 from __future__ import annotations

@@ -145,7 +145,8 @@ def test_other_setup_accept_runs_an_encoder_on_a_rod_it_was_not_trained_for(caps
 
 def test_encoder_fingerprint_refuses_the_weightless_encoder_for_a_heavy_rod() -> None:
     # The packaged checkpoint was trained without gravity: refused, naming the load. A table
-    # (friction) keeps the weightless family of shapes and is accepted (README, measured).
+    # (friction) keeps the weightless family of shapes and is accepted (docs/simulation.md,
+    # measured).
     from rodctl.config import load_config
     from rodctl.features import load_autoencoder
     from rodctl.features.autoencoder import encoder_fingerprint
