@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 import sys
 from collections.abc import Callable
 from contextlib import nullcontext
@@ -85,6 +86,11 @@ def user_errors(fn: F) -> F:
         except RunFailed as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(code=1) from None
+        except BrokenPipeError:
+            # The reader went away (`rodctl config show … | head`): what it read was right.
+            # Point stdout at /dev/null so the interpreter's final flush does not fail again.
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            raise typer.Exit(code=0) from None
         except OSError as exc:
             typer.echo(f"error: {describe_os_error(exc)}", err=True)
             raise typer.Exit(code=1) from None
@@ -535,7 +541,12 @@ def train_encoder(
 @app.command("train-model")
 @user_errors
 def train_model(
-    config: ConfigArg,
+    config: Annotated[
+        str,
+        typer.Argument(
+            help="Experiment config whose estimator is `learned`, e.g. configs/yu2023.yaml."
+        ),
+    ],
     set_: SetOpt = None,
     out: OutOpt = "runs",
     quiet: QuietOpt = False,
@@ -710,8 +721,21 @@ def sweep(
         rodctl sweep configs/sweep-smoke.yaml
         rodctl sweep configs/sweep-tuning.yaml --workers 2
     """
+    from rodctl.config import read_yaml
     from rodctl.sweep import run_sweep
 
+    data = read_yaml(config)
+    if "parameters" not in data:
+        if {"scenarios", "methods"} & set(data):
+            raise UserError(
+                f"{config}: this is a compare config (no `parameters`); run it with "
+                f"`rodctl compare {config}`"
+            )
+        raise UserError(
+            f"{config}: this is an experiment config (no `parameters`); run it with "
+            f"`rodctl simulate {config}`, or sweep its keys with a sweep config such as "
+            "configs/sweep-smoke.yaml"
+        )
     _finish_batch(
         run_sweep, config, set_=set_, out=out, quiet=quiet, workers=workers,
         executor=executor, address=address, resume=resume,

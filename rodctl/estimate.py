@@ -419,10 +419,15 @@ def estimate(
 
             est = ESTIMATORS.build(cfg, BuildContext(points=0, p=pairs.p, q=pairs.q))
         except Exception as exc:  # noqa: BLE001 - e.g. the oracle needs a simulator
+            from pydantic import ValidationError
+
+            if isinstance(exc, ValidationError):  # e.g. `learned` without its checkpoint
+                fields = ", ".join(".".join(map(str, e["loc"])) for e in exc.errors())
+                note = f"needs settings that `rodctl estimate` does not take: {fields}"
+            else:
+                note = " ".join(str(exc).split())[:200]
             runs.append(
-                EstimatorRun(
-                    name, "not_applicable", np.full(len(pairs.ds), np.nan), note=str(exc)[:200]
-                )
+                EstimatorRun(name, "not_applicable", np.full(len(pairs.ds), np.nan), note=note)
             )
             continue
         if getattr(est, "prepare", None) is not None:

@@ -576,6 +576,13 @@ def verify(run: ReadRun, *, tolerance: float = 0.0, progress: bool = False) -> V
     from rodctl.config import validate_config
 
     data = safe_load(run.header.config_yaml)
+    source = data.get("source") if isinstance(data, dict) else None
+    if isinstance(source, dict):  # written by `rodctl import` (rodctl.recordings)
+        raise UserError(
+            f"{run.path}: an imported recording ({source.get('kind', 'recording')} from "
+            f"{source.get('file', '?')}): there is no simulation to re-run, so --verify does "
+            "not apply (plain `rodctl replay` rebuilds its views; `rodctl estimate` reads it)"
+        )
     logged = run.records
     ended = run.complete and run.status == "completed"
     if not ended and logged:

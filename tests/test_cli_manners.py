@@ -64,3 +64,10 @@ def test_plugins_columns_line_up_and_config_show_names_a_real_file():
     shown = runner.invoke(app, ["config", "show", DEFAULT]).output
     (line,) = [x for x in shown.splitlines() if "feature.checkpoint:" in x]
     assert (REPO / line.split("packaged ")[1].strip()).is_file()
+
+
+def test_sweep_given_another_kind_of_config_says_which_command_runs_it():
+    res = runner.invoke(app, ["sweep", DEFAULT])
+    assert res.exit_code == 2 and "experiment config" in res.output and "simulate" in res.output
+    res = runner.invoke(app, ["sweep", "configs/compare-smoke.yaml"])
+    assert res.exit_code == 2 and "rodctl compare" in res.output

@@ -110,6 +110,9 @@ def test_an_imported_recording_replays_and_estimates_like_the_file(tmp_path):
     res = runner.invoke(app, ["replay", str(run_dir), "--no-figures"])
     assert res.exit_code == 0, res.output
     assert (run_dir / "run.rrd").is_file()
+    # Nothing to re-run: --verify says so in one line instead of refusing the config.
+    res = runner.invoke(app, ["replay", str(run_dir), "--verify", "--no-figures"])
+    assert res.exit_code == 2 and "imported recording" in res.output, res.output
     from rodctl.estimate import pairs_from_recording
 
     a = estimate(pairs_from_run(run), ["broyden"])

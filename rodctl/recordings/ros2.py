@@ -385,19 +385,24 @@ def _rgb(msg: Any, msgtype: str, where: str) -> np.ndarray:
 
 def camera_config(path: str | Path) -> Any:
     """The rodctl camera (pose, rendering colours, extraction settings) in a YAML file: an
-    experiment config's `camera` section or a camera section alone."""
+    experiment config (its `camera` section, the defaults where it has none) or a camera
+    section alone."""
+    from pydantic import ValidationError
+
     from rodctl.config.camera import CameraConfig
+    from rodctl.config.loading import format_validation_error, read_yaml
 
     p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise UserError(f"--camera {p}: cannot read: {exc}") from None
-    section = data.get("camera", data) if isinstance(data, dict) else None
+    data = read_yaml(p)  # the config loader's limits and messages (exit 2 naming the file)
+    if "camera" in data or not set(data) & set(CameraConfig.model_fields):
+        section = data.get("camera") or {}  # an experiment config: its camera, or the default
+    else:
+        section = data
     try:
         return CameraConfig.model_validate(section)
-    except Exception as exc:  # noqa: BLE001 - pydantic's message names the field
-        raise UserError(f"--camera {p}: not a camera config: {exc}") from None
+    except ValidationError as exc:
+        where = f"{p} (camera)" if "camera" in data else str(p)
+        raise UserError(f"--camera: {format_validation_error(exc, section, where)}") from None
 
 
 def read_bag_images(
