@@ -382,3 +382,36 @@ def test_a_change_of_the_rod_is_no_snap_and_a_restore_keeps_later_notes() -> Non
     sim.restore(snap)
     sim.chain.snap_notes.append(f"{SNAP_NOTE} a later snap")
     assert sim.take_snap_notes() == [f"{SNAP_NOTE} a later snap"]
+
+
+def test_stability_is_the_reduced_hessian_being_positive_definite() -> None:
+    """`stable()` counts inertias (pivots of the tridiagonal H plus the 2x2 Schur complement);
+    on random states, often with H indefinite, it must agree with the definition: the Hessian
+    of the Lagrangian reduced to the constraint's tangent space, Zᵀ H Z, positive definite
+    (H assembled densely from the energy by central differences of its gradient)."""
+    rng = np.random.default_rng(11)
+    agree = unstable = 0
+    for trial in range(200):
+        n = int(rng.integers(3, 12))
+        chain = QuasiStaticChain(L, EI, 0.3, n, (0.0, 0.0, 0.0), gravity=(0.0, -G))
+        theta = rng.normal(0.0, 1.2, n)
+        lam = rng.normal(0.0, 2.0 * n**2 * EI / L**2, 2)  # compressive enough to buckle
+        grip = np.array([0.4 * L, 0.1 * L, rng.normal()])
+        clamp = np.zeros(3)
+
+        def grad(t: np.ndarray) -> np.ndarray:
+            return chain._grad_hess(t, lam, grip, clamp)[0]  # noqa: B023
+
+        eps = 1e-6
+        H = np.column_stack([(grad(theta + eps * e) - grad(theta - eps * e)) / (2 * eps)
+                             for e in np.eye(n)])  # fmt: skip
+        a = chain._grad_hess(theta, lam, grip, clamp)[2]
+        z = np.linalg.svd(a)[2][2:].T  # an orthonormal basis of A's null space
+        w = np.linalg.eigvalsh(z.T @ (0.5 * (H + H.T)) @ z)
+        if abs(w).min() < 1e-6 * abs(w).max():
+            continue  # too close to singular to call either way
+        want = bool(w.min() > 0)
+        unstable += not want
+        agree += chain.stable(theta, lam, grip, clamp) == want
+        assert chain.stable(theta, lam, grip, clamp) == want, (trial, w)
+    assert unstable > 20 and agree > 150  # both kinds were met, and most states were decided
