@@ -78,7 +78,7 @@ class EpisodeFailed(Exception):
 
 @dataclass
 class StopRule:
-    """When an episode ends (README: "A run stops on …"), from the records as they come.
+    """When an episode ends (docs/outputs.md: "A run stops on …"), from the records as they come.
 
     Args:
         cfg: the run section of the experiment config (tolerances, windows, limits).

@@ -52,7 +52,7 @@ def _settle_note(result: ApplyResult) -> str:
     return f"; {state} after {result.settle_time:.2f} s sim"
 
 
-#: Bounded values of event fields (every config number has an upper bound; README).
+#: Bounded values of event fields (every config number has an upper bound; docs/reliability.md).
 _Step = Annotated[float, Field(gt=0.0, le=1.0)]
 _Turn = Annotated[float, Field(gt=0.0, le=3.2)]
 _Px = Annotated[float, Field(ge=-1e5, le=1e5)]

@@ -11,7 +11,7 @@ rounded IEEE operations, the same whatever SIMD width numpy dispatches), `sum` a
 whose pairwise order is fixed by numpy's source code, not by the CPU, and `einsum` without
 `optimize` (numpy's own loops, compiled for its SIMD baseline; checked equal with numpy's
 dispatched AVX2 paths disabled, `NPY_DISABLE_CPU_FEATURES=X86_V3`). So the results are the same
-bits on every x86-64 machine running the same numpy build (see the README, "Reproducibility").
+bits on every x86-64 machine running the same numpy build (see the docs/reproducibility.md).
 The price is speed: these are written for the per-step sizes (vectors of a few hundred, matrices up
 to about 20 x 20) where BLAS's advantage is small; `benchmarks/` measure what they cost.
 """

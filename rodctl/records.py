@@ -128,7 +128,7 @@ class StepRecord:
 
 @dataclass
 class RunSummary:
-    """The run's outcome; written as summary.json (keys in README, "Outputs").
+    """The run's outcome; written as summary.json (keys in docs/outputs.md).
 
     `outcome` is one of "converged", "stalled", "step_limit", "diverged", "interrupted", "failed".
     """

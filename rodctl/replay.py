@@ -565,8 +565,8 @@ def verify(run: ReadRun, *, tolerance: float = 0.0, progress: bool = False) -> V
 
     The run is deterministic (one seed, rebuilt simulator, no wall clock in any record), so a
     rerun with the same code in the same numeric environment reproduces every logged step bit
-    for bit; elsewhere the per-step path is kernel-independent where that was cheap (README,
-    "Reproducibility") and `tolerance` accepts what remains. The embedded config must still
+    for bit; elsewhere the per-step path is kernel-independent where that was cheap
+    (docs/reproducibility.md) and `tolerance` accepts what remains. The embedded config must still
     validate with this version of rodctl.
 
     Returns:

@@ -205,7 +205,7 @@ _BAD_PATH = (errno.ENOTDIR, errno.EEXIST, errno.ENAMETOOLONG, errno.ELOOP, errno
 
 def _out_error(parent: Path, what: str, exc: OSError) -> Exception:
     """The one-line error of an `--out` that cannot hold a run: `UserError` for a wrong path,
-    `RunFailed` for a full, read-only or forbidden disk (the rule in README "Exit codes")."""
+    `RunFailed` for a full, read-only or forbidden disk (the rule in docs/reliability.md)."""
     message = f"--out {parent}: {what}: {describe_os_error(exc)}"
     return UserError(message) if exc.errno in _BAD_PATH else RunFailed(message)
 

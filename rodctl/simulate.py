@@ -30,7 +30,7 @@ from rodctl.method import Method
 from rodctl.records import RunSummary, StepRecord
 from rodctl.runs import RunDir, write_json_best_effort
 
-#: Exit codes of `rodctl simulate` (README, "Exit codes and failure behaviour").
+#: Exit codes of `rodctl simulate` (docs/reliability.md).
 EXIT_OK, EXIT_RUN_FAILED = 0, 1
 
 

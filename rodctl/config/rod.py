@@ -31,8 +31,8 @@ from rodctl.config.base import Angle, Coordinate, Point2, Pose, StrictModel, bou
 STANDARD_GRAVITY = 9.80665
 
 #: Material presets: outer diameter (m), wall thickness (m, None = solid), Young's modulus (Pa),
-#: density (kg/m³). Sources and ranges are in the README ("Materials"); the power cable is an
-#: effective (composite) modulus chosen so that it is the default rod.
+#: density (kg/m³). Sources and ranges are in docs/simulation.md ("Materials"); the power cable
+#: is an effective (composite) modulus chosen so that it is the default rod.
 MATERIALS: dict[str, dict[str, float | None]] = {
     "spring_steel_wire": {"diameter": 1.0e-3, "wall": None, "modulus": 200e9, "density": 7850.0},
     "nitinol_wire": {"diameter": 1.0e-3, "wall": None, "modulus": 75e9, "density": 6450.0},
@@ -59,7 +59,7 @@ class MaterialConfig(StrictModel):
         "rubber_cord",
         "power_cable",
         "custom",
-    ] = Field(description="A preset (see the README's materials table) or 'custom'.")
+    ] = Field(description="A preset (see the materials table in docs/simulation.md) or 'custom'.")
     diameter: PositiveFloat | None = Field(None, le=1.0, description="Outer diameter (m).")
     wall: PositiveFloat | None = Field(
         None,

@@ -29,7 +29,7 @@ class TargetConfig(StrictModel):
         0.3,
         le=100.0,
         ge=0.0,
-        description="Sampled targets: least normalised distance from home (see README).",
+        description="Sampled targets: least normalised distance from home (docs/configs.md).",
     )
     max_offset: float = Field(
         1.0, le=100.0, gt=0.0, description="Sampled targets: largest normalised distance from home."
@@ -92,7 +92,7 @@ class RunConfig(StrictModel):
     events: list[Event] = Field(
         default_factory=list,
         description="Mid-run events: at a control step (probing included), before its move, the "
-        "rod, the clamp, the grasp or the camera changes (rodctl/events.py, README).",
+        "rod, the clamp, the grasp or the camera changes (rodctl/events.py, docs/simulation.md).",
     )
     expect: Outcome | None = Field(
         None,

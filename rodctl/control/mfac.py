@@ -95,7 +95,7 @@ def mfac_step(
     Arguments as in `mfac_cost`. Returns the (q,) command u_k.
     """
     # Fixed-order arithmetic (rodctl.fixedla), not BLAS/LAPACK: the command must be the same
-    # bits on every machine (README, "Reproducibility"); a 3 x 3 Cholesky in Python floats is
+    # bits on every machine (docs/reproducibility.md); a 3 x 3 Cholesky in Python floats is
     # also faster than a LAPACK call.
     w1, w2, w3, w4, w5, w6, w7 = (float(x) for x in weights)
     q = J.shape[1]

@@ -39,8 +39,8 @@ class PinvController:
     ) -> np.ndarray:
         """u = lambda J^+ clip(s* - s, +-error_limit); s, s* (p,), J (p, q), r unused. (q,)."""
         e = np.clip(np.asarray(s_target, float) - np.asarray(s, float), -self._limit, self._limit)
-        # rodctl.fixedla: the same bits on every machine, unlike LAPACK's SVD (README,
-        # "Reproducibility"); same truncation rule as numpy.linalg.pinv.
+        # rodctl.fixedla: the same bits on every machine, unlike LAPACK's SVD
+        # (docs/reproducibility.md); same truncation rule as numpy.linalg.pinv.
         return self._gain * fla.matvec(fla.pinv(np.asarray(J, float), rcond=self._rcond), e)
 
 

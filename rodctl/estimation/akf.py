@@ -8,7 +8,7 @@ Why it is written the way it is:
 - Reproducibility (issue #18). No BLAS or LAPACK call: the products are `einsum` or
   elementwise, S^-1 comes from a Cholesky factor in Python floats and the eigenvalue clip from
   `rodctl.fixedla`, all in a fixed order of operations, so a run gives the same bits under every
-  BLAS kernel (README, "Reproducibility"). The clip is what that costs most (an 18 x 18
+  BLAS kernel (docs/reproducibility.md). The clip is what that costs most (an 18 x 18
   eigenproblem at nearly every step; `benchmarks/bench_estimation_control.py`).
 - Speed. M_k is never formed: with the Kronecker structure, P M^T is P.reshape(pq, p, q) u and
   M (P M^T) is u against (.).reshape(p, q, p), each one small einsum (p = 6, q = 3: an
@@ -75,7 +75,7 @@ def clip_psd(a: np.ndarray, floor: float, test_first: bool = True) -> np.ndarray
         test_first: first try a Cholesky factorisation of a - floor I (Python floats, fixed
             order): it succeeds iff every eigenvalue is above the floor, and then nothing is
             computed. Worth it for R (6 x 6, almost never clipped); not for Q, which is clipped
-            at nearly every step (README, "Reproducibility").
+            at nearly every step (docs/reproducibility.md).
 
     Returns:
         (n, n) exactly symmetric matrix whose eigenvalues are all >= floor (to rounding, about

@@ -19,7 +19,7 @@ Assumptions we made for our single-gripper setup:
 - the clamp holds the first `clamp_nodes` nodes (2 by default, zero velocity), the gripper the
   last two; every other node is free or servoed;
 - the gripper pose [x, y, theta] is the pose of the rod's last node with theta the tangent
-  from node M-2 to node M-1 (the README's pose convention), so the 3-DoF block maps
+  from node M-2 to node M-1 (the pose convention of docs/configs.md), so the 3-DoF block maps
   (xdot, ydot, thetadot) onto node M-1 as (xdot, ydot) and onto node M-2, l behind it, as
   (xdot + l sin(theta) thetadot, ydot - l cos(theta) thetadot). The paper's block uses the
   grip centre instead; ours follows the pose the loop commands;

@@ -604,7 +604,7 @@ class AutoencoderFeatureMap:
         last = len(self._enc) - 1
         for i, (w, b) in enumerate(self._enc):
             # Fixed-order mat-vec, not `w @ x`: BLAS dgemv's sums differ between CPU kernels,
-            # and s feeds the closed loop (README, "Reproducibility").
+            # and s feeds the closed loop (docs/reproducibility.md).
             x = fla.matvec(w, x) + b
             if i < last:
                 np.maximum(x, 0.0, out=x)

@@ -36,7 +36,7 @@ class LinearBasisFeatureMap:
     def __init__(self, basis: np.ndarray) -> None:
         self._basis = np.ascontiguousarray(basis, dtype=np.float64)  # (N, K)
         # Fixed-order QR (rodctl.fixedla), not LAPACK's SVD: the fit matrix must be the same
-        # bits on every machine, or so is no feature (README, "Reproducibility").
+        # bits on every machine, or so is no feature (docs/reproducibility.md).
         self._pinv = np.ascontiguousarray(fla.pinv_tall(self._basis))  # (K, N)
         self._rho = np.linspace(0.0, 1.0, self._basis.shape[0])
         self.points = int(self._basis.shape[0])

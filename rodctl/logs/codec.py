@@ -13,8 +13,8 @@ Camera frames travel as lossless PNG, so a decoded frame equals the logged one b
 Layout (format version 2): points are arrays of `{x, y}` objects, the Jacobian a flat row-major
 array with its shape beside it, maps arrays of `{key, value}` / `{name, value}` objects, so
 that every schema loads in Foxglove's JSON-schema parser (see `schemas`). The contract fields of
-the three per-step topics (README, "The MCAP log") come first, exactly as named there; fields
-beyond the contract (phase, health flags, estimator diagnostics...) follow on the same messages.
+the three per-step topics (docs/outputs.md, "The MCAP log") come first, exactly as named there;
+fields beyond the contract (phase, health flags, estimator diagnostics...) follow on the same messages.
 
 Clock: MCAP log_time = `LOG_EPOCH_NS` + simulated time; `FrameSchedule` picks the camera frames
 by simulated time, so their rate holds in log time.
@@ -40,7 +40,7 @@ from rodctl.records import RunHeader, RunSummary, StepRecord
 #: Version of the message layout below; bumped when a field changes meaning.
 FORMAT_VERSION = "2"
 
-# Contract topics (README, "The MCAP log"), one message per control step.
+# Contract topics (docs/outputs.md, "The MCAP log"), one message per control step.
 TOPIC_ROD_STATE = "/rod/state"
 TOPIC_CAMERA_CENTERLINE = "/camera/centerline"
 TOPIC_CONTROL = "/control"

@@ -4,7 +4,7 @@ Why MCAP is the source of truth: it is one self-describing, indexed, compressed 
 opens without configuration and that `rodctl replay` turns back into the exact step records the
 loop produced (see `codec`), so every other output (run.rrd, figures) can be rebuilt from it.
 
-Layout (topic contract in the README, "The MCAP log"):
+Layout (topic contract in the docs/outputs.md, "The MCAP log"):
 - `/rod/state`, `/camera/centerline`, `/control`: JSON-schema channels, one message per step,
   contract fields exactly as named, extras after them; MCAP `sequence` = step.
 - `/world/rod`, `/world/target`, `/world/gripper` (foxglove.SceneUpdate), `/camera/image`

@@ -5,7 +5,7 @@ of the inextensible planar elastica) and is also what the validation tests build
 free end and a dead tip load for the cantilever; `RodSim` adds the gripper policy on top
 (workspace, speed limits, settling, divergence).
 
-Discretisation (README, "The simulated rod"):
+Discretisation (docs/simulation.md):
 
 * segment i (i = 0..N-1) is a rigid body of length l = L/N, centre at (i + 1/2) l along the rod;
 * joint i between segments i-1 and i is a `PivotJoint` plus a `DampedRotarySpring` of stiffness
@@ -18,7 +18,7 @@ Quasi-static speed-up (legitimate because only the SETTLED shape is used, and th
 equilibrium of this chain does not depend on masses or inertias when no body force acts; with
 gravity it depends on the masses ρA·l, which are the real ones, but never on the rotary inertia;
 with table friction the stopping point of a sliding rod does depend on the dynamics, so there the
-shapes are those of *a* slowly driven frictional rod, see the README):
+shapes are those of *a* slowly driven frictional rod, see docs/simulation.md):
 
 * every segment gets a fictitious extra rotary inertia m·(g L)^2 (a radius of gyration g·L, like
   a very thick Rayleigh beam). Kinetic energy is then dominated by rotation, which turns the

@@ -85,7 +85,7 @@ class Camera:
         # expressed in the world frame; at tilt 0: x_c = +x, y_c = -y, z_c = -z (det R = +1).
         # Fixed-order arithmetic (rodctl.fixedla, math's scalar functions) instead of BLAS and
         # LAPACK: the homography feeds every pixel of every frame, so its last bits must not
-        # depend on the machine's BLAS kernel (README, "Reproducibility").
+        # depend on the machine's BLAS kernel (docs/reproducibility.md).
         tilt = math.radians(cfg.tilt_deg)
         az = math.radians(cfg.azimuth_deg)
         ca, sa = math.cos(az), math.sin(az)

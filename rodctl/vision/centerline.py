@@ -94,7 +94,7 @@ def _cos_sin(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     numpy may dispatch its vectorised cos/sin to other code on other CPUs (AVX-512); the C
     library's scalar functions give the same bits on every x86-64 machine with FMA
-    (README, "Reproducibility"). The arrays here hold a few dozen angles.
+    (docs/reproducibility.md). The arrays here hold a few dozen angles.
     """
     values = angles.tolist()
     return np.array([math.cos(v) for v in values]), np.array([math.sin(v) for v in values])
@@ -284,7 +284,7 @@ class CenterlineExtractor:
         """w . rgb + b over the last axis of float32 (..., 3), in a fixed order of operations.
 
         Written out instead of `rgb @ w`: float32 matmul goes to BLAS sgemv, whose kernel (and so
-        the last bit of every coverage value) differs between CPUs (README, "Reproducibility").
+        the last bit of every coverage value) differs between CPUs (docs/reproducibility.md).
         """
         w = self._coverage_w
         return (rgb[..., 0] * w[0] + rgb[..., 1] * w[1]) + (rgb[..., 2] * w[2] + self._cov_b32)
