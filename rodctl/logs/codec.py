@@ -14,7 +14,8 @@ Layout (format version 2): points are arrays of `{x, y}` objects, the Jacobian a
 array with its shape beside it, maps arrays of `{key, value}` / `{name, value}` objects, so
 that every schema loads in Foxglove's JSON-schema parser (see `schemas`). The contract fields of
 the three per-step topics (docs/outputs.md, "The MCAP log") come first, exactly as named there;
-fields beyond the contract (phase, health flags, estimator diagnostics...) follow on the same messages.
+fields beyond the contract (phase, health flags, estimator diagnostics...) follow on the same
+messages.
 
 Clock: MCAP log_time = `LOG_EPOCH_NS` + simulated time; `FrameSchedule` picks the camera frames
 by simulated time, so their rate holds in log time.
