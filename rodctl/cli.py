@@ -309,6 +309,15 @@ def simulate(
     live_port: Annotated[
         int, typer.Option("--live-port", help="Port of the --live server (0: any free one).")
     ] = 8765,
+    live_rerun: Annotated[
+        str | None,
+        typer.Option(
+            "--live-rerun",
+            metavar="URL",
+            help="Also stream the run to a Rerun viewer already listening at URL, e.g. "
+            "rerun+http://127.0.0.1:9876/proxy (start it with `rerun`). docs/reports.md.",
+        ),
+    ] = None,
 ) -> None:
     """Run one shape-servoing experiment; print the run directory as the last line.
 
@@ -333,6 +342,7 @@ def simulate(
         )
     cfg = load_config(config, set_ or [])
     table = not (quiet or as_json)
+    rerun_view = _live_rerun(cfg, live_rerun) if live_rerun else None
     view = _live_view(cfg, live_port) if live else None  # stopped when the run is over
     with step_progress(cfg.run.max_steps, enabled=table) as on_step, view or nullcontext():
 
@@ -347,7 +357,7 @@ def simulate(
             argv=sys.argv,
             on_step=on_step,
             on_summary=first_result if table else None,
-            live=view,
+            live=[v for v in (view, rerun_view) if v is not None],
         )
     if result.error:
         typer.echo(f"error: {result.error}", err=True)
@@ -359,6 +369,14 @@ def simulate(
     else:
         typer.echo(str(result.run.path))
     raise typer.Exit(code=result.exit_code)
+
+
+def _live_rerun(cfg: ExperimentConfig, url: str) -> Any:
+    """`simulate --live-rerun URL`: the run's Rerun recording, streamed to that viewer too."""
+    from rodctl.logs.rerun import RerunSink, check_viewer
+
+    check_viewer(url)
+    return RerunSink(None, cfg.logging, url=url)
 
 
 def _live_view(cfg: ExperimentConfig, port: int) -> Any:

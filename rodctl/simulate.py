@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -100,7 +100,7 @@ def simulate(
     argv: list[str] | None = None,
     on_step: Callable[[StepRecord], None] | None = None,
     on_summary: Callable[[RunSummary], None] | None = None,
-    live: Sink | None = None,
+    live: Sink | Sequence[Sink] | None = None,
 ) -> SimulateResult:
     """Run one experiment into a new run directory under `out`.
 
@@ -112,7 +112,8 @@ def simulate(
     `on_summary` gets the episode's summary as soon as summary.json is written, before the
     figures are waited for (the run's status may still become `failed` if they cannot be
     written: see the result).
-    `live`: one more sink, e.g. a started `rodctl.logs.live.LiveView` (its owner stops it).
+    `live`: more sinks, e.g. a started `rodctl.logs.live.LiveView` (its owner stops it) or a
+    `RerunSink` streaming to a viewer.
     """
     stops = StopRequests()
     figures = FigureWorker.start() if cfg.logging.figures else None
@@ -124,7 +125,8 @@ def simulate(
         try:
             # The figure process first: it gets the records before the logs are closed.
             sinks = ([figures] if figures else []) + make_sinks(cfg, run.path)
-            sinks += [live] if live is not None else []
+            if live is not None:
+                sinks += list(live) if isinstance(live, list | tuple) else [live]
             result = run_episode(
                 env,
                 method,

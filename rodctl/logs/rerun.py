@@ -217,8 +217,13 @@ class RerunSink:
         cfg: the logging config (flush interval, PNG level of frames).
     """
 
-    def __init__(self, path: str | Path, cfg: LoggingConfig | None = None) -> None:
-        self.path = Path(path)
+    def __init__(
+        self, path: str | Path | None, cfg: LoggingConfig | None = None, *, url: str | None = None
+    ) -> None:
+        if (path is None) == (url is None):
+            raise ValueError("RerunSink: give a file path or a viewer url, not both")
+        self.path = Path(path) if path is not None else None
+        self.url = url  # live: the same recording streamed to a Rerun viewer (`simulate --live`)
         self.cfg = cfg if cfg is not None else LoggingConfig()
         self._rec: rr.RecordingStream | None = None
         self._header: RunHeader | None = None
@@ -253,8 +258,11 @@ class RerunSink:
         # Rerun reports a file it cannot create as `RuntimeError: Failed to create file`, with
         # no path or reason: open it first, so a read-only or full disk is an OSError that
         # names both (one line from the CLI).
-        open(self.path, "ab").close()
-        rec.save(self.path, default_blueprint=blueprint(header))
+        if self.path is not None:
+            open(self.path, "ab").close()
+            rec.save(self.path, default_blueprint=blueprint(header))
+        else:
+            rec.set_sinks(rr.GrpcSink(self.url), default_blueprint=blueprint(header))
         self._rec = rec
         # No recording name: it would only repeat the id, and the id (which carries the start
         # time) is the one thing allowed to differ between two runs of one config.
@@ -559,4 +567,29 @@ class RerunSink:
         error = _bounded(rec.disconnect, FLUSH_TIMEOUT_S)
         if error is not None:
             errors.append(error)
-        raise_or_warn(errors, status, f"{self.path}: closing the Rerun recording failed")
+        where = self.path if self.path is not None else self.url
+        raise_or_warn(errors, status, f"{where}: closing the Rerun recording failed")
+
+
+def check_viewer(url: str, timeout: float = 3.0) -> None:
+    """Raise `UserError` unless something listens at the Rerun gRPC `url` (rerun+http://host:port
+    /proxy): Rerun's client would otherwise buffer the run for a viewer that never comes."""
+    import socket
+    from urllib.parse import urlsplit
+
+    from rodctl.errors import UserError
+
+    parts = urlsplit(url)
+    if parts.scheme not in ("rerun", "rerun+http", "rerun+https") or parts.path != "/proxy":
+        raise UserError(
+            f"--live-rerun {url}: expected a Rerun gRPC url such as "
+            "rerun+http://127.0.0.1:9876/proxy"
+        )
+    host, port = parts.hostname or "127.0.0.1", parts.port or 9876
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as exc:
+        raise UserError(
+            f"--live-rerun {url}: no Rerun viewer listens there ({exc.strerror or exc}); start "
+            f"one first with `rerun --port {port}`"
+        ) from None

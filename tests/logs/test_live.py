@@ -93,3 +93,91 @@ def test_a_taken_port_is_one_clear_error():
     with LiveView(port=0) as first:
         with pytest.raises(UserError, match=f"127.0.0.1:{first.port}.*--live-port"):
             LiveView(port=first.port).start()
+
+
+# --- Rerun: `simulate --live-rerun URL` ---------------------------------------------------------
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_rerun_viewer_receives_the_recording_run_rrd_holds(tmp_path):
+    """A Rerun server on loopback (the `rerun` CLI the SDK ships, saving what it receives, as a
+    headless stand-in for the viewer) gets the same recording as the run's own run.rrd:
+    `rerun rrd compare` finds no difference."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    from typer.testing import CliRunner
+
+    from rodctl.cli import app
+
+    rerun_cli = shutil.which("rerun", path=str(Path(sys.executable).parent))
+    assert rerun_cli, "rerun-sdk ships the `rerun` command"
+    port = _free_port()
+    received = tmp_path / "received.rrd"
+    server = subprocess.Popen(
+        [rerun_cli, "--bind", "127.0.0.1", "--port", str(port), "--save", str(received)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        env={**os.environ, "RUST_LOG": "warn"},
+    )  # fmt: skip
+    try:
+        url = f"rerun+http://127.0.0.1:{port}/proxy"
+        from rodctl.logs.rerun import check_viewer
+
+        deadline = time.monotonic() + TIMEOUT_S
+        while True:  # wait for the server to listen
+            try:
+                check_viewer(url, timeout=1.0)
+                break
+            except Exception:
+                assert time.monotonic() < deadline and server.poll() is None, "no rerun server"
+                time.sleep(0.1)
+        args = ["simulate", str(REPO / "configs/default.yaml"), "-q", "-o", str(tmp_path / "runs"),
+                "--live-rerun", url, "--set", "feature.type=bezier", "--set", "rod.segments=20",
+                "--set", "run.max_steps=12", "--set", "run.expect=null",
+                "--set", "logging.figures=false"]  # fmt: skip
+        res = CliRunner().invoke(app, args)
+        assert res.exit_code == 0, res.output
+        run_rrd = Path(res.stdout.strip().splitlines()[-1]) / "run.rrd"
+        deadline = time.monotonic() + TIMEOUT_S
+        while True:  # the server writes what it received as it comes
+            same = subprocess.run(
+                [rerun_cli, "rrd", "compare", str(run_rrd), str(received)],
+                capture_output=True, text=True, timeout=TIMEOUT_S,
+            )  # fmt: skip
+            if same.returncode == 0 or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        assert same.returncode == 0, same.stdout + same.stderr
+        assert received.stat().st_size > 0.5 * run_rrd.stat().st_size > 10_000  # a real run
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+
+
+def test_live_rerun_without_a_viewer_says_so(tmp_path):
+    from typer.testing import CliRunner
+
+    from rodctl.cli import app
+
+    url = f"rerun+http://127.0.0.1:{_free_port()}/proxy"
+    res = CliRunner().invoke(
+        app,
+        ["simulate", str(REPO / "configs/default.yaml"), "-o", str(tmp_path), "--live-rerun", url],
+    )
+    assert res.exit_code == 2 and "no Rerun viewer listens there" in res.output, res.output
+    assert not list(tmp_path.iterdir())  # bad input creates nothing
+    res = CliRunner().invoke(
+        app, ["simulate", str(REPO / "configs/default.yaml"), "--live-rerun", "http://x/"]
+    )
+    assert res.exit_code == 2 and "expected a Rerun gRPC url" in res.output
