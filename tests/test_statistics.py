@@ -88,7 +88,7 @@ def test_the_interval_is_scipys_bca_bootstrap():
 
 
 def test_the_signed_rank_test_is_exact_when_it_can_be_and_says_so():
-    from scipy.stats import wilcoxon
+    from scipy.stats import rankdata, wilcoxon
 
     from rodctl.statistics import wilcoxon_test
 
@@ -96,13 +96,25 @@ def test_the_signed_rank_test_is_exact_when_it_can_be_and_says_so():
     assert wilcoxon_test(np.array([1.0, 2, 3, 4, 5, 6])) == (pytest.approx(2 / 64), "exact")
     # Zeros are dropped before anything else: the same p with zeros added.
     assert wilcoxon_test(np.array([0.0, 1, 2, 0, 3, 4, 5, 6]))[0] == pytest.approx(2 / 64)
-    # Tied |d|, n <= 13: the exact permutation distribution; all 7 of the same sign: 2 / 2^7.
-    assert wilcoxon_test(np.array([1.0, 1, 1, 1, 2, 2, 2])) == (
-        pytest.approx(2 / 128),
-        "exact-permutation",
-    )
-    # Tied and larger: the normal approximation with the tie correction (scipy's asymptotic).
-    d = np.repeat([-1.0, 1.0, 2.0], [10, 15, 5])
+    # Tied |d|: still exact; all 7 of the same sign: 2 / 2^7.
+    assert wilcoxon_test(np.array([1.0, 1, 1, 1, 2, 2, 2])) == (pytest.approx(2 / 128), "exact")
+    # 14 equal |d|, 11 positive: the rank sum is 7.5 x (number positive), so P = P(Bin(14, 1/2)
+    # >= 11) x 2 = 2 x 470 / 2^14 = 0.0574; the normal approximation said 0.0325 (significant).
+    d = np.array([1.0] * 11 + [-1.0] * 3)
+    assert wilcoxon_test(d) == (pytest.approx(2 * 470 / 2**14, rel=1e-12), "exact")
+    assert wilcoxon(d, method="asymptotic").pvalue < 0.05 < wilcoxon_test(d)[0]
+    # Ties against every one of the 2^n sign patterns, counted out.
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        d = rng.choice([-3.0, -2.0, -1.0, 1.0, 2.0, 3.0], size=int(rng.integers(6, 12)))
+        r = rankdata(np.abs(d))
+        w = r[d > 0].sum()
+        signs = ((np.arange(2 ** len(d))[:, None] >> np.arange(len(d))) & 1).astype(bool)
+        sums = (signs * r).sum(axis=1)
+        want = min(1.0, 2 * min((sums <= w + 1e-9).mean(), (sums >= w - 1e-9).mean()))
+        assert wilcoxon_test(d)[0] == pytest.approx(want, rel=1e-12)
+    # Past EXACT_MAX_N: the normal approximation with the tie correction (scipy's asymptotic).
+    d = np.repeat([-1.0, 1.0, 2.0], [150, 200, 60])
     p, how = wilcoxon_test(d)
     assert how == "normal"
     assert p == pytest.approx(wilcoxon(d, method="asymptotic").pvalue)
