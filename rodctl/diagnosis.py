@@ -16,6 +16,8 @@ simulator's own model (what no real robot has), and gets one of:
   (after a mid-run event, or with a tolerance tighter than what the rod can show).
 - `other`: the target is reachable and the true Jacobian does not help the method's law: the
   feature (its minimum is not the shape's) or the law itself.
+- `inconclusive`: the pose search was still lowering the error when it ran out of iterations,
+  so it says neither reachable nor not.
 
 The pose search is Gauss-Newton on the clean pixel residual (the simulated centerline through
 the camera model minus the target's pixels), its Jacobian by central differences of the
@@ -36,7 +38,7 @@ from rodctl.env import Q, ShapeServoEnv, pixel_error
 from rodctl.geometry import resample_polyline
 
 #: The values of the `diagnosis` column (None for episodes that did not stall or get pinned).
-DIAGNOSES = ("workspace", "estimator", "unreachable", "other")
+DIAGNOSES = ("workspace", "estimator", "unreachable", "other", "inconclusive")
 
 #: Steps the method's law gets with the true Jacobian from the failed episode's final state.
 ESTIMATOR_STEPS = 30
@@ -76,9 +78,11 @@ def diagnose(
     if true_jacobian_converges(env, cfg, estimator_steps):
         return "estimator"
     env.sim.restore(snap)
-    best, clipped = pose_search(env, search_iterations)
+    best, clipped, capped = pose_search(env, search_iterations)
     if best < cfg.run.pixel_tolerance:
         return "other"
+    if capped:
+        return "inconclusive"  # still improving at the last iteration: not "cannot reach"
     return "workspace" if clipped else "unreachable"
 
 
@@ -107,9 +111,10 @@ def true_jacobian_converges(env: ShapeServoEnv, cfg: ExperimentConfig, steps: in
     return False
 
 
-def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool]:
-    """(best clean pixel error reached, whether the workspace clipped a move): Gauss-Newton
-    over gripper poses on the simulated rod, from its current state, towards the target."""
+def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool, bool]:
+    """(best clean pixel error reached, whether the workspace clipped a move, whether it ran out
+    of iterations while still improving): Gauss-Newton over gripper poses on the simulated rod,
+    from its current state, towards the target."""
     sim, camera = env.sim, env.camera
     n = env.cfg.camera.points
     target = np.asarray(env.target.pixels, dtype=float)
@@ -121,6 +126,7 @@ def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool]:
 
     r = residual()
     best, clipped = pixel_error(r + target, target), False
+    improved = False
     for _ in range(iterations):
         if best < tol:
             break
@@ -152,4 +158,4 @@ def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool]:
             step = step / 2.0
         if not improved:
             break  # a local minimum of the pixel error (or the workspace edge)
-    return best, clipped
+    return best, clipped, improved and best >= tol

@@ -47,3 +47,17 @@ def test_a_target_the_true_jacobian_reaches_blames_the_estimator_and_pinned_the_
     assert diagnose(env, cfg, "stalled", estimator_steps=30) == "estimator"
     assert diagnose(env, cfg, "pinned") == "workspace"
     assert diagnose(env, cfg, "converged") is None
+
+
+def test_a_search_cut_off_while_still_improving_is_inconclusive():
+    """Unreachable means the search stopped improving short of the tolerance; one that only ran
+    out of iterations (here: one) says nothing either way."""
+    from rodctl.diagnosis import pose_search
+
+    env, cfg = _env_at_home(shift_px=15.0)
+    snap = env.sim.snapshot()
+    best, _, capped = pose_search(env, 1)
+    assert capped and best > cfg.run.pixel_tolerance
+    env.sim.restore(snap)
+    best_full, _, capped_full = pose_search(env, 20)
+    assert best_full <= best and not capped_full  # given room, it stops at its minimum
