@@ -301,7 +301,9 @@ def _paired_raw(
         if not _usable(r) or r.get("outcome") != "converged":
             return None
         v = r.get(col)
-        return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
+        # A non-finite value carries no difference (inf - inf is NaN, which would make every
+        # Holm-adjusted p of the family 1).
+        return None if v is None or not math.isfinite(float(v)) else float(v)
 
     out: dict[str, dict[str, PairedDifference]] = {}
     for m in methods:

@@ -311,3 +311,14 @@ def test_seeds_make_one_compare_run_per_scenario_and_seed():
 def test_seeds_without_scenarios_or_repeated_are_refused(tmp_path):
     res = CliRunner().invoke(app, ["compare", SMOKE, "-o", str(tmp_path), "--set", "seeds=[1, 1]"])
     assert res.exit_code == 2 and "seeds" in res.output
+
+
+def test_seeds_with_fixed_target_poses_are_refused(tmp_path):
+    """Several seeds over a fixed set of poses would pool the same targets as independent pairs."""
+    res = CliRunner().invoke(
+        app,
+        ["compare", SMOKE, "-o", str(tmp_path), "--set", "seeds=[1, 2]",
+         "--set", "targets.poses=[[0.45, 0.05, 0.3], [0.45, -0.05, -0.3]]"],
+    )  # fmt: skip
+    assert res.exit_code == 2 and "targets.poses fix the poses" in res.output, res.output
+    assert not list(tmp_path.iterdir())

@@ -207,6 +207,15 @@ class CompareConfig(StrictModel):
                 )
             if any(s < 0 for s in self.seeds) or len(set(self.seeds)) < len(self.seeds):
                 raise ValueError(f"seeds must be distinct and >= 0, got {self.seeds}")
+            if len(self.seeds) > 1 and (
+                self.targets.file is not None or self.targets.poses is not None
+            ):
+                # The seeds would re-run the same poses: pooled as independent pairs, they
+                # would multiply n and shrink p, and "replicated" would mean "over noise".
+                raise ValueError(
+                    "seeds: several target seeds draw several target sets, but targets.file / "
+                    "targets.poses fix the poses; give one seed, or sampled targets"
+                )
         if self.reference is not None and self.reference not in self.methods:
             raise ValueError(
                 f"reference {self.reference!r} is not one of the methods {list(self.methods)}"

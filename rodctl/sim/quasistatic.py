@@ -33,7 +33,8 @@ branch jump). When the sub-step is below `MIN_FRACTION` of the move and still fa
 lost stability (a fold: snap-through). The engine then follows the overdamped gradient flow
 θ' = −∇E (projected on the constraints) by backward-Euler steps — a Newton step with the shift
 I/τ added to H, τ growing as the flow settles — to the next stable equilibrium, counts a snap
-and keeps a note of it (`QuasiStaticChain.snap_notes`); it never jumps branches silently.
+and keeps a note of it (`QuasiStaticChain.snap_notes`). A jump inside a converged sub-step is
+caught by a heuristic only (no segment turns more than `MAX_BRANCH_STEP` in one sub-step).
 
 No BLAS call in the solve (LAPACK's gtsv and pttrf are plain loops; the few products are
 elementwise), so results do not depend on the BLAS kernel.
