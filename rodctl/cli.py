@@ -834,6 +834,17 @@ def estimate(
     typer.echo(str(dest))
 
 
+def _numbers(flag: str, text: str | None, n: int, kind: type) -> list:
+    """`--flag 1,2,3`: `n` comma-separated values of `kind`, or a UserError naming the flag."""
+    try:
+        vals = [kind(v) for v in (text or "").split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != n:
+        raise UserError(f"{flag} {text}: give {n} comma-separated numbers")
+    return vals
+
+
 @app.command("import")
 @user_errors
 def import_recording(
@@ -899,22 +910,13 @@ def import_recording(
     if Path(path).is_dir() and poses:
         from rodctl.recordings.importer import import_image_folder
 
-        def nums(flag: str, text: str | None, n: int, kind: type) -> list:
-            try:
-                vals = [kind(v) for v in (text or "").split(",")]
-            except ValueError:
-                vals = []
-            if len(vals) != n:
-                raise UserError(f"{flag} {text}: give {n} comma-separated numbers")
-            return vals
-
         if not camera:
             raise UserError(f"{path}: an image folder needs --camera FILE (its intrinsics, pose)")
         run_dir, notes = import_image_folder(
             path, out, poses=poses, camera=camera,
-            clamp_pose=nums("--clamp-pose", clamp_pose, 3, float),
-            hsv_low=nums("--hsv-low", hsv_low, 3, int),
-            hsv_high=nums("--hsv-high", hsv_high, 3, int),
+            clamp_pose=_numbers("--clamp-pose", clamp_pose, 3, float),
+            hsv_low=_numbers("--hsv-low", hsv_low, 3, int),
+            hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
             tolerance=tolerance, name=name,
         )  # fmt: skip
         for note in notes:
@@ -924,23 +926,14 @@ def import_recording(
     if Path(path).is_dir() and image_topic:
         from rodctl.recordings.importer import import_bag_images
 
-        def numbers(flag: str, text: str | None, n: int, kind: type) -> list:
-            try:
-                vals = [kind(v) for v in (text or "").split(",")]
-            except ValueError:
-                vals = []
-            if len(vals) != n:
-                raise UserError(f"{flag} {text}: give {n} comma-separated numbers")
-            return vals
-
         if not camera or not pose_topic or len(pose_topic) != 1:
             raise UserError(f"{path}: images need --camera FILE and one --pose-topic (the gripper)")
         run_dir, notes = import_bag_images(
             path, out, image_topic=image_topic, info_topic=camera_info_topic,
             pose_topic=pose_topic[0], camera=camera,
-            clamp_pose=numbers("--clamp-pose", clamp_pose, 3, float),
-            hsv_low=numbers("--hsv-low", hsv_low, 3, int),
-            hsv_high=numbers("--hsv-high", hsv_high, 3, int),
+            clamp_pose=_numbers("--clamp-pose", clamp_pose, 3, float),
+            hsv_low=_numbers("--hsv-low", hsv_low, 3, int),
+            hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
             tolerance=tolerance, name=name,
         )  # fmt: skip
         for note in notes:

@@ -19,7 +19,6 @@ No torch.
 
 from __future__ import annotations
 
-import multiprocessing
 import time
 from pathlib import Path
 from typing import Any
@@ -116,7 +115,7 @@ def _collect_task(args: tuple[str, int, np.random.SeedSequence]) -> dict[str, An
 
 def collect_walks(cfg: ExperimentConfig, *, progress: bool = True) -> list[dict[str, Any]]:
     """The random walks `cfg.estimator.data` describes, in order (see the module docstring)."""
-    from rodctl.features.collection import _start_method, chunk_sizes
+    from rodctl.features.collection import chunk_sizes, map_chunks
 
     data = cfg.estimator.data  # type: ignore[union-attr]
     sizes = chunk_sizes(data.samples, data.chunk)
@@ -125,16 +124,9 @@ def collect_walks(cfg: ExperimentConfig, *, progress: bool = True) -> list[dict[
     tasks = [(cfg_json, n, s) for n, s in zip(sizes, seeds, strict=True)]
     walks: list[dict[str, Any]] = []
     with task_progress("collecting", data.samples, progress) as advance:
-        if data.workers == 1 or len(tasks) == 1:
-            for task in tasks:
-                walks.append(_collect_task(task))
-                advance(n=task[1])
-        else:
-            ctx = multiprocessing.get_context(_start_method())
-            with ctx.Pool(min(data.workers, len(tasks))) as pool:
-                for task, res in zip(tasks, pool.imap(_collect_task, tasks), strict=True):
-                    walks.append(res)
-                    advance(n=task[1])
+        for task, res in map_chunks(_collect_task, tasks, data.workers):
+            walks.append(res)
+            advance(n=task[1])
     return walks
 
 

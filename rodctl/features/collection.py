@@ -239,6 +239,19 @@ def _start_method() -> str:
     return "spawn"
 
 
+def map_chunks(fn: Any, tasks: list[Any], workers: int) -> Any:
+    """(task, fn(task)) for every task, in order: in this process for one worker or one task,
+    else in a pool of `workers` processes (the start method of `_start_method`). `fn` must be a
+    module-level function (it is pickled to the workers)."""
+    if workers == 1 or len(tasks) == 1:
+        for task in tasks:
+            yield task, fn(task)
+        return
+    ctx = multiprocessing.get_context(_start_method())
+    with ctx.Pool(min(workers, len(tasks))) as pool:
+        yield from zip(tasks, pool.imap(fn, tasks), strict=True)
+
+
 def collect_dataset(
     cfg: ExperimentConfig,
     *,
@@ -272,16 +285,9 @@ def collect_dataset(
         with task_progress(
             "collecting", data_cfg.samples, progress, lines_unit="samples"
         ) as advance:
-            if data_cfg.workers == 1 or len(tasks) == 1:
-                for task in tasks:
-                    results.append(_collect_task(task))
-                    advance(n=task[1])
-            else:
-                ctx = multiprocessing.get_context(_start_method())
-                with ctx.Pool(min(data_cfg.workers, len(tasks))) as pool:
-                    for task, res in zip(tasks, pool.imap(_collect_task, tasks), strict=True):
-                        results.append(res)
-                        advance(n=task[1])
+            for task, res in map_chunks(_collect_task, tasks, data_cfg.workers):
+                results.append(res)
+                advance(n=task[1])
     except KeyboardInterrupt:
         # Chunks finish in order (imap), so the first len(results) chunks are whole: keep them.
         if keep_partial is not None and len(results) >= 1 and fingerprint is not None:
