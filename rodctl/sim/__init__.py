@@ -8,12 +8,14 @@ continuum reference solutions, the heavy elastica included.
 """
 
 from rodctl.sim.chain import RodChain, first_mode_rate, stable_dt_limit
+from rodctl.sim.quasistatic import QuasiStaticSim  # registers rod.engine "quasistatic"
 from rodctl.sim.rod import ApplyResult, RodHealth, RodSim, resample_polyline
 
 __all__ = [
     "ApplyResult",
     "RodChain",
     "RodHealth",
+    "QuasiStaticSim",
     "RodSim",
     "first_mode_rate",
     "resample_polyline",

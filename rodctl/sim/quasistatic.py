@@ -52,7 +52,7 @@ from scipy.linalg import get_lapack_funcs
 
 from rodctl.config.rod import RodConfig
 from rodctl.records import SNAP_NOTE
-from rodctl.sim.rod import ApplyResult, RodSim
+from rodctl.sim.rod import ApplyResult, RodSim, register_engine
 
 #: LAPACK's tridiagonal solver (Gaussian elimination with partial pivoting): the banded solve of
 #: `scipy.linalg.solve_banded` with one sub- and super-diagonal, without its per-call overhead.
@@ -804,3 +804,6 @@ def resample_matrix(segments: int, n: int) -> np.ndarray:
     w[np.arange(n), idx] = 1.0 - frac
     w[np.arange(n), idx + 1] += frac
     return w
+
+
+register_engine("quasistatic", QuasiStaticSim)

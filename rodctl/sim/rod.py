@@ -88,6 +88,16 @@ class RodHealth:
     max_speed: float
 
 
+#: `rod.engine` -> the RodSim subclass that runs it; pymunk is RodSim itself. Engines register
+#: themselves (`register_engine`) when `rodctl.sim` is imported, so this module imports none.
+ENGINES: dict[str, type] = {}
+
+
+def register_engine(name: str, sim_type: type) -> None:
+    """Make `RodSim(cfg)` build `sim_type` when `cfg.engine == name`."""
+    ENGINES[name] = sim_type
+
+
 class RodSim:
     """A clamped elastic rod held by a kinematic gripper moving in (x, y, theta).
 
@@ -110,10 +120,8 @@ class RodSim:
     _chain_type = RodChain
 
     def __new__(cls, cfg: RodConfig | None = None, *args: object, **kwargs: object) -> RodSim:
-        if cls is RodSim and getattr(cfg, "engine", "pymunk") == "quasistatic":
-            from rodctl.sim.quasistatic import QuasiStaticSim
-
-            cls = QuasiStaticSim
+        if cls is RodSim:  # `rod.engine` picks the subclass (`register_engine`)
+            cls = ENGINES.get(getattr(cfg, "engine", "pymunk"), cls)
         return super().__new__(cls)
 
     def __init__(self, cfg: RodConfig, *, drive_home: bool = True) -> None:
