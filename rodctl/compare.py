@@ -60,6 +60,7 @@ from rodctl.executors.base import (
     stop_reason,
 )
 from rodctl.executors.local import CANCELLED
+from rodctl.report import markdown_table
 from rodctl.runs import RunDir, jsonable, seed_sequence, write_json_atomic
 
 #: Episode outcomes, in the order the summary lists them ("error": the episode raised).
@@ -751,13 +752,6 @@ def summary_rows(summary: dict, bands: Sequence[str]) -> tuple[list[str], list[l
     return header, lines
 
 
-def markdown_table(header: Sequence[str], lines: Sequence[Sequence[str]]) -> str:
-    """A GitHub-flavoured markdown table."""
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(line) + " |" for line in lines]
-    return "\n".join(out)
-
-
 # --- figures ----------------------------------------------------------------------------------
 
 
@@ -1054,7 +1048,7 @@ def _report(
         md.write_text(note + md.read_text(encoding="utf-8"), encoding="utf-8")
     if rows:
         _write_figures(folder / "figures", records, rows, list(cfg.methods))
-    from rodctl.report import write_compare_report
+    from rodctl.comparisons import write_compare_report
 
     write_compare_report(folder, cfg, rows)
     if progress:

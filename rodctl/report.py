@@ -4,7 +4,7 @@ A plain `rodctl compare` and a suite write the same kind of report: summary.md r
 (markdown-it-py, the CommonMark parser rich already depends on, with GitHub's pipe tables), a
 one-line verdict for each method against the reference (the paired difference in steps to
 converge with its confidence interval, and whether it is significant), the paired tables, then
-the figures. The statistics are `rodctl.statistics` and `rodctl.suite.paired_statistics`; this
+the figures. The statistics are `rodctl.statistics` and `rodctl.comparisons`; this
 module only renders them.
 
 Figures come in reading order (`FIGURES`: the overview across targets first, then the one
@@ -22,7 +22,6 @@ import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 from rodctl.statistics import PairedDifference
 
@@ -56,6 +55,13 @@ FIGURES = (
 VERDICT_METRIC = ("steps_to_converge", "steps")
 
 _MINUS = "\u2212"
+
+
+def markdown_table(header: Sequence[str], lines: Sequence[Sequence[str]]) -> str:
+    """A GitHub-flavoured markdown table."""
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(line) + " |" for line in lines]
+    return "\n".join(out)
 
 
 def render_markdown(text: str) -> str:
@@ -190,29 +196,3 @@ def write_report_html(
     )
     path.write_text(page, encoding="utf-8")
     return path
-
-
-def write_compare_report(folder: Path, cfg: Any, rows: Sequence[dict[str, Any]]) -> None:
-    """A plain compare's statistics.json and report.html, and its summary.md's paired section.
-
-    statistics.json has the shape of one scenario's entry in a suite's: for every method but the
-    reference, each paired metric's difference (`rodctl.statistics.PairedDifference` as a
-    mapping) and `success` (targets only the method / both / only the reference converged on).
-    """
-    from rodctl.runs import write_json_atomic
-    from rodctl.suite import PAIRED_NOTE, paired_statistics
-
-    methods = list(cfg.methods)
-    md_path = folder / "summary.md"
-    md = md_path.read_text(encoding="utf-8").rstrip("\n").split("\n")
-    if len(methods) > 1:
-        paired_md, stats = paired_statistics(rows, methods, cfg.reference_method)
-        # After the summary table, before the methods' descriptions: read at a glance.
-        at = md.index("## Methods") if "## Methods" in md else len(md)
-        md[at:at] = ["## Paired against the reference", "", PAIRED_NOTE, "", *paired_md]
-    else:
-        stats = {}
-    text = "\n".join(md).rstrip("\n") + "\n"
-    md_path.write_text(text, encoding="utf-8")
-    write_json_atomic(folder / "statistics.json", stats)
-    write_report_html(folder / "report.html", f"rodctl compare {cfg.name}", text, [(None, folder)])

@@ -202,11 +202,6 @@ def wilcoxon_test(differences: np.ndarray) -> tuple[float | None, str | None]:
     return float(res.pvalue), "normal"
 
 
-def wilcoxon_p(differences: np.ndarray) -> float | None:
-    """Two-sided Wilcoxon signed-rank p-value of paired differences (see `wilcoxon_test`)."""
-    return wilcoxon_test(differences)[0]
-
-
 def holm(p_values: Sequence[float | None]) -> list[float | None]:
     """Holm's step-down adjusted p-values of one family (None: not a test, stays None).
 
