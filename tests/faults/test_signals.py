@@ -142,16 +142,32 @@ def test_sigkill_then_replay_recover_reads_the_whole_steps(tmp_path):
 def test_train_encoder_records_sigterm_as_interrupted_and_keeps_the_data(tmp_path):
     """SIGTERM while collecting: `interrupted`, exit 1, no worker left, and the chunks collected
     so far saved as the run's dataset.npz, which `--dataset` trains on."""
+    import re
+    import threading
+
     proc = _start(
-        ["train-encoder", str(REPO / "configs/default.yaml"), "-q", "-o", str(tmp_path),
+        ["train-encoder", str(REPO / "configs/default.yaml"), "-o", str(tmp_path),
          "--set", "feature.data.samples=20000", "--set", "feature.data.chunk=40",
          "--set", "feature.data.workers=2", "--set", "feature.training.epochs=2",
          "--set", "feature.training.batch_size=100"]
     )  # fmt: skip
     run_dir = _run_dir(tmp_path)
-    time.sleep(8.0)  # collection runs for minutes; a few chunks of 40 are done by now
+    # Off a terminal the collection prints "collecting: 120/20,000 samples (…)" every few
+    # seconds: wait until two chunks of 40 are done (a condition, not a guess of the time).
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
+    reader.start()
+
+    def collected() -> int:
+        found = [re.search(r"collecting: ([\d,]+)/", line) for line in list(lines)]
+        return max((int(m.group(1).replace(",", "")) for m in found if m), default=0)
+
+    _wait_for(lambda: collected() >= 80 or proc.poll() is not None, 600)
+    assert proc.poll() is None, "".join(lines)
     proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=60)
+    proc.wait(timeout=60)
+    reader.join(timeout=60)
+    err = "".join(lines)
     assert proc.returncode == 1, err
     assert "Traceback" not in err
     meta = _meta(run_dir)
