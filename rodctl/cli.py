@@ -834,6 +834,13 @@ def estimate(
     typer.echo(str(dest))
 
 
+def _print_import(run_dir: Any, notes: list[str]) -> None:
+    """An import's notes on stderr, then its run folder as the last line of stdout."""
+    for note in notes:
+        typer.echo(f"note: {note}", err=True)
+    typer.echo(str(run_dir))
+
+
 def _numbers(flag: str, text: str | None, n: int, kind: type) -> list:
     """`--flag 1,2,3`: `n` comma-separated values of `kind`, or a UserError naming the flag."""
     try:
@@ -919,9 +926,7 @@ def import_recording(
             hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
             tolerance=tolerance, name=name,
         )  # fmt: skip
-        for note in notes:
-            typer.echo(f"note: {note}", err=True)
-        typer.echo(str(run_dir))
+        _print_import(run_dir, notes)
         return
     if Path(path).is_dir() and image_topic:
         from rodctl.recordings.importer import import_bag_images
@@ -936,9 +941,7 @@ def import_recording(
             hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
             tolerance=tolerance, name=name,
         )  # fmt: skip
-        for note in notes:
-            typer.echo(f"note: {note}", err=True)
-        typer.echo(str(run_dir))
+        _print_import(run_dir, notes)
         return
     if Path(path).is_dir():
         if not points_topic or not pose_topic:
@@ -949,9 +952,7 @@ def import_recording(
         run_dir, notes = import_bag(
             path, out, points_topic, pose_topic, tolerance=tolerance, name=name
         )
-        for note in notes:
-            typer.echo(f"note: {note}", err=True)
-        typer.echo(str(run_dir))
+        _print_import(run_dir, notes)
         return
     typer.echo(str(import_points(path, out, name)))
 

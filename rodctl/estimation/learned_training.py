@@ -47,21 +47,12 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
         {"pixels": (F, N, 2), "poses": (F, 3), "segment": (F,) int (a new segment after the
         simulator was rebuilt: no pair spans two), "attempts": int}.
     """
-    from rodctl.features.collection import sample_goal
+    from rodctl.features.collection import random_walk_start, sample_goal
     from rodctl.sim import RodSim
-    from rodctl.vision import Camera, CenterlineExtractor
 
-    cfg = ExperimentConfig.model_validate_json(cfg_json)
-    walk_seed, camera_seed = seed.spawn(2)
-    gen = np.random.Generator(np.random.PCG64(walk_seed))
+    cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
     clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
-    camera = Camera(cfg.camera, np.random.Generator(np.random.PCG64(camera_seed)))
-    extractor = CenterlineExtractor(cfg.camera, camera, clamp)
-    max_step = np.asarray(cfg.rod.max_step, dtype=float)
     jitter = float(cfg.estimator.data.jitter)  # type: ignore[union-attr]
-
-    sim = RodSim(cfg.rod)
-    goal = sample_goal(gen, sim, cfg)
     frames, poses, segments = [], [], []
     segment = attempts = 0
 

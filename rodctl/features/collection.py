@@ -157,6 +157,24 @@ def sample_goal(gen: np.random.Generator, sim: Any, cfg: ExperimentConfig) -> np
     raise UserError("rod.workspace: no gripper pose in the box is within reach of the clamp")
 
 
+def random_walk_start(cfg_json: str, seed: np.random.SeedSequence) -> tuple:
+    """What a random-motion walk through the camera starts from (encoder data and the learned
+    model's walks alike): (config, the walk's generator, a camera with its own noise stream, the
+    extractor, the speed limit, a rod at home, the first goal pose), all from `seed`."""
+    from rodctl.sim import RodSim
+    from rodctl.vision import Camera, CenterlineExtractor
+
+    cfg = ExperimentConfig.model_validate_json(cfg_json)
+    walk_seed, camera_seed = seed.spawn(2)
+    gen = np.random.Generator(np.random.PCG64(walk_seed))
+    clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
+    camera = Camera(cfg.camera, np.random.Generator(np.random.PCG64(camera_seed)))
+    extractor = CenterlineExtractor(cfg.camera, camera, clamp)
+    max_step = np.asarray(cfg.rod.max_step, dtype=float)
+    sim = RodSim(cfg.rod)
+    return cfg, gen, camera, extractor, max_step, sim, sample_goal(gen, sim, cfg)
+
+
 def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dict[str, Any]:
     """One seeded walk that yields `count` extracted centerlines (runs in a worker process).
 
@@ -172,18 +190,9 @@ def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> di
         RuntimeError: the walk needed more than 20 control steps per sample.
     """
     from rodctl.sim import RodSim
-    from rodctl.vision import Camera, CenterlineExtractor
 
-    cfg = ExperimentConfig.model_validate_json(cfg_json)
-    walk_seed, camera_seed = seed.spawn(2)
-    gen = np.random.Generator(np.random.PCG64(walk_seed))
+    cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
     clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
-    camera = Camera(cfg.camera, np.random.Generator(np.random.PCG64(camera_seed)))
-    extractor = CenterlineExtractor(cfg.camera, camera, clamp)
-    max_step = np.asarray(cfg.rod.max_step, dtype=float)
-
-    sim = RodSim(cfg.rod)
-    goal = sample_goal(gen, sim, cfg)
     points = np.empty((count, cfg.camera.points, 2), dtype=np.float32)
     poses = np.empty((count, 3))
     n = attempts = 0

@@ -120,7 +120,7 @@ def import_bag_images(
     """Segment and extract the rod in a bag's camera frames; write the run folder
     (`rodctl.recordings.ros2.read_bag_images`). The world centerline is the extracted one
     unprojected onto the rod's plane by the calibrated camera."""
-    from rodctl.recordings.ros2 import INTERRUPTED, camera_config, read_bag_images
+    from rodctl.recordings.ros2 import camera_config, read_bag_images
 
     src = Path(bag)
     cam_cfg = camera_config(camera)
@@ -133,19 +133,11 @@ def import_bag_images(
         "image_topic": image_topic,
         "camera_info_topic": info_topic,
         "pose_topics": [pose_topic],
-        "clamp_pose": [float(v) for v in clamp_pose],
-        "hsv_low": [int(v) for v in hsv_low],
-        "hsv_high": [int(v) for v in hsv_high],
-        "tolerance_s": tolerance,
-        "notes": notes,
     }
-    views = (world, rec.points, (used.width, used.height), {"camera": used.model_dump(mode="json")})
-    clamp = np.asarray(clamp_pose, dtype=float)
-    run_dir = write_run(rec, src, out, name, source, views=views, clamp=clamp)
-    cut = [n for n in notes if n.startswith(INTERRUPTED)]
-    if cut:
-        raise RunFailed(f"import of {src} cut short ({cut[0]}); {run_dir} keeps them")
-    return run_dir, notes
+    frames = (rec, world, used, notes)
+    return _write_frames_run(
+        frames, src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
+    )
 
 
 def import_image_folder(
@@ -163,7 +155,7 @@ def import_image_folder(
     """The camera-frame import of `import_bag_images` for an image folder with frames.csv
     and a poses CSV (`rodctl.recordings.folder`); the intrinsics come from `camera`."""
     from rodctl.recordings.folder import read_folder
-    from rodctl.recordings.ros2 import INTERRUPTED, camera_config, extract_frames
+    from rodctl.recordings.ros2 import camera_config, extract_frames
 
     src = Path(folder)
     cam_cfg = camera_config(camera)
@@ -172,9 +164,33 @@ def import_image_folder(
         str(src), "frames.csv", frames, str(poses), pose_rows, cam_cfg, clamp_pose, None,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
     )  # fmt: skip
+    source = {"kind": "image_folder", "poses": str(poses)}
+    frames = (rec, world, used, notes)
+    return _write_frames_run(
+        frames, src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
+    )
+
+
+def _write_frames_run(
+    frames: tuple,
+    src: Path,
+    out: str | Path,
+    name: str | None,
+    source: dict,
+    clamp_pose: list[float],
+    hsv_low: list[int],
+    hsv_high: list[int],
+    tolerance: float,
+) -> tuple[Path, list[str]]:
+    """The run folder of a camera-frame import (a bag's or a folder's): `frames` = (recording,
+    world centerline, the camera used, notes) of `extract_frames`; `source` the kind's own
+    keys, to which the segmentation settings are added. An import cut short (Ctrl-C) keeps
+    the frames it converted and raises `RunFailed` naming the folder."""
+    from rodctl.recordings.ros2 import INTERRUPTED
+
+    rec, world, used, notes = frames
     source = {
-        "kind": "image_folder",
-        "poses": str(poses),
+        **source,
         "clamp_pose": [float(v) for v in clamp_pose],
         "hsv_low": [int(v) for v in hsv_low],
         "hsv_high": [int(v) for v in hsv_high],
@@ -182,9 +198,8 @@ def import_image_folder(
         "notes": notes,
     }
     views = (world, rec.points, (used.width, used.height), {"camera": used.model_dump(mode="json")})
-    run_dir = write_run(
-        rec, src, out, name, source, views=views, clamp=np.asarray(clamp_pose, dtype=float)
-    )
+    clamp = np.asarray(clamp_pose, dtype=float)
+    run_dir = write_run(rec, src, out, name, source, views=views, clamp=clamp)
     cut = [n for n in notes if n.startswith(INTERRUPTED)]
     if cut:
         raise RunFailed(f"import of {src} cut short ({cut[0]}); {run_dir} keeps them")
