@@ -491,7 +491,10 @@ def train_encoder(
     out: OutOpt = "runs",
     dataset: Annotated[
         str | None,
-        typer.Option("--dataset", help="Train on a dataset.npz from an earlier run instead."),
+        typer.Option(
+            "--dataset",
+            help="Train on a dataset.npz from an earlier run, or a run folder (a recording).",
+        ),
     ] = None,
     quick: Annotated[
         bool,
@@ -508,6 +511,7 @@ def train_encoder(
     Writes dataset.npz, encoder.npz and encoder.pt (the same weights, normalisation, config
     and metrics, for numpy and for torch) and metrics.json into a new run directory; prints it
     as the last line. Use the checkpoint with --set feature.checkpoint=RUN_DIR/encoder.npz.
+    --dataset also takes a recording's run folder (`rodctl import`; docs/recordings.md).
     Needs torch: pip install -e ".[train]" (docs/install.md).
 
     Examples:
@@ -526,9 +530,25 @@ def train_encoder(
     cfg = load_config(config, set_ or [])
     if quick:
         cfg = quick_config(cfg)
-    if dataset is not None and not Path(dataset).is_file():
+    from rodctl.recordings.dataset import is_run
+
+    recording = None
+    if dataset is not None and is_run(dataset):  # a recording's run folder (docs/recordings.md)
+        from rodctl.recordings.dataset import run_dataset, with_points
+
+        recording = run_dataset(dataset)
+        cfg = with_points(cfg, recording.centerlines.shape[1])
+    elif dataset is not None and not Path(dataset).is_file():
         raise UserError(f"--dataset {dataset}: no such file")
     run = RunDir.create(out, cfg, command="train-encoder", argv=sys.argv)
+    if recording is not None:
+        from rodctl.recordings.dataset import write_run_dataset
+
+        try:
+            dataset = str(write_run_dataset(recording, cfg, run.path / "dataset.npz"))
+        except UserError:
+            run.discard_if_empty()
+            raise
     try:
         with sigterm_as_interrupt():
             metrics = train(
@@ -797,12 +817,23 @@ def estimate(
         str | None,
         typer.Option("--out", "-o", help="Folder for results.csv and steps.csv."),
     ] = None,
+    plots: Annotated[
+        bool,
+        typer.Option("--plots/--no-plots", help="Write errors.png and medians.png (matplotlib)."),
+    ] = True,
+    checkpoint: Annotated[
+        str | None,
+        typer.Option(
+            "--checkpoint", help="--feature autoencoder: the encoder.npz (train-encoder's)."
+        ),
+    ] = None,
 ) -> None:
     """Run the online Jacobian estimators over a recorded (Delta s, Delta r), offline.
 
     Reports each estimator's one-step-ahead prediction error of Delta s against the
-    zero-motion predictor and a least-squares J fitted in hindsight; writes results.csv and
-    steps.csv (default: RUN_DIR/estimate, or beside the recording) and prints the folder last.
+    zero-motion predictor and a least-squares J fitted in hindsight; writes results.csv,
+    steps.csv and the plots errors.png, medians.png (default: RUN_DIR/estimate, or beside the
+    recording) and prints the folder last.
     """
     from pathlib import Path
 
@@ -812,17 +843,23 @@ def estimate(
     if src.suffix.lower() in (".csv", ".npz"):
         from rodctl.recordings.points import read_points
 
-        pairs = est.pairs_from_recording(read_points(src), init=init, feature=feature or "points")
+        pairs = est.pairs_from_recording(
+            read_points(src), init=init, feature=feature or "points", checkpoint=checkpoint
+        )
         dest = Path(out) if out else src.with_name(src.stem + "-estimate")
     else:
         from rodctl.replay import read_run
 
         run = read_run(src, images=False)
-        pairs = est.pairs_from_run(run, feature=feature or "logged", init=init)
+        pairs = est.pairs_from_run(
+            run, feature=feature or "logged", init=init, checkpoint=checkpoint
+        )
         dest = Path(out) if out else (src if src.is_dir() else src.parent) / "estimate"
     result = est.estimate(pairs, estimator or None, scaled=scaled)
     try:
         est.write_results(result, dest)
+        if plots:
+            est.write_plots(result, dest)
     except OSError as exc:
         raise UserError(
             f"--out {dest}: cannot write the results: {describe_os_error(exc)}"
@@ -899,59 +936,127 @@ def import_recording(
     ] = "10,255,255",
     poses: Annotated[
         str | None,
-        typer.Option("--poses", help="Image folder: CSV of gripper poses t,x,y,theta."),
+        typer.Option("--poses", help="Image folder or video: CSV of gripper poses t,x,y,theta."),
+    ] = None,
+    topics: Annotated[
+        str | None,
+        typer.Option("--topics", help="Bag: YAML mapping of its topics (flags replace keys)."),
+    ] = None,
+    tf_frame: Annotated[
+        list[str] | None,
+        typer.Option("--tf-frame", help="Bag: an end effector's tf child frame (once or twice)."),
+    ] = None,
+    tf_topic: Annotated[
+        str | None, typer.Option("--tf-topic", help="Bag: the TFMessage topic (default /tf).")
+    ] = None,
+    calibration: Annotated[
+        str | None,
+        typer.Option("--calibration", help="Images: YAML with an extrinsic or marked points."),
+    ] = None,
+    extrinsic: Annotated[
+        str | None,
+        typer.Option("--extrinsic", help="Images: world->camera RX,RY,RZ,TX,TY,TZ (Rodrigues)."),
+    ] = None,
+    fps: Annotated[
+        float | None, typer.Option("--fps", min=0.0, help="Video: frame rate (t = k / fps).")
+    ] = None,
+    frame_times: Annotated[
+        str | None, typer.Option("--frame-times", help="Video: CSV with each frame's t.")
     ] = None,
 ) -> None:
     """Turn a recording into a rodctl run folder (config.yaml, meta.json, summary.json,
     run.mcap with the contract topics) that replay, Foxglove and estimate read.
 
     Reads the points format (per-frame tracked points plus one or two end-effector poses), a
-    ROS 2 bag (tracked points or camera frames, with PoseStamped) or an image folder with a CSV
-    of poses; docs/recordings.md specifies each. Prints the run directory last; exit 2 on a
-    bad file, 1 when cut short (the frames converted so far are kept).
+    ROS 2 bag (tracked points or camera frames, with PoseStamped or tf poses; topics by flags
+    or --topics YAML), an image folder or a video with a CSV of poses; docs/recordings.md
+    specifies each. Prints the run directory last; exit 2 on a bad file, 1 when cut short
+    (the frames converted so far are kept).
     """
     from pathlib import Path
 
     from rodctl.recordings.importer import import_bag, import_points
 
+    calib = None
+    if calibration and extrinsic:
+        raise UserError("--calibration and --extrinsic: give one of them")
+    if calibration:
+        from rodctl.recordings.calibration import load_calibration
+
+        calib = load_calibration(calibration)
+    elif extrinsic:
+        from rodctl.recordings.calibration import extrinsic_from_flag
+
+        calib = extrinsic_from_flag(_numbers("--extrinsic", extrinsic, 6, float))
+
+    def frames_args() -> dict:
+        if not camera:
+            raise UserError(f"{path}: camera frames need --camera FILE (intrinsics, pose)")
+        return dict(
+            camera=camera, clamp_pose=_numbers("--clamp-pose", clamp_pose, 3, float),
+            hsv_low=_numbers("--hsv-low", hsv_low, 3, int),
+            hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
+            tolerance=tolerance, name=name, calibration=calib,
+        )  # fmt: skip
+
+    from rodctl.recordings.video import VIDEO_SUFFIXES
+
+    if Path(path).suffix.lower() in VIDEO_SUFFIXES:
+        from rodctl.recordings.importer import import_video
+
+        if not poses:
+            raise UserError(f"{path}: a video needs --poses CSV (t,x,y,theta of the gripper)")
+        run_dir, notes = import_video(
+            path, out, poses=poses, fps=fps, frame_times=frame_times, **frames_args()
+        )
+        _print_import(run_dir, notes)
+        return
     if Path(path).is_dir() and poses:
         from rodctl.recordings.importer import import_image_folder
 
-        if not camera:
-            raise UserError(f"{path}: an image folder needs --camera FILE (its intrinsics, pose)")
-        run_dir, notes = import_image_folder(
-            path, out, poses=poses, camera=camera,
-            clamp_pose=_numbers("--clamp-pose", clamp_pose, 3, float),
-            hsv_low=_numbers("--hsv-low", hsv_low, 3, int),
-            hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
-            tolerance=tolerance, name=name,
-        )  # fmt: skip
+        run_dir, notes = import_image_folder(path, out, poses=poses, **frames_args())
         _print_import(run_dir, notes)
         return
+    mapping = None
+    if topics:
+        from rodctl.recordings.mapping import load_mapping
+
+        mapping = load_mapping(topics)
+    if mapping is not None:
+        image_topic = image_topic or mapping.image
+        camera_info_topic = camera_info_topic or mapping.camera_info
+        points_topic = points_topic or (None if image_topic else mapping.points)
+        pose_topic = pose_topic or mapping.poses or None
+        if mapping.tf is not None:
+            tf_frame = tf_frame or mapping.tf.frames
+            tf_topic = tf_topic or mapping.tf.topic
+    tf_topic = tf_topic or "/tf"
+    ends = len(pose_topic or []) + len(tf_frame or [])
     if Path(path).is_dir() and image_topic:
         from rodctl.recordings.importer import import_bag_images
 
-        if not camera or not pose_topic or len(pose_topic) != 1:
-            raise UserError(f"{path}: images need --camera FILE and one --pose-topic (the gripper)")
+        if ends != 1:
+            raise UserError(
+                f"{path}: camera frames need one gripper: one --pose-topic or one --tf-frame"
+            )
         run_dir, notes = import_bag_images(
             path, out, image_topic=image_topic, info_topic=camera_info_topic,
-            pose_topic=pose_topic[0], camera=camera,
-            clamp_pose=_numbers("--clamp-pose", clamp_pose, 3, float),
-            hsv_low=_numbers("--hsv-low", hsv_low, 3, int),
-            hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
-            tolerance=tolerance, name=name,
+            pose_topic=(pose_topic or [None])[0], tf_frame=(tf_frame or [None])[0],
+            tf_topic=tf_topic, **frames_args(),
         )  # fmt: skip
         _print_import(run_dir, notes)
         return
     if Path(path).is_dir():
-        if not points_topic or not pose_topic:
+        if not points_topic or not ends:
             raise UserError(
                 f"{path}: a folder is a ROS 2 bag (give --points-topic or --image-topic, and "
-                "--pose-topic) or an image folder (give --poses CSV and --camera FILE)"
+                "--pose-topic or --tf-frame, or --topics YAML) or an image folder (give --poses "
+                "CSV and --camera FILE)"
             )
         run_dir, notes = import_bag(
-            path, out, points_topic, pose_topic, tolerance=tolerance, name=name
-        )
+            path, out, points_topic, pose_topic or [], tolerance=tolerance, name=name,
+            tf_frames=tf_frame or [], tf_topic=tf_topic,
+        )  # fmt: skip
         _print_import(run_dir, notes)
         return
     typer.echo(str(import_points(path, out, name)))

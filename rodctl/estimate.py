@@ -112,8 +112,9 @@ def _fold(
     return ds, dr, at
 
 
-def _encoder(feature: str, points: int) -> Any:
-    """The registered feature map `feature` (its default config) for `points` points."""
+def _encoder(feature: str, points: int, checkpoint: str | None = None) -> Any:
+    """The registered feature map `feature` (its default config, with `checkpoint` when
+    given: an autoencoder's encoder.npz) for `points` points."""
     from rodctl.features import make_feature_map
     from rodctl.registry import FEATURES, load_plugins
 
@@ -124,14 +125,43 @@ def _encoder(feature: str, points: int) -> Any:
             f"{', '.join(FEATURES.names())}"
         )
     model = FEATURES.get(feature).config
+    extra = {}
+    if checkpoint is not None:
+        if "checkpoint" not in model.model_fields:
+            raise UserError(f"--checkpoint: the {feature} feature takes no checkpoint")
+        if not Path(checkpoint).is_file():
+            raise UserError(f"--checkpoint {checkpoint}: no such file")
+        extra = _trained_feature(checkpoint, feature)
+        extra["checkpoint"] = str(checkpoint)
     try:
-        cfg = model()
+        cfg = model(**extra)
     except Exception as exc:  # noqa: BLE001 - e.g. the autoencoder needs a checkpoint path
         raise UserError(f"--feature {feature}: needs settings of its own ({exc})") from None
     return make_feature_map(cfg, points=points)
 
 
-def pairs_from_run(run: Any, feature: str = "logged", init: int | None = None) -> Pairs:
+def _trained_feature(checkpoint: str, feature: str) -> dict[str, Any]:
+    """The feature settings a checkpoint was trained with (its architecture: hidden layers,
+    latent size), from the config it stores, so the map is built as it was trained."""
+    import yaml
+
+    from rodctl.features.autoencoder import EncoderCheckpoint
+
+    ckpt = EncoderCheckpoint.load(checkpoint)  # a UserError naming the file when unreadable
+    try:
+        trained = (yaml.safe_load(ckpt.config_yaml) or {}).get("feature") or {}
+    except yaml.YAMLError:
+        trained = {}
+    if trained.get("type") not in (None, feature):
+        raise UserError(
+            f"--checkpoint {checkpoint}: trained for feature {trained.get('type')}, not {feature}"
+        )
+    return {k: v for k, v in trained.items() if k not in ("checkpoint", "type")}
+
+
+def pairs_from_run(
+    run: Any, feature: str = "logged", init: int | None = None, checkpoint: str | None = None
+) -> Pairs:
     """The pairs of a rodctl run read back (`rodctl.replay.read_run`).
 
     Args:
@@ -151,7 +181,7 @@ def pairs_from_run(run: Any, feature: str = "logged", init: int | None = None) -
     elif feature == "points":
         s = np.array([np.asarray(r.extracted, dtype=float).reshape(-1) for r in recs])
     else:
-        s = _encode_ok(_encoder(feature, len(recs[0].extracted)), recs)
+        s = _encode_ok(_encoder(feature, len(recs[0].extracted), checkpoint), recs)
     ds, dr, at = _fold(s, u, ok)
     phases = [recs[k].phase for k in at]
     n0 = sum(1 for ph in phases if ph == "probe")
@@ -204,7 +234,9 @@ def _encode_ok(fmap: Any, recs: Sequence[Any]) -> np.ndarray:
     return np.array(out)
 
 
-def pairs_from_recording(rec: Any, *, init: int | None = None, feature: str = "points") -> Pairs:
+def pairs_from_recording(
+    rec: Any, *, init: int | None = None, feature: str = "points", checkpoint: str | None = None
+) -> Pairs:
     """The pairs of a points recording (`rodctl.recordings.points.read_points`).
 
     Every frame is good; pair k is (points_k - points_{k-1}, pose_k - pose_{k-1}) with the
@@ -216,7 +248,7 @@ def pairs_from_recording(rec: Any, *, init: int | None = None, feature: str = "p
     if feature == "points":
         s = pts.reshape(len(pts), -1)
     else:
-        fmap = _encoder(feature, pts.shape[1])
+        fmap = _encoder(feature, pts.shape[1], checkpoint)
         s = np.array([fmap.encode(c) for c in pts])
     r = np.asarray(rec.r, dtype=float)
     u = np.vstack([np.zeros((1, r.shape[1])), np.diff(r, axis=0)])
@@ -494,3 +526,60 @@ def write_results(result: EstimateResult, out: Path) -> list[Path]:
         for k, step in enumerate(result.pairs.steps):
             w.writerow([int(step), *(repr(float(e[k])) for e in series)])
     return [res, steps]
+
+
+def write_plots(result: EstimateResult, out: Path) -> list[Path]:
+    """errors.png (each estimator's and reference's one-step error per pair, log scale, with a
+    running median) and medians.png (a box of each one's errors, the median marked), in `out`.
+    matplotlib is imported here, only when plots are asked for."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    out.mkdir(parents=True, exist_ok=True)
+    series = [("zero_motion", result.zero), ("hindsight_ls", result.hindsight)]
+    series += [(r.name, r.errors) for r in result.runs if np.isfinite(r.errors).any()]
+    steps = np.asarray(result.pairs.steps)
+    unit = f"units of the {result.pairs.feature} feature"
+    paths = []
+
+    fig = Figure(figsize=(9, 4.5), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    win = max(1, len(steps) // 50)
+    for k, (name, e) in enumerate(series):
+        e = np.asarray(e, dtype=float)
+        good = np.isfinite(e) & (e > 0)
+        if not good.any():
+            continue
+        style = {"color": "0.4" if k < 2 else f"C{k - 2}", "ls": "--" if k < 2 else "-"}
+        ax.plot(steps[good], e[good], lw=0.5, alpha=0.25, color=style["color"])
+        run = np.array(
+            [np.nanmedian(e[max(0, i - win) : i + win + 1]) for i in range(len(e))]
+        )  # running median over 2 win + 1 pairs
+        ok = np.isfinite(run) & (run > 0)
+        ax.plot(steps[ok], run[ok], lw=1.4, label=name, **style)
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_ylabel(f"‖Δs − J Δr‖ ({unit})")
+    ax.set_title(f"One-step prediction error, feature {result.pairs.feature} (running median)")
+    ax.legend(fontsize=8, loc="upper right")
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    paths.append(out / "errors.png")
+    fig.savefig(paths[-1])
+
+    fig = Figure(figsize=(max(5.0, 1.1 * len(series) + 2), 4.5), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    data = [np.asarray(e, float)[np.isfinite(e) & (np.asarray(e) > 0)] for _, e in series]
+    keep = [i for i, d in enumerate(data) if len(d)]
+    ax.boxplot([data[i] for i in keep], showfliers=False, medianprops={"color": "C3", "lw": 2})
+    ax.set_xticks(range(1, len(keep) + 1), [series[i][0] for i in keep], rotation=30, ha="right")
+    ax.set_yscale("log")
+    ax.set_ylabel(f"one-step error ({unit})")
+    ax.set_title("One-step error per estimator (box: quartiles, line: median)")
+    ax.grid(True, axis="y", which="both", alpha=0.3)
+    fig.tight_layout()
+    paths.append(out / "medians.png")
+    fig.savefig(paths[-1])
+    return paths

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -85,14 +86,19 @@ def import_bag(
     *,
     tolerance: float = 0.2,
     name: str | None = None,
+    tf_frames: list[str] | None = None,
+    tf_topic: str = "/tf",
 ) -> tuple[Path, list[str]]:
     """Write the tracked points and poses of a ROS 2 bag as a run folder under `out`
-    (`rodctl.recordings.ros2.read_bag_points`); return the folder and the notes.
+    (`rodctl.recordings.ros2.read_bag_points`; end effectors from PoseStamped topics, then tf
+    child frames); return the folder and the notes.
     """
     from rodctl.recordings.ros2 import read_bag_points
 
     src = Path(bag)
-    rec, notes = read_bag_points(src, points_topic, pose_topics, tolerance)
+    rec, notes = read_bag_points(
+        src, points_topic, pose_topics, tolerance, tf_frames=tf_frames or (), tf_topic=tf_topic
+    )
     source = {
         "kind": "ros2_bag",
         "points_topic": points_topic,
@@ -100,6 +106,8 @@ def import_bag(
         "tolerance_s": tolerance,
         "notes": notes,
     }
+    if tf_frames:
+        source["tf"] = {"topic": tf_topic, "frames": list(tf_frames)}
     return write_run(rec, src, out, name, source), notes
 
 
@@ -109,31 +117,41 @@ def import_bag_images(
     *,
     image_topic: str,
     info_topic: str | None,
-    pose_topic: str,
+    pose_topic: str | None,
     camera: str | Path,
     clamp_pose: list[float],
     hsv_low: list[int],
     hsv_high: list[int],
     tolerance: float = 0.2,
     name: str | None = None,
+    tf_frame: str | None = None,
+    tf_topic: str = "/tf",
+    calibration: Any = None,
 ) -> tuple[Path, list[str]]:
     """Segment and extract the rod in a bag's camera frames; write the run folder
-    (`rodctl.recordings.ros2.read_bag_images`). The world centerline is the extracted one
-    unprojected onto the rod's plane by the calibrated camera."""
-    from rodctl.recordings.ros2 import camera_config, read_bag_images
+    (`rodctl.recordings.ros2.read_bag_images`). The gripper is `pose_topic` (PoseStamped) or
+    the tf child frame `tf_frame`; `calibration` (`rodctl.recordings.calibration`) replaces
+    the camera file's pose. The world centerline is the extracted one unprojected onto the
+    rod's plane by the calibrated camera."""
+    from rodctl.recordings.ros2 import PoseSource, camera_config, read_bag_images
 
     src = Path(bag)
     cam_cfg = camera_config(camera)
+    grip = PoseSource(tf_topic, tf_frame.lstrip("/")) if tf_frame else PoseSource(pose_topic or "")
     rec, world, used, notes = read_bag_images(
-        src, image_topic, info_topic, pose_topic, cam_cfg, clamp_pose,
-        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+        src, image_topic, info_topic, grip, cam_cfg, clamp_pose,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
     )  # fmt: skip
     source = {
         "kind": "ros2_bag_images",
         "image_topic": image_topic,
         "camera_info_topic": info_topic,
-        "pose_topics": [pose_topic],
+        "pose_topics": [pose_topic] if pose_topic else [],
     }
+    if tf_frame:
+        source["tf"] = {"topic": tf_topic, "frames": [tf_frame]}
+    if calibration is not None:
+        source["calibration"] = calibration.describe()
     frames = (rec, world, used, notes)
     return _write_frames_run(
         frames, src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
@@ -151,6 +169,7 @@ def import_image_folder(
     hsv_high: list[int],
     tolerance: float = 0.2,
     name: str | None = None,
+    calibration: Any = None,
 ) -> tuple[Path, list[str]]:
     """The camera-frame import of `import_bag_images` for an image folder with frames.csv
     and a poses CSV (`rodctl.recordings.folder`); the intrinsics come from `camera`."""
@@ -162,9 +181,47 @@ def import_image_folder(
     frames, pose_rows = read_folder(src, poses)
     rec, world, used, notes = extract_frames(
         str(src), "frames.csv", frames, str(poses), pose_rows, cam_cfg, clamp_pose, None,
-        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
     )  # fmt: skip
     source = {"kind": "image_folder", "poses": str(poses)}
+    if calibration is not None:
+        source["calibration"] = calibration.describe()
+    frames = (rec, world, used, notes)
+    return _write_frames_run(
+        frames, src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
+    )
+
+
+def import_video(
+    video: str | Path,
+    out: str | Path,
+    *,
+    poses: str | Path,
+    camera: str | Path,
+    clamp_pose: list[float],
+    hsv_low: list[int],
+    hsv_high: list[int],
+    tolerance: float = 0.2,
+    name: str | None = None,
+    fps: float | None = None,
+    frame_times: str | Path | None = None,
+    calibration: Any = None,
+) -> tuple[Path, list[str]]:
+    """The camera-frame import of `import_image_folder` for a video file (OpenCV) and a poses
+    CSV (`rodctl.recordings.video`): frame times from `frame_times` or fps."""
+    from rodctl.recordings.ros2 import camera_config, extract_frames
+    from rodctl.recordings.video import read_video
+
+    src = Path(video)
+    cam_cfg = camera_config(camera)
+    frames, pose_rows, used_times = read_video(src, poses, fps=fps, frame_times=frame_times)
+    rec, world, used, notes = extract_frames(
+        str(src), src.name, frames, str(poses), pose_rows, cam_cfg, clamp_pose, None,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
+    )  # fmt: skip
+    source = {"kind": "video", "poses": str(poses), **used_times}
+    if calibration is not None:
+        source["calibration"] = calibration.describe()
     frames = (rec, world, used, notes)
     return _write_frames_run(
         frames, src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -200,7 +201,96 @@ POINTS_TYPES = (
     "visualization_msgs/msg/Marker",
     "nav_msgs/msg/Path",
     "geometry_msgs/msg/PoseArray",
+    "sensor_msgs/msg/PointCloud2",
 )
+POSE_TYPE = "geometry_msgs/msg/PoseStamped"
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+
+
+@dataclass(frozen=True)
+class PoseSource:
+    """Where an end effector's pose is read: a PoseStamped topic, or (`frame` given) the
+    TransformStamped of a tf topic whose child frame is `frame` (taken as the pose of that
+    frame in the transform's parent frame, the world)."""
+
+    topic: str
+    frame: str | None = None
+
+    @property
+    def label(self) -> str:
+        return f"{self.topic} (child frame {self.frame})" if self.frame else self.topic
+
+
+def pose_sources(
+    pose_topics: Sequence[str] = (), tf_frames: Sequence[str] = (), tf_topic: str = "/tf"
+) -> list[PoseSource]:
+    """The end effectors in order: the PoseStamped topics first, then the tf child frames."""
+    out = [PoseSource(t) for t in pose_topics]
+    out += [PoseSource(tf_topic, f.lstrip("/")) for f in tf_frames]
+    return out
+
+
+#: PointCloud2 PointField datatypes (sensor_msgs/msg/PointField): the x, y read are FLOAT32 or
+#: FLOAT64; the others are named in the refusal.
+_PC2_NAMES = {1: "INT8", 2: "UINT8", 3: "INT16", 4: "UINT16", 5: "INT32", 6: "UINT32",
+              7: "FLOAT32", 8: "FLOAT64"}  # fmt: skip
+_PC2_FORMATS = {7: "f4", 8: "f8"}
+
+
+def cloud_xy(msg: Any, where: str) -> np.ndarray:
+    """(N, 2) x, y of a sensor_msgs/msg/PointCloud2, decoded by its own layout: each point is
+    `point_step` bytes with the fields at their offsets, `row_step` bytes a row (padding after
+    `width` points skipped), `height` rows, the byte order `is_bigendian`. Points are taken in
+    storage order (row-major).
+
+    Raises:
+        UserError: no x or y field, one that is not FLOAT32/FLOAT64 or has count != 1, a field
+            beyond point_step, a row_step shorter than width * point_step, data shorter than
+            height * row_step; `where` (topic and frame) starts the message.
+    """
+    fields = {f.name: f for f in msg.fields}
+    have = ", ".join(f"{f.name}:{_PC2_NAMES.get(int(f.datatype), f.datatype)}" for f in msg.fields)
+    step, width, height = int(msg.point_step), int(msg.width), int(msg.height)
+    row_step = int(msg.row_step)
+    order = ">" if msg.is_bigendian else "<"
+    formats, offsets = [], []
+    for name in ("x", "y"):
+        f = fields.get(name)
+        if f is None:
+            raise UserError(
+                f"{where}: unsupported PointCloud2 layout: no field {name!r} (fields: "
+                f"{have or 'none'}); x and y FLOAT32 or FLOAT64 fields are read"
+            )
+        dt = int(f.datatype)
+        if dt not in _PC2_FORMATS or int(f.count) != 1:
+            raise UserError(
+                f"{where}: unsupported PointCloud2 layout: field {name!r} is "
+                f"{_PC2_NAMES.get(dt, dt)} x {int(f.count)}; one FLOAT32 or FLOAT64 is read"
+            )
+        size = 4 if dt == 7 else 8
+        if int(f.offset) + size > step:
+            raise UserError(
+                f"{where}: unsupported PointCloud2 layout: field {name!r} at offset "
+                f"{int(f.offset)} does not fit in point_step {step}"
+            )
+        formats.append(order + _PC2_FORMATS[dt])
+        offsets.append(int(f.offset))
+    if row_step < width * step:
+        raise UserError(
+            f"{where}: unsupported PointCloud2 layout: row_step {row_step} < width {width} x "
+            f"point_step {step}"
+        )
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if data.size < height * row_step:
+        raise UserError(
+            f"{where}: PointCloud2 data has {data.size} bytes, height {height} x row_step "
+            f"{row_step} = {height * row_step} expected"
+        )
+    dtype = np.dtype({"names": ["x", "y"], "formats": formats, "offsets": offsets,
+                      "itemsize": step})  # fmt: skip
+    rows = data[: height * row_step].reshape(height, row_step)[:, : width * step]
+    pts = np.frombuffer(np.ascontiguousarray(rows).tobytes(), dtype=dtype)
+    return np.column_stack([pts["x"], pts["y"]]).astype(float).reshape(-1, 2)
 
 
 def _stamp_ns(msg: Any, log_ns: int) -> int:
@@ -214,7 +304,9 @@ def _stamp_ns(msg: Any, log_ns: int) -> int:
     return t if t > 0 else int(log_ns)
 
 
-def _xy(msg: Any, msgtype: str) -> np.ndarray:
+def _xy(msg: Any, msgtype: str, where: str = "") -> np.ndarray:
+    if msgtype.endswith("PointCloud2"):
+        return cloud_xy(msg, where)
     if msgtype.endswith("MarkerArray"):
         pts = msg.markers[0].points if msg.markers else []
         return np.array([[p.x, p.y] for p in pts], dtype=float).reshape(-1, 2)
@@ -264,28 +356,16 @@ def sync_poses(
     return (1.0 - w) * pv[lo] + w * pv[hi], inside
 
 
-def read_bag_points(
-    bag: str | Path, points_topic: str, pose_topics: list[str], tolerance: float = 0.2
-) -> tuple[Any, list[str]]:
-    """A points recording from a ROS 2 bag (sqlite3 or MCAP storage): the tracked points of
-    `points_topic` (MarkerArray, Marker, nav_msgs/Path or PoseArray; x, y, world metres) and
-    the PoseStamped of one or two end effectors, interpolated at the points' times.
-
-    Returns:
-        (the `PointsRecording`, notes: e.g. frames outside the poses' span that were left out).
+def _bag_messages(path: Path, need: list[tuple[str, tuple[str, ...]]]) -> Any:
+    """Yield (topic, msgtype, log time ns, message) of the `need`ed topics of the bag at
+    `path`, in log-time order, after checking each topic exists with an allowed type.
 
     Raises:
-        UserError: not a bag, a topic missing or of another type (the bag's topics are listed),
-            a frame with another number of points, the sync errors of `sync_poses`.
+        UserError: not a bag, a topic missing (the bag's topics are listed) or of another type.
     """
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    from rodctl.recordings.synthetic import PointsRecording
-
-    path = Path(bag)
-    if not 1 <= len(pose_topics) <= 2:
-        raise UserError("--pose-topic: give one or two end-effector pose topics")
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
@@ -294,49 +374,134 @@ def read_bag_points(
     try:
         types = {c.topic: c.msgtype for c in reader.connections}
         listing = ", ".join(f"{t} ({m})" for t, m in sorted(types.items())) or "none"
-        for topic, allowed in [(points_topic, POINTS_TYPES)] + [
-            (t, ("geometry_msgs/msg/PoseStamped",)) for t in pose_topics
-        ]:
+        for topic, allowed in need:
             if topic not in types:
                 raise UserError(f"{path}: no topic {topic}; the bag has: {listing}")
             if types[topic] not in allowed:
                 raise UserError(
                     f"{path}: topic {topic} is {types[topic]}, expected {' or '.join(allowed)}"
                 )
-        frames: list[tuple[int, np.ndarray]] = []
-        poses: dict[str, list[tuple[int, list[float]]]] = {t: [] for t in pose_topics}
-        wanted = [c for c in reader.connections if c.topic in {points_topic, *pose_topics}]
+        topics = {t for t, _ in need}
+        wanted = [c for c in reader.connections if c.topic in topics]
         for conn, log_ns, raw in reader.messages(connections=wanted):
-            msg = reader.deserialize(raw, conn.msgtype)
-            t = _stamp_ns(msg, log_ns)
-            if conn.topic == points_topic:
-                frames.append((t, _xy(msg, conn.msgtype)))
-            else:
-                p = msg.pose
-                poses[conn.topic].append((t, [p.position.x, p.position.y, _yaw(p.orientation)]))
+            yield conn.topic, conn.msgtype, log_ns, reader.deserialize(raw, conn.msgtype)
     finally:
         reader.close()
+
+
+class _Poses:
+    """The pose series [(t_ns, [x, y, yaw])] of each `PoseSource`, filled message by message
+    (a PoseStamped topic's poses; a tf topic's transforms whose child frame is a source's)."""
+
+    def __init__(self, sources: list[PoseSource]) -> None:
+        self.sources = sources
+        self.series: dict[PoseSource, list[tuple[int, list[float]]]] = {s: [] for s in sources}
+        self.by_frame = {(s.topic, s.frame): s for s in sources if s.frame}
+        self.seen_frames: dict[str, set[str]] = {s.topic: set() for s in sources if s.frame}
+
+    def need(self) -> list[tuple[str, tuple[str, ...]]]:
+        return [(s.topic, (TF_TYPE,) if s.frame else (POSE_TYPE,)) for s in self.sources]
+
+    def topics(self) -> set[str]:
+        return {s.topic for s in self.sources}
+
+    def add(self, topic: str, msgtype: str, log_ns: int, msg: Any) -> None:
+        if msgtype == TF_TYPE:
+            for tr in msg.transforms:
+                child = str(tr.child_frame_id).lstrip("/")
+                self.seen_frames[topic].add(child)
+                src = self.by_frame.get((topic, child))
+                if src is not None:
+                    v, o = tr.transform.translation, tr.transform.rotation
+                    self.series[src].append((_stamp_ns(tr, log_ns), [v.x, v.y, _yaw(o)]))
+        else:
+            p = msg.pose
+            t = _stamp_ns(msg, log_ns)
+            self.series[PoseSource(topic)].append(
+                (t, [p.position.x, p.position.y, _yaw(p.orientation)])
+            )
+
+    def get(self, path: Path, src: PoseSource) -> list[tuple[int, list[float]]]:
+        """The source's poses, or a UserError naming the topic (and the frames a tf has)."""
+        rows = self.series[src]
+        if rows:
+            return rows
+        if src.frame:
+            seen = ", ".join(sorted(self.seen_frames[src.topic])) or "none"
+            raise UserError(
+                f"{path}: topic {src.topic} has no transform to child frame {src.frame!r}; "
+                f"its child frames are: {seen}"
+            )
+        raise UserError(f"{path}: topic {src.topic} has no messages")
+
+
+def read_bag_points(
+    bag: str | Path,
+    points_topic: str,
+    pose_topics: Sequence[str] = (),
+    tolerance: float = 0.2,
+    *,
+    tf_frames: Sequence[str] = (),
+    tf_topic: str = "/tf",
+) -> tuple[Any, list[str]]:
+    """A points recording from a ROS 2 bag (sqlite3 or MCAP storage): the tracked points of
+    `points_topic` (MarkerArray, Marker, nav_msgs/Path, PoseArray or PointCloud2; x, y, world
+    metres) and the poses of one or two end effectors (PoseStamped topics, then tf child
+    frames), interpolated at the points' times.
+
+    Returns:
+        (the `PointsRecording`, notes: e.g. frames outside the poses' span that were left out).
+
+    Raises:
+        UserError: not a bag, a topic missing or of another type (the bag's topics are listed),
+            a tf child frame never published, a PointCloud2 layout that is not read, a frame
+            with another number of points or a non-finite one, the sync errors of `sync_poses`.
+    """
+    from rodctl.recordings.synthetic import PointsRecording
+
+    path = Path(bag)
+    sources = pose_sources(pose_topics, tf_frames, tf_topic)
+    if not 1 <= len(sources) <= 2:
+        raise UserError(
+            "--pose-topic/--tf-frame: give one or two end effectors "
+            f"(got {len(sources)}: {', '.join(s.label for s in sources) or 'none'})"
+        )
+    poses = _Poses(sources)
+    frames: list[tuple[int, np.ndarray]] = []
+    need = [(points_topic, POINTS_TYPES), *poses.need()]
+    for topic, msgtype, log_ns, msg in _bag_messages(path, need):
+        if topic == points_topic:
+            t = _stamp_ns(msg, log_ns)
+            where = f"{path}: {points_topic}: frame {len(frames)} (t = {t / 1e9:.6f} s)"
+            frames.append((t, _xy(msg, msgtype, where)))
+        if topic in poses.topics():
+            poses.add(topic, msgtype, log_ns, msg)
     if not frames:
         raise UserError(f"{path}: topic {points_topic} has no messages")
     frames.sort(key=lambda f: f[0])
     n = len(frames[0][1])
+    ft = np.array([f[0] for f in frames], dtype=np.int64)
+    t0 = int(ft[0])
     for k, (t, xy) in enumerate(frames):
         if len(xy) != n or n < 2:
             raise UserError(
-                f"{path}: {points_topic}: frame {k} (t = {t / 1e9:.6f} s) has {len(xy)} points, "
-                f"frame 0 has {n} (need the same N >= 2 in every frame)"
+                f"{path}: {points_topic}: frame {k} (t = {(t - t0) / 1e9:.6f} s) has {len(xy)} "
+                f"points, frame 0 has {n} (need the same N >= 2 in every frame)"
             )
-    ft = np.array([f[0] for f in frames], dtype=np.int64)
-    t0 = int(ft[0])
+        if not np.isfinite(xy).all():
+            i = int(np.argmax(~np.isfinite(xy).all(axis=1)))
+            raise UserError(
+                f"{path}: {points_topic}: frame {k} (t = {(t - t0) / 1e9:.6f} s): point {i} is "
+                "not a finite number"
+            )
     frame_t = (ft - t0) / 1e9
     mask = np.ones(len(frames), dtype=bool)
     synced = []
-    for topic in pose_topics:
-        if not poses[topic]:
-            raise UserError(f"{path}: topic {topic} has no messages")
-        pt = (np.array([p[0] for p in poses[topic]], dtype=np.int64) - t0) / 1e9
-        pv = np.array([p[1] for p in poses[topic]], dtype=float)
-        vals, inside = sync_poses(frame_t, pt, pv, topic, tolerance)
+    for src in sources:
+        rows = poses.get(path, src)
+        pt = (np.array([p[0] for p in rows], dtype=np.int64) - t0) / 1e9
+        pv = np.array([p[1] for p in rows], dtype=float)
+        vals, inside = sync_poses(frame_t, pt, pv, src.label, tolerance)
         full = np.full((len(frames), 3), np.nan)
         full[inside] = vals
         synced.append(full)
@@ -409,20 +574,23 @@ def read_bag_images(
     bag: str | Path,
     image_topic: str,
     info_topic: str | None,
-    pose_topic: str,
+    pose_topic: str | PoseSource,
     camera: Any,
     clamp_pose: Sequence[float],
     *,
     hsv_low: Sequence[int],
     hsv_high: Sequence[int],
     tolerance: float = 0.2,
+    calibration: Any = None,
 ) -> tuple[Any, np.ndarray, Any, list[str]]:
     """Frames of a bag's image topic segmented and their centerline extracted.
 
     The camera's intrinsics come from the first CameraInfo on `info_topic` (K; D undistorts
-    each frame), its pose and the extraction settings from `camera` (a `CameraConfig`); the
-    gripper pose (`pose_topic`, PoseStamped) is interpolated at each frame's time and given to
-    the extractor as its hint; the walk starts at the fixed `clamp_pose` [x, y, theta].
+    each frame), its pose and the extraction settings from `camera` (a `CameraConfig`), or
+    the pose from `calibration` (`rodctl.recordings.calibration.Calibration`) when given; the
+    gripper pose (`pose_topic`: a PoseStamped topic or a tf `PoseSource`) is interpolated at
+    each frame's time and given to the extractor as its hint; the walk starts at the fixed
+    `clamp_pose` [x, y, theta].
 
     Returns:
         (PointsRecording of the pixel centerlines, (T, N, 2) world centerlines on the rod's
@@ -432,48 +600,25 @@ def read_bag_images(
         UserError: the errors of `read_bag_points` for topics and sync, and a frame where
             the segmentation finds no rod or the extractor loses it (topic and time named).
     """
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
     path = Path(bag)
-    try:
-        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
-        reader.open()
-    except Exception as exc:  # noqa: BLE001
-        raise UserError(f"{path}: not a readable ROS 2 bag ({exc})") from None
+    src = pose_topic if isinstance(pose_topic, PoseSource) else PoseSource(pose_topic)
+    poses = _Poses([src])
     frames: list[tuple[int, np.ndarray]] = []
-    poses: list[tuple[int, list[float]]] = []
     info = None
-    try:
-        types = {c.topic: c.msgtype for c in reader.connections}
-        listing = ", ".join(f"{t} ({m})" for t, m in sorted(types.items())) or "none"
-        need = [(image_topic, IMAGE_TYPES), (pose_topic, ("geometry_msgs/msg/PoseStamped",))]
-        if info_topic:
-            need.append((info_topic, ("sensor_msgs/msg/CameraInfo",)))
-        for topic, allowed in need:
-            if topic not in types:
-                raise UserError(f"{path}: no topic {topic}; the bag has: {listing}")
-            if types[topic] not in allowed:
-                raise UserError(
-                    f"{path}: topic {topic} is {types[topic]}, expected {' or '.join(allowed)}"
-                )
-        wanted = [c for c in reader.connections if c.topic in {image_topic, pose_topic, info_topic}]
-        for conn, log_ns, raw in reader.messages(connections=wanted):
-            msg = reader.deserialize(raw, conn.msgtype)
+    need = [(image_topic, IMAGE_TYPES), *poses.need()]
+    if info_topic:
+        need.append((info_topic, ("sensor_msgs/msg/CameraInfo",)))
+    for topic, msgtype, log_ns, msg in _bag_messages(path, need):
+        if topic == image_topic:
             t = _stamp_ns(msg, log_ns)
-            if conn.topic == image_topic:
-                frames.append((t, _rgb(msg, conn.msgtype, f"{image_topic} at t = {t / 1e9:.6f} s")))
-            elif conn.topic == pose_topic:
-                p = msg.pose
-                poses.append((t, [p.position.x, p.position.y, _yaw(p.orientation)]))
-            elif info is None:
-                info = msg
-    finally:
-        reader.close()
+            frames.append((t, _rgb(msg, msgtype, f"{image_topic} at t = {t / 1e9:.6f} s")))
+        elif topic == src.topic:
+            poses.add(topic, msgtype, log_ns, msg)
+        elif info is None:
+            info = msg
     if not frames:
         raise UserError(f"{path}: topic {image_topic} has no messages")
-    if not poses:
-        raise UserError(f"{path}: topic {pose_topic} has no messages")
+    pose_rows = poses.get(path, src)
     if info_topic and info is None:
         raise UserError(f"{path}: topic {info_topic} has no messages")
     frames.sort(key=lambda f: f[0])
@@ -485,8 +630,8 @@ def read_bag_images(
                     "height": int(info.height) or camera.height}
         )  # fmt: skip
     return extract_frames(
-        str(path), image_topic, frames, pose_topic, poses, camera, clamp_pose, KD,
-        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+        str(path), image_topic, frames, src.label, pose_rows, camera, clamp_pose, KD,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
     )  # fmt: skip
 
 
@@ -503,11 +648,14 @@ def extract_frames(
     hsv_low: Sequence[int],
     hsv_high: Sequence[int],
     tolerance: float,
+    calibration: Any = None,
 ) -> tuple[Any, np.ndarray, Any, list[str]]:
     """Segment and extract time-sorted frames [(t_ns, RGB image or a () -> image loader)]
     with the gripper poses [(t_ns, [x, y, theta])] interpolated at their times; K, D (when
-    given) replace the camera's intrinsics and undistort. The body of `read_bag_images` and of
-    the image-folder import; see `read_bag_images` for the result and the errors."""
+    given) replace the camera's intrinsics and undistort; a `calibration` replaces the camera
+    config's pose over the plane (`rodctl.recordings.calibration`). The body of
+    `read_bag_images`, of the image-folder and of the video import; see `read_bag_images` for
+    the result and the errors."""
     import cv2
 
     from rodctl.recordings.segment import hsv_mask, mask_image
@@ -535,12 +683,16 @@ def extract_frames(
             f"{camera.width}x{camera.height}"
         )
     cam = Camera(camera)
+    notes = []
+    if calibration is not None:
+        dist = D if D is not None else np.zeros(5)
+        cam, note = calibration.camera(camera, cam.camera_matrix, dist)
+        notes.append(note)
     extractor = CenterlineExtractor(camera, cam, np.asarray(clamp_pose, dtype=float))
     t0 = frames[0][0]
     ft = (np.array([f[0] for f in frames], dtype=np.int64) - t0) / 1e9
     pt = (np.array([p[0] for p in poses], dtype=np.int64) - t0) / 1e9
     grip, inside = sync_poses(ft, pt, np.array([p[1] for p in poses]), pose_topic, tolerance)
-    notes = []
     if not inside.all():
         notes.append(
             f"{int((~inside).sum())} of {len(frames)} frames lie outside the poses' time span "

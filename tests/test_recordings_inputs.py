@@ -1,0 +1,577 @@
+"""More recording inputs (issue #26): tf poses, PointCloud2 points, a topic mapping YAML, video,
+calibration from an extrinsic or marked points, estimate plots, an encoder trained on a
+recording; and the bad input of each (exit 2 naming the topic, key or file)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from rodctl.cli import app
+from rodctl.replay import read_run
+
+FAST = ["--set", "feature.type=bezier", "--set", "run.max_steps=12", "-q"]
+
+
+def _ns(t: float) -> int:
+    return int(round(t * 1e9)) + 10**18
+
+
+def _ts():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
+def _tf_msg(ts, t: float, frames: dict[str, list[float]]):
+    """A TFMessage with one TransformStamped per child frame: world -> child, planar pose."""
+    from rodctl.recordings.ros2 import _header
+
+    T = ts.types
+    out = []
+    for child, (x, y, th) in frames.items():
+        tr = T["geometry_msgs/msg/Transform"](
+            translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0),
+            rotation=T["geometry_msgs/msg/Quaternion"](
+                x=0.0, y=0.0, z=math.sin(th / 2), w=math.cos(th / 2)
+            ),
+        )
+        out.append(
+            T["geometry_msgs/msg/TransformStamped"](
+                header=_header(ts, _ns(t), "world"), child_frame_id=child, transform=tr
+            )
+        )
+    return T["tf2_msgs/msg/TFMessage"](transforms=out)
+
+
+def _cloud(ts, t: float, xy: np.ndarray, *, big: bool = False, bad_type: int | None = None):
+    """A PointCloud2 of the points: little endian x, y, z FLOAT32 + an intensity, point_step 16
+    and height 1; or (big) big-endian FLOAT64 x at offset 8, y at 0, point_step 24, two rows
+    padded by 8 bytes each."""
+    from rodctl.recordings.ros2 import _header
+
+    T = ts.types
+    F = T["sensor_msgs/msg/PointField"]
+    n = len(xy)
+    if not big:
+        rec = np.zeros(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("i", "<f4")])
+        rec["x"], rec["y"], rec["i"] = xy[:, 0], xy[:, 1], 7.0
+        fields = [
+            F(name="x", offset=0, datatype=bad_type or 7, count=1),
+            F(name="y", offset=4, datatype=7, count=1),
+            F(name="z", offset=8, datatype=7, count=1),
+            F(name="intensity", offset=12, datatype=7, count=1),
+        ]
+        data, h, w, step, row = rec.tobytes(), 1, n, 16, 16 * n
+    else:
+        assert n % 2 == 0
+        dt = np.dtype(
+            {"names": ["y", "x"], "formats": [">f8", ">f8"], "offsets": [0, 8], "itemsize": 24}
+        )
+        rec = np.zeros(n, dtype=dt)
+        rec["x"], rec["y"] = xy[:, 0], xy[:, 1]
+        rows = rec.tobytes()
+        half = 24 * (n // 2)
+        data = rows[:half] + b"\0" * 8 + rows[half:] + b"\0" * 8
+        fields = [
+            F(name="y", offset=0, datatype=8, count=1),
+            F(name="x", offset=8, datatype=8, count=1),
+        ]
+        h, w, step, row = 2, n // 2, 24, half + 8
+    return T["sensor_msgs/msg/PointCloud2"](
+        header=_header(ts, _ns(t), "world"),
+        height=h,
+        width=w,
+        fields=fields,
+        is_bigendian=big,
+        point_step=step,
+        row_step=row,
+        data=np.frombuffer(data, dtype=np.uint8),
+        is_dense=True,
+    )
+
+
+def _points_bag(path: Path, frames, *, kind: str = "marker", tf=None, storage="sqlite3", **kw):
+    """A bag with tracked points on /tracker/points (MarkerArray or PointCloud2) and, when
+    `tf` = [(t, {child: pose})], a /tf topic."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from rodctl.recordings.ros2 import line_marker
+
+    ts = _ts()
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    pts_type = {
+        "marker": "visualization_msgs/msg/MarkerArray",
+        "cloud": "sensor_msgs/msg/PointCloud2",
+    }[kind]
+    with Writer(path, version=8, storage_plugin=plugin) as w:
+        c_pts = w.add_connection("/tracker/points", pts_type, typestore=ts)
+        c_tf = w.add_connection("/tf", "tf2_msgs/msg/TFMessage", typestore=ts) if tf else None
+        for t, xy in frames:
+            if kind == "marker":
+                msg = ts.types[pts_type](markers=[line_marker(ts, _ns(t), xy)])
+            else:
+                msg = _cloud(ts, t, xy, **kw)
+            w.write(c_pts, _ns(t), ts.serialize_cdr(msg, pts_type))
+        for t, fr in tf or []:
+            w.write(c_tf, _ns(t), ts.serialize_cdr(_tf_msg(ts, t, fr), c_tf.msgtype))
+
+
+def _last_line(res) -> Path:
+    return Path(res.stdout.strip().splitlines()[-1])
+
+
+def _two_arm_motion(t: float) -> dict[str, list[float]]:
+    return {
+        "left_tool": [0.3 + 0.05 * t, -0.1 * t, 0.2 * t],
+        "right_tool": [0.9 - 0.02 * t, 0.04 * t, -0.3 * t],
+        "camera_link": [0.0, 0.0, 0.0],
+    }
+
+
+def test_tf_frames_give_two_end_effectors_interpolated_at_the_frames(tmp_path):
+    line = np.array([[0.0, 0.0], [0.1, 0.02], [0.2, 0.0]])
+    frames = [(0.1 * k, line + 0.001 * k) for k in range(10)]
+    tf = [(t, _two_arm_motion(t)) for t in np.arange(-0.05, 1.1, 1 / 7)]
+    _points_bag(tmp_path / "bag", frames, tf=tf, storage="mcap")
+    res = CliRunner().invoke(
+        app,
+        [
+            "import",
+            str(tmp_path / "bag"),
+            "--points-topic",
+            "/tracker/points",
+            "--tf-frame",
+            "left_tool",
+            "--tf-frame",
+            "/right_tool",
+            "-o",
+            str(tmp_path / "r"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    run = read_run(_last_line(res), images=False)
+    assert len(run.records) == 10
+    for k, r in enumerate(run.records):
+        want = _two_arm_motion(0.1 * k)
+        assert np.allclose(r.gripper, want["left_tool"], atol=1e-9)
+        if k:  # u = the change of both ends' poses since the previous frame (q = 6)
+            prev = _two_arm_motion(0.1 * (k - 1))
+            du = np.r_[
+                np.subtract(want["left_tool"], prev["left_tool"]),
+                np.subtract(want["right_tool"], prev["right_tool"]),
+            ]
+            assert np.allclose(r.u, du, atol=1e-9)
+    assert yaml.safe_load(run.header.config_yaml)["source"]["q"] == 6
+
+
+def test_a_topic_mapping_yaml_chooses_the_topics_and_flags_replace_its_keys(tmp_path):
+    line = np.array([[0.0, 0.0], [0.1, 0.02], [0.2, 0.0], [0.3, 0.01]])
+    frames = [(0.1 * k, line + 0.002 * k) for k in range(8)]
+    tf = [(0.05 * k, _two_arm_motion(0.05 * k)) for k in range(20)]
+    _points_bag(tmp_path / "bag", frames, kind="cloud", tf=tf)
+    m = tmp_path / "topics.yaml"
+    m.write_text("points: /tracker/points\ntf:\n  frames: [right_tool]\n")
+    res = CliRunner().invoke(
+        app, ["import", str(tmp_path / "bag"), "--topics", str(m), "-o", str(tmp_path / "r")]
+    )
+    assert res.exit_code == 0, res.output
+    run = read_run(_last_line(res), images=False)
+    assert np.allclose(run.records[3].gripper, _two_arm_motion(0.3)["right_tool"], atol=1e-9)
+    assert np.allclose(run.records[3].centerline, frames[3][1], atol=1e-7)  # float32 cloud
+    res = CliRunner().invoke(
+        app,
+        [
+            "import",
+            str(tmp_path / "bag"),
+            "--topics",
+            str(m),
+            "--tf-frame",
+            "left_tool",
+            "-o",
+            str(tmp_path / "r"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    run = read_run(_last_line(res), images=False)
+    assert np.allclose(run.records[3].gripper, _two_arm_motion(0.3)["left_tool"], atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("points: /p\nimgae: /cam\n", "imgae: unknown key"),
+        ("points: /p\nposes: [/a, /b, /c]\n", "poses:"),
+        ("points: /p\ntf:\n  frames: []\n", "tf.frames:"),
+        ("points: /p\nimage: /cam\n", "not both"),
+    ],
+)
+def test_a_bad_topic_mapping_exits_2_naming_the_key(tmp_path, text, needle):
+    m = tmp_path / "topics.yaml"
+    m.write_text(text)
+    (tmp_path / "bag").mkdir()
+    res = CliRunner().invoke(app, ["import", str(tmp_path / "bag"), "--topics", str(m)])
+    assert res.exit_code == 2, res.output
+    assert needle in res.output and "topics.yaml" in res.output, res.output
+
+
+def test_point_clouds_decode_by_their_layout_big_endian_padded_rows(tmp_path):
+    rng = np.random.default_rng(0)
+    frames = [(0.1 * k, rng.uniform(-1, 1, (6, 2))) for k in range(5)]
+    tf = [(0.05 * k, _two_arm_motion(0.05 * k)) for k in range(12)]
+    _points_bag(tmp_path / "bag", frames, kind="cloud", tf=tf, big=True)
+    res = CliRunner().invoke(
+        app,
+        [
+            "import",
+            str(tmp_path / "bag"),
+            "--points-topic",
+            "/tracker/points",
+            "--tf-frame",
+            "left_tool",
+            "-o",
+            str(tmp_path / "r"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    run = read_run(_last_line(res), images=False)
+    for (_, xy), r in zip(frames, run.records, strict=True):
+        assert np.array_equal(r.centerline, xy)  # float64: bit for bit, in storage order
+
+
+@pytest.mark.parametrize(
+    ("case", "needles"),
+    [
+        ("int16_x", ["/tracker/points", "unsupported PointCloud2 layout", "INT16"]),
+        ("no_tf_topic", ["no topic /tf", "/tracker/points (sensor_msgs/msg/PointCloud2)"]),
+        ("missing_frame", ["no transform to child frame 'gripper'", "left_tool, right_tool"]),
+        ("no_overlap", ["/tf (child frame left_tool)", "do not overlap"]),
+    ],
+)
+def test_bad_bag_input_exits_2_naming_the_topic(tmp_path, case, needles):
+    line = np.array([[0.0, 0.0], [0.1, 0.02], [0.2, 0.0]])
+    frames = [(0.1 * k, line) for k in range(6)]
+    t_tf = np.arange(5.0, 6.0, 0.1) if case == "no_overlap" else np.arange(0.0, 0.7, 0.05)
+    tf = None if case == "no_tf_topic" else [(t, _two_arm_motion(t)) for t in t_tf]
+    kw = {"bad_type": 3} if case == "int16_x" else {}
+    _points_bag(tmp_path / "bag", frames, kind="cloud", tf=tf, **kw)
+    frame = "gripper" if case == "missing_frame" else "left_tool"
+    res = CliRunner().invoke(
+        app,
+        [
+            "import",
+            str(tmp_path / "bag"),
+            "--points-topic",
+            "/tracker/points",
+            "--tf-frame",
+            frame,
+            "-o",
+            str(tmp_path / "r"),
+        ],
+    )
+    assert res.exit_code == 2, res.output
+    for n in needles:
+        assert n in res.output, res.output
+    assert not (tmp_path / "r").exists() or not any((tmp_path / "r").iterdir())
+
+
+# --- camera frames: video, calibration -------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sim_frames(tmp_path_factory):
+    """A short simulated run, its camera config and its frames re-lit on a textured scene."""
+    from rodctl.config.camera import CameraConfig
+    from tests.test_estimate import _textured
+
+    out = tmp_path_factory.mktemp("runs")
+    res = CliRunner().invoke(app, ["simulate", "configs/default.yaml", *FAST, "--out", str(out)])
+    assert res.exit_code in (0, 1), res.output
+    run_dir = _last_line(res)
+    run = read_run(run_dir, images=True)
+    cam_cfg = CameraConfig.model_validate(yaml.safe_load(run.header.config_yaml)["camera"])
+    framed = [r for r in run.records if r.image is not None]
+    images = _textured([r.image for r in framed], cam_cfg, run.header, seed=2)
+    return run_dir, run, cam_cfg, framed, images
+
+
+def _poses_csv(path: Path, run, t0: float) -> Path:
+    rows = ["t,x,y,theta"] + [
+        ",".join(repr(float(v)) for v in (r.sim_time - t0, *r.gripper)) for r in run.records
+    ]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def _video(path: Path, images, fps: float = 10.0) -> Path:
+    import cv2
+
+    h, w = images[0].shape[:2]
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
+    assert vw.isOpened()
+    for img in images:
+        vw.write(cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    vw.release()
+    return path
+
+
+def test_a_video_with_poses_imports_within_a_pixel_of_the_truth(sim_frames, tmp_path):
+    run_dir, run, _, framed, images = sim_frames
+    t0 = float(framed[0].sim_time)
+    video = _video(tmp_path / "rod.avi", images)
+    times = tmp_path / "times.csv"
+    times.write_text("t\n" + "".join(f"{float(r.sim_time) - t0!r}\n" for r in framed))
+    poses = _poses_csv(tmp_path / "poses.csv", run, t0)
+    res = CliRunner().invoke(
+        app,
+        [
+            "import",
+            str(video),
+            "--poses",
+            str(poses),
+            "--frame-times",
+            str(times),
+            "--camera",
+            str(run_dir / "config.yaml"),
+            "--tolerance",
+            "1",
+            "--clamp-pose",
+            ",".join(repr(float(v)) for v in run.header.clamp_pose),
+            "-o",
+            str(tmp_path / "r"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    back = read_run(_last_line(res), images=False)
+    assert len(back.records) == len(framed) >= 3
+    for r, b in zip(framed, back.records, strict=True):
+        err = np.sqrt(((b.extracted - r.projected_truth) ** 2).sum(axis=1))
+        assert err.max() <= 1.0, (r.step, err.max())  # through MJPG's JPEG compression
+        assert np.allclose(b.gripper, r.gripper, atol=1e-9)
+
+
+def test_video_frame_times_from_fps_and_an_unreadable_video(sim_frames, tmp_path):
+    from rodctl.recordings.video import read_video
+
+    _, run, _, _, images = sim_frames
+    video = _video(tmp_path / "rod.avi", images[:4], fps=8.0)
+    poses = _poses_csv(tmp_path / "poses.csv", run, 0.0)
+    frames, _, used = read_video(video, poses)  # the container's own fps
+    assert [f[0] for f in frames] == [int(round(k / 8.0 * 1e9)) for k in range(4)]
+    assert used == {"frames": 4, "fps": 8.0}
+    assert frames[2][1]().shape == images[0].shape
+    frames, _, _ = read_video(video, poses, fps=20.0)
+    assert frames[3][0] == 150_000_000
+    bad = tmp_path / "broken.avi"
+    bad.write_bytes(b"RIFF not really a video" * 50)
+    res = CliRunner().invoke(
+        app,
+        [
+            "import",
+            str(bad),
+            "--poses",
+            str(poses),
+            "--camera",
+            "configs/default.yaml",
+            "--clamp-pose",
+            "0,0,0",
+        ],
+    )
+    assert res.exit_code == 2, res.output
+    assert "broken.avi" in res.output and "not a video OpenCV can read" in res.output
+
+
+def test_a_calibration_reproduces_rodctls_camera_model():
+    """The extrinsic (R|t with K) and the homography of 6 marked points give the camera's own
+    projection, for a tilted and turned camera."""
+    from rodctl.config.camera import CameraConfig
+    from rodctl.recordings.calibration import Calibration
+    from rodctl.vision.camera import Camera
+
+    cfg = CameraConfig(tilt_deg=25.0, azimuth_deg=12.0, look_at=(0.3, -0.05))
+    cam = Camera(cfg)
+    plane = np.array([[0.0, 0.0], [0.5, 0.1], [0.2, -0.3], [0.6, -0.2], [0.1, 0.25], [0.4, 0.0]])
+    grid = np.random.default_rng(1).uniform(-0.2, 0.7, (50, 2))
+    K, D = cam.camera_matrix, np.zeros(5)
+    ext, _ = Calibration(rotation=cam.rotation, translation=cam.translation).camera(cfg, K, D)
+    marked = Calibration(pixels=cam.project(plane), plane=plane)
+    hom, note = marked.camera(cfg, K, D)
+    assert "RMS reprojection 0.000 px" in note
+    for c in (ext, hom):
+        assert np.allclose(c.project(grid), cam.project(grid), atol=1e-6)
+        assert np.allclose(c.unproject(cam.project(grid)), grid, atol=1e-9)
+    # marked on a distorted image: undistorted before the fit, so the same model comes back
+    import cv2
+
+    D = np.array([-0.12, 0.03, 0.0, 0.0, 0.0])
+    norm = cv2.undistortPoints(cam.project(plane).reshape(-1, 1, 2), K, None).reshape(-1, 2)
+    raw, _ = cv2.projectPoints(np.c_[norm, np.ones(len(norm))], np.zeros(3), np.zeros(3), K, D)
+    back, _ = Calibration(pixels=raw.reshape(-1, 2), plane=plane).camera(cfg, K, D)
+    assert np.allclose(back.project(grid), cam.project(grid), atol=1e-3)
+
+
+@pytest.mark.parametrize("how", ["plane_points", "extrinsic"])
+def test_a_calibration_replaces_a_wrong_camera_pose_in_an_image_import(sim_frames, tmp_path, how):
+    import cv2
+
+    from rodctl.vision.camera import Camera
+
+    run_dir, run, cam_cfg, framed, images = sim_frames
+    images, framed = images[:4], framed[:4]
+    cam = Camera(cam_cfg)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    lines = ["file,t"]
+    for k, (r, img) in enumerate(zip(framed, images, strict=True)):
+        cv2.imwrite(str(folder / f"f{k}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        lines.append(f"f{k}.png,{float(r.sim_time)!r}")
+    (folder / "frames.csv").write_text("\n".join(lines) + "\n")
+    poses = _poses_csv(tmp_path / "poses.csv", run, 0.0)
+    wrong = {
+        "camera": {
+            **cam_cfg.model_dump(mode="json"),
+            "distance": cam_cfg.distance * 1.3,
+            "tilt_deg": cam_cfg.tilt_deg + 10.0,
+        }
+    }
+    (tmp_path / "wrong.yaml").write_text(yaml.safe_dump(wrong))
+    plane = np.array([[0.0, 0.1], [0.4, 0.15], [0.1, -0.25], [0.5, -0.2], [0.25, 0.0]])
+    if how == "plane_points":
+        calib = {
+            "plane_points": [
+                {"pixel": [float(a), float(b)], "plane": [float(c), float(d)]}
+                for (a, b), (c, d) in zip(cam.project(plane), plane, strict=True)
+            ]
+        }
+    else:
+        calib = {"extrinsic": {"rvec": cam.rvec.tolist(), "translation": cam.tvec.tolist()}}
+    (tmp_path / "calib.yaml").write_text(yaml.safe_dump(calib))
+    args = [
+        "import",
+        str(folder),
+        "--poses",
+        str(poses),
+        "--camera",
+        str(tmp_path / "wrong.yaml"),
+        "--clamp-pose",
+        ",".join(repr(float(v)) for v in run.header.clamp_pose),
+        "--tolerance",
+        "1",
+        "-o",
+        str(tmp_path / "r"),
+    ]
+    res = CliRunner().invoke(app, args)  # the wrong pose alone: the rod is lost or misplaced
+    if res.exit_code == 0:
+        b = read_run(_last_line(res), images=False).records[0]
+        assert np.abs(b.centerline[-1] - framed[0].centerline[-1]).max() > 0.02
+    else:
+        assert res.exit_code == 2, res.output
+    res = CliRunner().invoke(app, [*args, "--calibration", str(tmp_path / "calib.yaml")])
+    assert res.exit_code == 0, res.output
+    back = read_run(_last_line(res), images=False)
+    for r, b in zip(framed, back.records, strict=True):
+        assert np.sqrt(((b.extracted - r.projected_truth) ** 2).sum(axis=1)).max() <= 1.0
+        # the world centerline is unprojected through the calibration, not the wrong pose
+        assert np.abs(b.centerline[-1] - r.centerline[-1]).max() < 3e-3
+    source = yaml.safe_load(back.header.config_yaml)["source"]
+    assert source["calibration"]["kind"] == how
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        (
+            "plane_points:\n  - {pixel: [1, 2], plane: [0, 0]}\n",
+            "plane_points: List should have at least 4",
+        ),
+        (
+            "extrinsic: {rotation: [[1, 0, 0], [0, 2, 0], [0, 0, 1]], translation: [0, 0, 1]}\n",
+            "extrinsic.rotation: not a rotation",
+        ),
+        ("extrinsic: {rvec: [0, 0, 0]}\n", "extrinsic.translation: required key is missing"),
+        ("homography: 1\n", "homography: unknown key"),
+    ],
+)
+def test_a_bad_calibration_exits_2_naming_the_key(tmp_path, text, needle):
+    (tmp_path / "c.yaml").write_text(text)
+    res = CliRunner().invoke(app, ["import", "x.avi", "--calibration", str(tmp_path / "c.yaml")])
+    assert res.exit_code == 2, res.output
+    assert needle in res.output and "c.yaml" in res.output, res.output
+
+
+# --- estimate plots; an encoder trained on a recording --------------------------------------
+
+
+def test_estimate_writes_plots_and_a_table(tmp_path):
+    from rodctl.recordings.points import write_points_csv
+    from rodctl.recordings.synthetic import dual_arm_recording
+
+    path = write_points_csv(dual_arm_recording(80, seed=3, points=4), tmp_path / "rec.csv")
+    res = CliRunner().invoke(app, ["estimate", str(path), "-e", "broyden", "-e", "akf"])
+    assert res.exit_code == 0, res.output
+    out = _last_line(res)
+    for name in ("errors.png", "medians.png"):
+        head = (out / name).read_bytes()[:8]
+        assert head == b"\x89PNG\r\n\x1a\n", name
+    assert "ratio_to_zero_motion" in res.stderr and "broyden" in res.stderr
+
+
+def test_an_encoder_trained_on_an_imported_recording_estimates(tmp_path):
+    pytest.importorskip("torch")
+    from rodctl.recordings.points import write_points_csv
+    from rodctl.recordings.synthetic import dual_arm_recording
+
+    rec = write_points_csv(dual_arm_recording(60, seed=4, points=8), tmp_path / "rec.csv")
+    res = CliRunner().invoke(app, ["import", str(rec), "-o", str(tmp_path / "runs")])
+    assert res.exit_code == 0, res.output
+    imported = _last_line(res)
+    res = CliRunner().invoke(
+        app,
+        [
+            "train-encoder",
+            "configs/default.yaml",
+            "--dataset",
+            str(imported),
+            "--set",
+            "feature.type=autoencoder",
+            "--set",
+            "feature.training.epochs=20",
+            "--set",
+            "feature.hidden=[16]",
+            "--set",
+            "feature.latent_dim=4",
+            "-o",
+            str(tmp_path / "runs"),
+            "-q",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    trained = _last_line(res)
+    assert (trained / "encoder.npz").is_file() and (trained / "dataset.npz").is_file()
+    res = CliRunner().invoke(
+        app,
+        [
+            "estimate",
+            str(imported),
+            "--feature",
+            "autoencoder",
+            "--checkpoint",
+            str(trained / "encoder.npz"),
+            "-e",
+            "broyden",
+            "--init",
+            "30",
+            "--no-plots",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    import csv
+
+    rows = list(csv.DictReader((_last_line(res) / "results.csv").open()))
+    assert [r["feature"] for r in rows] == ["autoencoder"] * 3
+    assert rows[2]["outcome"] == "completed" and int(rows[2]["updates"]) == 60 - 30
