@@ -40,7 +40,8 @@ def test_estimate_on_a_simulated_run_reproduces_its_live_estimates_bit_for_bit(s
 def test_estimate_command_on_a_run_writes_results_and_steps(sim_run, tmp_path):
     out = tmp_path / "est"
     res = CliRunner().invoke(
-        app, ["estimate", str(sim_run), "-e", "akf", "-e", "broyden", "--out", str(out)]
+        app,
+        ["estimate", str(sim_run), "-e", "akf", "-e", "broyden", "--out", str(out), "--no-plots"],
     )
     assert res.exit_code == 0, res.output
     assert res.stdout.strip().splitlines()[-1] == str(out)
@@ -63,7 +64,18 @@ def test_a_two_end_points_recording_reads_back_and_estimates(tmp_path):
     out = tmp_path / "est"
     res = CliRunner().invoke(
         app,
-        ["estimate", str(path), "-e", "broyden", "-e", "windowed_ls", "--scaled", "-o", str(out)],
+        [
+            "estimate",
+            str(path),
+            "-e",
+            "broyden",
+            "-e",
+            "windowed_ls",
+            "--scaled",
+            "-o",
+            str(out),
+            "--no-plots",
+        ],
     )
     assert res.exit_code == 0, res.output
     rows = {r["estimator"]: r for r in csv.DictReader((out / "results.csv").open())}

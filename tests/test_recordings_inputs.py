@@ -575,3 +575,55 @@ def test_an_encoder_trained_on_an_imported_recording_estimates(tmp_path):
     rows = list(csv.DictReader((_last_line(res) / "results.csv").open()))
     assert [r["feature"] for r in rows] == ["autoencoder"] * 3
     assert rows[2]["outcome"] == "completed" and int(rows[2]["updates"]) == 60 - 30
+
+
+def test_camera_frames_with_a_tf_gripper_chosen_by_a_topic_mapping(sim_frames, tmp_path):
+    from rosbags.rosbag2 import Writer
+
+    from rodctl.recordings.ros2 import _header
+    from rodctl.vision.camera import Camera
+
+    run_dir, run, cam_cfg, framed, images = sim_frames
+    framed, images = framed[:3], images[:3]
+    ts = _ts()
+    T = ts.types
+    K = Camera(cam_cfg).camera_matrix
+    with Writer(tmp_path / "bag", version=8) as w:
+        c_img = w.add_connection("/cam/image", "sensor_msgs/msg/Image", typestore=ts)
+        c_info = w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+        c_tf = w.add_connection("/tf", "tf2_msgs/msg/TFMessage", typestore=ts)
+        for r in run.records:
+            msg = _tf_msg(ts, r.sim_time, {"tool0": list(r.gripper[:3]), "base": [0.0] * 3})
+            w.write(c_tf, _ns(r.sim_time), ts.serialize_cdr(msg, c_tf.msgtype))
+        for r, img in zip(framed, images, strict=True):
+            ns = _ns(r.sim_time)
+            hd = _header(ts, ns, "camera")
+            h, wd = img.shape[:2]
+            msg = T["sensor_msgs/msg/Image"](
+                header=hd, height=h, width=wd, encoding="rgb8", is_bigendian=0, step=3 * wd,
+                data=img.reshape(-1),
+            )  # fmt: skip
+            w.write(c_img, ns, ts.serialize_cdr(msg, c_img.msgtype))
+            info = T["sensor_msgs/msg/CameraInfo"](
+                header=hd, height=h, width=wd, distortion_model="plumb_bob", d=np.zeros(5),
+                k=K.reshape(-1), r=np.eye(3).reshape(-1),
+                p=np.hstack([K, np.zeros((3, 1))]).reshape(-1), binning_x=0, binning_y=0,
+                roi=T["sensor_msgs/msg/RegionOfInterest"](
+                    x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+                ),
+            )  # fmt: skip
+            w.write(c_info, ns, ts.serialize_cdr(info, c_info.msgtype))
+    m = tmp_path / "topics.yaml"
+    m.write_text("image: /cam/image\ncamera_info: /cam/info\ntf: {frames: [tool0]}\n")
+    res = CliRunner().invoke(
+        app,
+        ["import", str(tmp_path / "bag"), "--topics", str(m), "--camera",
+         str(run_dir / "config.yaml"), "--tolerance", "1", "-o", str(tmp_path / "r"),
+         "--clamp-pose", ",".join(repr(float(v)) for v in run.header.clamp_pose)],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    back = read_run(_last_line(res), images=False)
+    assert len(back.records) == 3
+    for r, b in zip(framed, back.records, strict=True):
+        assert np.sqrt(((b.extracted - r.projected_truth) ** 2).sum(axis=1)).max() <= 1.0
+        assert np.allclose(b.gripper, r.gripper, atol=1e-9)
