@@ -963,6 +963,14 @@ def import_recording(
     frame_times: Annotated[
         str | None, typer.Option("--frame-times", help="Video: CSV with each frame's t.")
     ] = None,
+    mask_topic: Annotated[
+        str | None,
+        typer.Option("--mask-topic", help="Bag: mono8/8UC1 rod masks, used instead of HSV."),
+    ] = None,
+    tf_world: Annotated[
+        str | None,
+        typer.Option("--tf-world", help="Bag: compose tf chains up to this frame (default root)."),
+    ] = None,
 ) -> None:
     """Turn a recording into a rodctl run folder (config.yaml, meta.json, summary.json,
     run.mcap with the contract topics) that replay, Foxglove and estimate read.
@@ -992,8 +1000,9 @@ def import_recording(
     def frames_args() -> dict:
         if not camera:
             raise UserError(f"{path}: camera frames need --camera FILE (intrinsics, pose)")
+        clamp = None if clamp_pose is None else _numbers("--clamp-pose", clamp_pose, 3, float)
         return dict(
-            camera=camera, clamp_pose=_numbers("--clamp-pose", clamp_pose, 3, float),
+            camera=camera, clamp_pose=clamp,
             hsv_low=_numbers("--hsv-low", hsv_low, 3, int),
             hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
             tolerance=tolerance, name=name, calibration=calib,
@@ -1027,22 +1036,20 @@ def import_recording(
         camera_info_topic = camera_info_topic or mapping.camera_info
         points_topic = points_topic or (None if image_topic else mapping.points)
         pose_topic = pose_topic or mapping.poses or None
+        mask_topic = mask_topic or mapping.mask
         if mapping.tf is not None:
             tf_frame = tf_frame or mapping.tf.frames
             tf_topic = tf_topic or mapping.tf.topic
+            tf_world = tf_world or mapping.tf.world
     tf_topic = tf_topic or "/tf"
     ends = len(pose_topic or []) + len(tf_frame or [])
     if Path(path).is_dir() and image_topic:
         from rodctl.recordings.importer import import_bag_images
 
-        if ends != 1:
-            raise UserError(
-                f"{path}: camera frames need one gripper: one --pose-topic or one --tf-frame"
-            )
         run_dir, notes = import_bag_images(
             path, out, image_topic=image_topic, info_topic=camera_info_topic,
-            pose_topic=(pose_topic or [None])[0], tf_frame=(tf_frame or [None])[0],
-            tf_topic=tf_topic, **frames_args(),
+            pose_topic=pose_topic or [], tf_frame=tf_frame or [], tf_topic=tf_topic,
+            tf_world=tf_world, mask_topic=mask_topic, **frames_args(),
         )  # fmt: skip
         _print_import(run_dir, notes)
         return
@@ -1055,7 +1062,7 @@ def import_recording(
             )
         run_dir, notes = import_bag(
             path, out, points_topic, pose_topic or [], tolerance=tolerance, name=name,
-            tf_frames=tf_frame or [], tf_topic=tf_topic,
+            tf_frames=tf_frame or [], tf_topic=tf_topic, tf_world=tf_world,
         )  # fmt: skip
         _print_import(run_dir, notes)
         return

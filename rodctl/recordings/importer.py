@@ -88,6 +88,7 @@ def import_bag(
     name: str | None = None,
     tf_frames: list[str] | None = None,
     tf_topic: str = "/tf",
+    tf_world: str | None = None,
 ) -> tuple[Path, list[str]]:
     """Write the tracked points and poses of a ROS 2 bag as a run folder under `out`
     (`rodctl.recordings.ros2.read_bag_points`; end effectors from PoseStamped topics, then tf
@@ -97,7 +98,13 @@ def import_bag(
 
     src = Path(bag)
     rec, notes = read_bag_points(
-        src, points_topic, pose_topics, tolerance, tf_frames=tf_frames or (), tf_topic=tf_topic
+        src,
+        points_topic,
+        pose_topics,
+        tolerance,
+        tf_frames=tf_frames or (),
+        tf_topic=tf_topic,
+        tf_world=tf_world,
     )
     source = {
         "kind": "ros2_bag",
@@ -107,7 +114,7 @@ def import_bag(
         "notes": notes,
     }
     if tf_frames:
-        source["tf"] = {"topic": tf_topic, "frames": list(tf_frames)}
+        source["tf"] = {"topic": tf_topic, "frames": list(tf_frames), "world": tf_world}
     return write_run(rec, src, out, name, source), notes
 
 
@@ -117,39 +124,65 @@ def import_bag_images(
     *,
     image_topic: str,
     info_topic: str | None,
-    pose_topic: str | None,
+    pose_topic: str | list[str] | None,
     camera: str | Path,
-    clamp_pose: list[float],
+    clamp_pose: list[float] | None,
     hsv_low: list[int],
     hsv_high: list[int],
     tolerance: float = 0.2,
     name: str | None = None,
-    tf_frame: str | None = None,
+    tf_frame: str | list[str] | None = None,
     tf_topic: str = "/tf",
+    tf_world: str | None = None,
     calibration: Any = None,
+    mask_topic: str | None = None,
 ) -> tuple[Path, list[str]]:
     """Segment and extract the rod in a bag's camera frames; write the run folder
-    (`rodctl.recordings.ros2.read_bag_images`). The gripper is `pose_topic` (PoseStamped) or
-    the tf child frame `tf_frame`; `calibration` (`rodctl.recordings.calibration`) replaces
-    the camera file's pose. The world centerline is the extracted one unprojected onto the
-    rod's plane by the calibrated camera."""
-    from rodctl.recordings.ros2 import PoseSource, camera_config, read_bag_images
+    (`rodctl.recordings.ros2.read_bag_images`). The end effectors are the PoseStamped
+    `pose_topic`(s), then the tf child frame(s) `tf_frame`: one (the gripper; the rod starts
+    at the fixed `clamp_pose`) or two (the rod runs from end effector 0 to 1); `mask_topic`
+    replaces the HSV threshold; `calibration` (`rodctl.recordings.calibration`) replaces the
+    camera file's pose. The world centerline is the extracted one unprojected onto the rod's
+    plane by the calibrated camera."""
+    from rodctl.recordings.ros2 import camera_config, pose_sources, read_bag_images
+
+    def listed(v: str | list[str] | None) -> list[str]:
+        return [v] if isinstance(v, str) else [x for x in v or [] if x]
 
     src = Path(bag)
     cam_cfg = camera_config(camera)
-    grip = PoseSource(tf_topic, tf_frame.lstrip("/")) if tf_frame else PoseSource(pose_topic or "")
+    pose_topics, tf_frames = listed(pose_topic), listed(tf_frame)
+    ends = pose_sources(pose_topics, tf_frames, tf_topic, tf_world)
+    if not 1 <= len(ends) <= 2:
+        raise UserError(
+            f"{src}: camera frames need one or two end effectors (--pose-topic, --tf-frame); "
+            f"got {len(ends)}"
+        )
+    if len(ends) == 2 and clamp_pose is not None:
+        raise UserError(
+            "--clamp-pose: with two end effectors the rod's walk starts at end effector 0's "
+            "pose in each frame; leave --clamp-pose out"
+        )
+    if len(ends) == 1 and clamp_pose is None:
+        raise UserError(
+            f"{src}: camera frames with one end effector need --clamp-pose X,Y,THETA (the "
+            "fixed end)"
+        )
     rec, world, used, notes = read_bag_images(
-        src, image_topic, info_topic, grip, cam_cfg, clamp_pose,
+        src, image_topic, info_topic, ends, cam_cfg, clamp_pose,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
+        mask_topic=mask_topic,
     )  # fmt: skip
     source = {
         "kind": "ros2_bag_images",
         "image_topic": image_topic,
         "camera_info_topic": info_topic,
-        "pose_topics": [pose_topic] if pose_topic else [],
+        "pose_topics": pose_topics,
     }
-    if tf_frame:
-        source["tf"] = {"topic": tf_topic, "frames": [tf_frame]}
+    if mask_topic:
+        source["mask_topic"] = mask_topic
+    if tf_frames:
+        source["tf"] = {"topic": tf_topic, "frames": tf_frames, "world": tf_world}
     if calibration is not None:
         source["calibration"] = calibration.describe()
     frames = (rec, world, used, notes)
@@ -174,13 +207,14 @@ def import_image_folder(
     """The camera-frame import of `import_bag_images` for an image folder with frames.csv
     and a poses CSV (`rodctl.recordings.folder`); the intrinsics come from `camera`."""
     from rodctl.recordings.folder import read_folder
-    from rodctl.recordings.ros2 import camera_config, extract_frames
+    from rodctl.recordings.ros2 import RowSeries, camera_config, extract_frames
 
     src = Path(folder)
     cam_cfg = camera_config(camera)
     frames, pose_rows = read_folder(src, poses)
     rec, world, used, notes = extract_frames(
-        str(src), "frames.csv", frames, str(poses), pose_rows, cam_cfg, clamp_pose, None,
+        str(src), "frames.csv", frames, [RowSeries(str(poses), pose_rows)], cam_cfg, clamp_pose,
+        None,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
     )  # fmt: skip
     source = {"kind": "image_folder", "poses": str(poses)}
@@ -209,14 +243,15 @@ def import_video(
 ) -> tuple[Path, list[str]]:
     """The camera-frame import of `import_image_folder` for a video file (OpenCV) and a poses
     CSV (`rodctl.recordings.video`): frame times from `frame_times` or fps."""
-    from rodctl.recordings.ros2 import camera_config, extract_frames
+    from rodctl.recordings.ros2 import RowSeries, camera_config, extract_frames
     from rodctl.recordings.video import read_video
 
     src = Path(video)
     cam_cfg = camera_config(camera)
     frames, pose_rows, used_times = read_video(src, poses, fps=fps, frame_times=frame_times)
     rec, world, used, notes = extract_frames(
-        str(src), src.name, frames, str(poses), pose_rows, cam_cfg, clamp_pose, None,
+        str(src), src.name, frames, [RowSeries(str(poses), pose_rows)], cam_cfg, clamp_pose,
+        None,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
     )  # fmt: skip
     source = {"kind": "video", "poses": str(poses), **used_times}
@@ -234,7 +269,7 @@ def _write_frames_run(
     out: str | Path,
     name: str | None,
     source: dict,
-    clamp_pose: list[float],
+    clamp_pose: list[float] | None,
     hsv_low: list[int],
     hsv_high: list[int],
     tolerance: float,
@@ -248,14 +283,14 @@ def _write_frames_run(
     rec, world, used, notes = frames
     source = {
         **source,
-        "clamp_pose": [float(v) for v in clamp_pose],
+        "clamp_pose": None if clamp_pose is None else [float(v) for v in clamp_pose],
         "hsv_low": [int(v) for v in hsv_low],
         "hsv_high": [int(v) for v in hsv_high],
         "tolerance_s": tolerance,
         "notes": notes,
     }
     views = (world, rec.points, (used.width, used.height), {"camera": used.model_dump(mode="json")})
-    clamp = np.asarray(clamp_pose, dtype=float)
+    clamp = None if clamp_pose is None else np.asarray(clamp_pose, dtype=float)
     run_dir = write_run(rec, src, out, name, source, views=views, clamp=clamp)
     cut = [n for n in notes if n.startswith(INTERRUPTED)]
     if cut:

@@ -9,6 +9,8 @@ Keys (docs/recordings.md, "A topic mapping"), all optional, unknown keys refused
     tf:                            # end effectors from tf instead (or after the poses)
       topic: /tf                   # tf2_msgs/msg/TFMessage (default /tf)
       frames: [left_tool, right_tool]
+      world: base_link             # compose each chain up to this frame (default: the root)
+    mask: /cam/rod_mask            # mono8/8UC1 masks of the rod, used instead of the HSV range
 
 A flag given on the command line (--image-topic, --points-topic, --pose-topic, --tf-frame, ...)
 replaces the mapping's key.
@@ -36,6 +38,7 @@ class TfMapping(BaseModel):
 
     topic: str = Field("/tf", description="The tf2_msgs/msg/TFMessage topic.")
     frames: list[str] = Field(min_length=1, max_length=2, description="Child frame names.")
+    world: str | None = Field(None, description="Compose up to this frame (default: the root).")
 
     @field_validator("topic")
     @classmethod
@@ -63,8 +66,9 @@ class TopicMapping(BaseModel):
         default_factory=list, max_length=2, description="End effectors' PoseStamped."
     )
     tf: TfMapping | None = None
+    mask: str | None = Field(None, description="Rod masks (mono8/8UC1 Image) for the frames.")
 
-    @field_validator("image", "camera_info", "points")
+    @field_validator("image", "camera_info", "points", "mask")
     @classmethod
     def _check_topic(cls, v: str | None) -> str | None:
         return None if v is None else _topic(v)
@@ -85,6 +89,8 @@ class TopicMapping(BaseModel):
             raise ValueError("give image (camera frames) or points (tracked points), not both")
         if self.camera_info and not self.image:
             raise ValueError("camera_info goes with image")
+        if self.mask and not self.image:
+            raise ValueError("mask goes with image")
         ends = len(self.poses) + (len(self.tf.frames) if self.tf else 0)
         if ends > 2:
             raise ValueError(f"poses and tf.frames name {ends} end effectors; at most 2")

@@ -209,12 +209,13 @@ TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 @dataclass(frozen=True)
 class PoseSource:
-    """Where an end effector's pose is read: a PoseStamped topic, or (`frame` given) the
-    TransformStamped of a tf topic whose child frame is `frame` (taken as the pose of that
-    frame in the transform's parent frame, the world)."""
+    """Where an end effector's pose is read: a PoseStamped topic, or (`frame` given) the tf
+    tree of a tf topic (with its static topic): the pose of child frame `frame` composed up
+    to the frame `world` (None: the tree's root; `rodctl.recordings.tf`)."""
 
     topic: str
     frame: str | None = None
+    world: str | None = None
 
     @property
     def label(self) -> str:
@@ -222,11 +223,15 @@ class PoseSource:
 
 
 def pose_sources(
-    pose_topics: Sequence[str] = (), tf_frames: Sequence[str] = (), tf_topic: str = "/tf"
+    pose_topics: Sequence[str] = (),
+    tf_frames: Sequence[str] = (),
+    tf_topic: str = "/tf",
+    tf_world: str | None = None,
 ) -> list[PoseSource]:
     """The end effectors in order: the PoseStamped topics first, then the tf child frames."""
     out = [PoseSource(t) for t in pose_topics]
-    out += [PoseSource(tf_topic, f.lstrip("/")) for f in tf_frames]
+    world = tf_world.lstrip("/") if tf_world else None
+    out += [PoseSource(tf_topic, f.lstrip("/"), world) for f in tf_frames]
     return out
 
 
@@ -321,6 +326,38 @@ def _yaw(o: Any) -> float:
     return math.atan2(2.0 * (o.w * o.z + o.x * o.y), 1.0 - 2.0 * (o.y * o.y + o.z * o.z))
 
 
+def _bracket(
+    frame_t: np.ndarray, pt: np.ndarray, label: str, tolerance: float, what: str = "poses"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For the frame times inside the sorted sample times `pt`: the samples' indices before
+    and after each (lo, hi), its fraction between them (w) and the mask of those frames.
+
+    Raises:
+        UserError: no frame inside the span, or two samples around a frame further apart than
+            `tolerance` seconds (`label` and the frame's time are named).
+    """
+    inside = (frame_t >= pt[0]) & (frame_t <= pt[-1])
+    if not inside.any():
+        raise UserError(
+            f"{label}: {what} (t {pt[0]:.6f}..{pt[-1]:.6f} s) and frames (t {frame_t[0]:.6f}.."
+            f"{frame_t[-1]:.6f} s) do not overlap"
+        )
+    ft = frame_t[inside]
+    idx = np.searchsorted(pt, ft, side="left")  # pt[idx - 1] < ft <= pt[idx]
+    exact = pt[np.minimum(idx, len(pt) - 1)] == ft
+    hi = np.where(exact, idx, np.clip(idx, 1, len(pt) - 1))
+    lo = np.where(exact, idx, hi - 1)
+    gap = np.where(exact, 0.0, pt[hi] - pt[lo])
+    if (gap > tolerance).any():
+        k = int(np.argmax(gap > tolerance))
+        raise UserError(
+            f"{label}: no {what[:-1]} within {tolerance:g} s of the frame at t = {ft[k]:.6f} s "
+            f"({what} at {pt[lo[k]]:.6f} and {pt[hi[k]]:.6f} s); raise --tolerance or fill the gap"
+        )
+    w = np.where(exact, 1.0, (ft - pt[lo]) / np.where(gap > 0, gap, 1.0))
+    return lo, hi, w, inside
+
+
 def sync_poses(
     frame_t: np.ndarray, pose_t: np.ndarray, poses: np.ndarray, topic: str, tolerance: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -334,31 +371,19 @@ def sync_poses(
     order = np.argsort(pose_t, kind="stable")
     pt, pv = pose_t[order], poses[order].copy()
     pv[:, 2] = np.unwrap(pv[:, 2])
-    inside = (frame_t >= pt[0]) & (frame_t <= pt[-1])
-    if not inside.any():
-        raise UserError(
-            f"{topic}: poses (t {pt[0]:.6f}..{pt[-1]:.6f} s) and frames (t {frame_t[0]:.6f}.."
-            f"{frame_t[-1]:.6f} s) do not overlap"
-        )
-    ft = frame_t[inside]
-    idx = np.searchsorted(pt, ft, side="left")  # pt[idx - 1] < ft <= pt[idx]
-    exact = pt[np.minimum(idx, len(pt) - 1)] == ft
-    hi = np.where(exact, idx, np.clip(idx, 1, len(pt) - 1))
-    lo = np.where(exact, idx, hi - 1)
-    gap = np.where(exact, 0.0, pt[hi] - pt[lo])
-    if (gap > tolerance).any():
-        k = int(np.argmax(gap > tolerance))
-        raise UserError(
-            f"{topic}: no pose within {tolerance:g} s of the frame at t = {ft[k]:.6f} s (poses "
-            f"at {pt[lo[k]]:.6f} and {pt[hi[k]]:.6f} s); raise --tolerance or fill the gap"
-        )
-    w = np.where(exact, 1.0, (ft - pt[lo]) / np.where(gap > 0, gap, 1.0))[:, None]
+    lo, hi, w, inside = _bracket(frame_t, pt, topic, tolerance)
+    w = w[:, None]
     return (1.0 - w) * pv[lo] + w * pv[hi], inside
 
 
-def _bag_messages(path: Path, need: list[tuple[str, tuple[str, ...]]]) -> Any:
+def _bag_messages(
+    path: Path,
+    need: list[tuple[str, tuple[str, ...]]],
+    optional: Sequence[tuple[str, tuple[str, ...]]] = (),
+) -> Any:
     """Yield (topic, msgtype, log time ns, message) of the `need`ed topics of the bag at
-    `path`, in log-time order, after checking each topic exists with an allowed type.
+    `path`, in log-time order, after checking each topic exists with an allowed type; the
+    `optional` topics too where the bag has them.
 
     Raises:
         UserError: not a bag, a topic missing (the bag's topics are listed) or of another type.
@@ -374,6 +399,7 @@ def _bag_messages(path: Path, need: list[tuple[str, tuple[str, ...]]]) -> Any:
     try:
         types = {c.topic: c.msgtype for c in reader.connections}
         listing = ", ".join(f"{t} ({m})" for t, m in sorted(types.items())) or "none"
+        need = list(need) + [(t, a) for t, a in optional if t in types]
         for topic, allowed in need:
             if topic not in types:
                 raise UserError(f"{path}: no topic {topic}; the bag has: {listing}")
@@ -389,49 +415,85 @@ def _bag_messages(path: Path, need: list[tuple[str, tuple[str, ...]]]) -> Any:
         reader.close()
 
 
+class RowSeries:
+    """A pose series [(t_ns, [x, y, theta])] (a PoseStamped topic, a CSV of poses), evaluated
+    at frame times by `sync_poses`."""
+
+    def __init__(self, label: str, rows: list[tuple[int, list[float]]]) -> None:
+        self.label, self.rows = label, rows
+
+    def at(self, frame_ns: np.ndarray, t0: int, tolerance: float) -> tuple[np.ndarray, Any]:
+        """(poses (K, 3) at the frames inside the span, the mask (T,)) of `sync_poses`."""
+        ft = (np.asarray(frame_ns, dtype=np.int64) - t0) / 1e9
+        pt = (np.array([p[0] for p in self.rows], dtype=np.int64) - t0) / 1e9
+        pv = np.array([p[1] for p in self.rows], dtype=float).reshape(-1, 3)
+        return sync_poses(ft, pt, pv, self.label, tolerance)
+
+
+class TfSeries:
+    """A tf child frame's pose in the world frame, composed along its chain at frame times."""
+
+    def __init__(self, src: PoseSource, tree: Any) -> None:
+        self.src, self.tree, self.label = src, tree, src.label
+
+    def at(self, frame_ns: np.ndarray, t0: int, tolerance: float) -> tuple[np.ndarray, Any]:
+        return self.tree.poses_at(self.src.frame, self.src.world, frame_ns, t0, tolerance, _bracket)
+
+
 class _Poses:
-    """The pose series [(t_ns, [x, y, yaw])] of each `PoseSource`, filled message by message
-    (a PoseStamped topic's poses; a tf topic's transforms whose child frame is a source's)."""
+    """The pose series of each `PoseSource`, filled message by message: a PoseStamped topic's
+    poses; a tf topic's (and its static topic's) transforms, kept as a tree."""
 
     def __init__(self, sources: list[PoseSource]) -> None:
+        from rodctl.recordings.tf import TfTree, static_topic
+
         self.sources = sources
-        self.series: dict[PoseSource, list[tuple[int, list[float]]]] = {s: [] for s in sources}
-        self.by_frame = {(s.topic, s.frame): s for s in sources if s.frame}
-        self.seen_frames: dict[str, set[str]] = {s.topic: set() for s in sources if s.frame}
+        self.series: dict[str, list[tuple[int, list[float]]]] = {
+            s.topic: [] for s in sources if not s.frame
+        }
+        self.trees = {s.topic: TfTree(s.topic) for s in sources if s.frame}
+        self.static = {static_topic(t): t for t in self.trees}
 
     def need(self) -> list[tuple[str, tuple[str, ...]]]:
         return [(s.topic, (TF_TYPE,) if s.frame else (POSE_TYPE,)) for s in self.sources]
 
+    def optional(self) -> list[tuple[str, tuple[str, ...]]]:
+        """The static tf topics, read where the bag has them."""
+        return [(t, (TF_TYPE,)) for t in self.static]
+
     def topics(self) -> set[str]:
-        return {s.topic for s in self.sources}
+        return {s.topic for s in self.sources} | set(self.static)
 
     def add(self, topic: str, msgtype: str, log_ns: int, msg: Any) -> None:
-        if msgtype == TF_TYPE:
-            for tr in msg.transforms:
-                child = str(tr.child_frame_id).lstrip("/")
-                self.seen_frames[topic].add(child)
-                src = self.by_frame.get((topic, child))
-                if src is not None:
-                    v, o = tr.transform.translation, tr.transform.rotation
-                    self.series[src].append((_stamp_ns(tr, log_ns), [v.x, v.y, _yaw(o)]))
-        else:
+        if topic in self.trees:
+            self.trees[topic].add(msg, log_ns, static=False, topic=topic)
+        if topic in self.static:
+            self.trees[self.static[topic]].add(msg, log_ns, static=True, topic=topic)
+        if topic in self.series:
             p = msg.pose
             t = _stamp_ns(msg, log_ns)
-            self.series[PoseSource(topic)].append(
-                (t, [p.position.x, p.position.y, _yaw(p.orientation)])
-            )
+            self.series[topic].append((t, [p.position.x, p.position.y, _yaw(p.orientation)]))
 
-    def get(self, path: Path, src: PoseSource) -> list[tuple[int, list[float]]]:
-        """The source's poses, or a UserError naming the topic (and the frames a tf has)."""
-        rows = self.series[src]
-        if rows:
-            return rows
+    def get(self, path: Path, src: PoseSource) -> RowSeries | TfSeries:
+        """The source's series, or a UserError naming the topic (and the frames a tf has)."""
         if src.frame:
-            seen = ", ".join(sorted(self.seen_frames[src.topic])) or "none"
-            raise UserError(
-                f"{path}: topic {src.topic} has no transform to child frame {src.frame!r}; "
-                f"its child frames are: {seen}"
-            )
+            tree = self.trees[src.topic]
+            if src.frame not in tree.links:
+                seen = ", ".join(sorted(tree.links)) or "none"
+                raise UserError(
+                    f"{path}: topic {src.topic} has no transform to child frame {src.frame!r}; "
+                    f"its child frames are: {seen}"
+                )
+            if src.world is not None and src.world not in tree.frames():
+                raise UserError(
+                    f"{path}: {src.topic}: child frame {src.frame!r} is not connected to the "
+                    f"world frame {src.world!r}: no transform names it (its frames are: "
+                    f"{', '.join(sorted(tree.frames()))})"
+                )
+            return TfSeries(src, tree)
+        rows = self.series[src.topic]
+        if rows:
+            return RowSeries(src.topic, rows)
         raise UserError(f"{path}: topic {src.topic} has no messages")
 
 
@@ -443,6 +505,7 @@ def read_bag_points(
     *,
     tf_frames: Sequence[str] = (),
     tf_topic: str = "/tf",
+    tf_world: str | None = None,
 ) -> tuple[Any, list[str]]:
     """A points recording from a ROS 2 bag (sqlite3 or MCAP storage): the tracked points of
     `points_topic` (MarkerArray, Marker, nav_msgs/Path, PoseArray or PointCloud2; x, y, world
@@ -460,7 +523,7 @@ def read_bag_points(
     from rodctl.recordings.synthetic import PointsRecording
 
     path = Path(bag)
-    sources = pose_sources(pose_topics, tf_frames, tf_topic)
+    sources = pose_sources(pose_topics, tf_frames, tf_topic, tf_world)
     if not 1 <= len(sources) <= 2:
         raise UserError(
             "--pose-topic/--tf-frame: give one or two end effectors "
@@ -469,7 +532,7 @@ def read_bag_points(
     poses = _Poses(sources)
     frames: list[tuple[int, np.ndarray]] = []
     need = [(points_topic, POINTS_TYPES), *poses.need()]
-    for topic, msgtype, log_ns, msg in _bag_messages(path, need):
+    for topic, msgtype, log_ns, msg in _bag_messages(path, need, poses.optional()):
         if topic == points_topic:
             t = _stamp_ns(msg, log_ns)
             where = f"{path}: {points_topic}: frame {len(frames)} (t = {t / 1e9:.6f} s)"
@@ -498,10 +561,7 @@ def read_bag_points(
     mask = np.ones(len(frames), dtype=bool)
     synced = []
     for src in sources:
-        rows = poses.get(path, src)
-        pt = (np.array([p[0] for p in rows], dtype=np.int64) - t0) / 1e9
-        pv = np.array([p[1] for p in rows], dtype=float)
-        vals, inside = sync_poses(frame_t, pt, pv, src.label, tolerance)
+        vals, inside = poses.get(path, src).at(ft, t0, tolerance)
         full = np.full((len(frames), 3), np.nan)
         full[inside] = vals
         synced.append(full)
@@ -570,55 +630,85 @@ def camera_config(path: str | Path) -> Any:
         raise UserError(f"--camera: {format_validation_error(exc, section, where)}") from None
 
 
+#: Encodings a mask topic's sensor_msgs/msg/Image may have (one byte a pixel; non-zero = rod).
+MASK_ENCODINGS = ("mono8", "8UC1")
+
+
+def _mask(msg: Any, where: str) -> np.ndarray:
+    """(H, W) bool of a mono8/8UC1 Image: True where the pixel is non-zero (the rod)."""
+    enc = str(msg.encoding)
+    if enc not in MASK_ENCODINGS:
+        raise UserError(f"{where}: mask encoding {enc!r}; {' or '.join(MASK_ENCODINGS)} is read")
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if step < w or data.size < h * step:
+        raise UserError(f"{where}: mask data has {data.size} bytes for {w}x{h} pixels, step {step}")
+    return data[: h * step].reshape(h, step)[:, :w] > 0
+
+
 def read_bag_images(
     bag: str | Path,
     image_topic: str,
     info_topic: str | None,
-    pose_topic: str | PoseSource,
+    pose_topic: str | PoseSource | Sequence[PoseSource],
     camera: Any,
-    clamp_pose: Sequence[float],
+    clamp_pose: Sequence[float] | None,
     *,
     hsv_low: Sequence[int],
     hsv_high: Sequence[int],
     tolerance: float = 0.2,
     calibration: Any = None,
+    mask_topic: str | None = None,
 ) -> tuple[Any, np.ndarray, Any, list[str]]:
     """Frames of a bag's image topic segmented and their centerline extracted.
 
     The camera's intrinsics come from the first CameraInfo on `info_topic` (K; D undistorts
     each frame), its pose and the extraction settings from `camera` (a `CameraConfig`), or
-    the pose from `calibration` (`rodctl.recordings.calibration.Calibration`) when given; the
-    gripper pose (`pose_topic`: a PoseStamped topic or a tf `PoseSource`) is interpolated at
-    each frame's time and given to the extractor as its hint; the walk starts at the fixed
-    `clamp_pose` [x, y, theta].
+    the pose from `calibration` (`rodctl.recordings.calibration.Calibration`) when given. The
+    end effectors (`pose_topic`: a PoseStamped topic, a `PoseSource`, or a list of one or two)
+    are interpolated at each frame's time; with one, it is the gripper, the extractor's hint,
+    and the walk starts at the fixed `clamp_pose` [x, y, theta]; with two, the walk starts at
+    end effector 0's pose of the frame and end effector 1 is the hint. The rod is segmented by
+    the HSV threshold, or (`mask_topic`) by the mono8/8UC1 mask nearest in time to the frame.
 
     Returns:
         (PointsRecording of the pixel centerlines, (T, N, 2) world centerlines on the rod's
         plane, the camera config used, notes).
 
     Raises:
-        UserError: the errors of `read_bag_points` for topics and sync, and a frame where
-            the segmentation finds no rod or the extractor loses it (topic and time named).
+        UserError: the errors of `read_bag_points` for topics and sync, a mask of another
+            encoding or size or none within `tolerance` of a frame, and a frame where the
+            segmentation finds no rod or the extractor loses it (topic and time named).
     """
     path = Path(bag)
-    src = pose_topic if isinstance(pose_topic, PoseSource) else PoseSource(pose_topic)
-    poses = _Poses([src])
+    if isinstance(pose_topic, str | PoseSource):
+        pose_topic = [pose_topic]
+    srcs = [p if isinstance(p, PoseSource) else PoseSource(p) for p in pose_topic]
+    poses = _Poses(srcs)
     frames: list[tuple[int, np.ndarray]] = []
+    masks: list[tuple[int, np.ndarray]] = []
     info = None
     need = [(image_topic, IMAGE_TYPES), *poses.need()]
     if info_topic:
         need.append((info_topic, ("sensor_msgs/msg/CameraInfo",)))
-    for topic, msgtype, log_ns, msg in _bag_messages(path, need):
+    if mask_topic:
+        need.append((mask_topic, ("sensor_msgs/msg/Image",)))
+    for topic, msgtype, log_ns, msg in _bag_messages(path, need, poses.optional()):
         if topic == image_topic:
             t = _stamp_ns(msg, log_ns)
             frames.append((t, _rgb(msg, msgtype, f"{image_topic} at t = {t / 1e9:.6f} s")))
-        elif topic == src.topic:
+        elif topic == mask_topic:
+            t = _stamp_ns(msg, log_ns)
+            masks.append((t, _mask(msg, f"{mask_topic}: mask {len(masks)} (t = {t / 1e9:.6f} s)")))
+        elif topic in poses.topics():
             poses.add(topic, msgtype, log_ns, msg)
         elif info is None:
             info = msg
     if not frames:
         raise UserError(f"{path}: topic {image_topic} has no messages")
-    pose_rows = poses.get(path, src)
+    if mask_topic and not masks:
+        raise UserError(f"{path}: topic {mask_topic} has no messages")
+    series = [poses.get(path, s) for s in srcs]
     if info_topic and info is None:
         raise UserError(f"{path}: topic {info_topic} has no messages")
     frames.sort(key=lambda f: f[0])
@@ -630,32 +720,66 @@ def read_bag_images(
                     "height": int(info.height) or camera.height}
         )  # fmt: skip
     return extract_frames(
-        str(path), image_topic, frames, src.label, pose_rows, camera, clamp_pose, KD,
+        str(path), image_topic, frames, series, camera, clamp_pose, KD,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
+        masks=(mask_topic, sorted(masks, key=lambda m: m[0])) if mask_topic else None,
     )  # fmt: skip
+
+
+def _match_masks(
+    label: str, masks: list[tuple[int, np.ndarray]], frame_ns: np.ndarray, t0: int,
+    chosen: np.ndarray, size: tuple[int, int], tolerance: float,
+) -> list[np.ndarray]:  # fmt: skip
+    """The mask nearest in time to each chosen frame, checked before any extraction.
+
+    Raises:
+        UserError: no mask within `tolerance` s of a frame, or one of another size than the
+            frames (the topic, the frame and its time are named).
+    """
+    mt = np.array([m[0] for m in masks], dtype=np.int64)
+    out = []
+    for k in chosen:
+        t = int(frame_ns[k])
+        j = int(np.argmin(np.abs(mt - t)))
+        where = f"{label}: frame {int(k)} (t = {(t - t0) / 1e9:.6f} s)"
+        dt = abs(int(mt[j]) - t) / 1e9
+        if dt > tolerance:
+            raise UserError(
+                f"{where}: no mask within {tolerance:g} s (the nearest is at t = "
+                f"{(int(mt[j]) - t0) / 1e9:.6f} s); raise --tolerance or publish its mask"
+            )
+        m = masks[j][1]
+        if m.shape != (size[1], size[0]):
+            raise UserError(
+                f"{where}: the mask (t = {(int(mt[j]) - t0) / 1e9:.6f} s) is "
+                f"{m.shape[1]}x{m.shape[0]}, the frames are {size[0]}x{size[1]}"
+            )
+        out.append(m)
+    return out
 
 
 def extract_frames(
     source: str,
     image_label: str,
     frames: list[tuple[int, Any]],
-    pose_label: str,
-    poses: list[tuple[int, list[float]]],
+    poses: Sequence[Any],
     camera: Any,
-    clamp_pose: Sequence[float],
+    clamp_pose: Sequence[float] | None,
     KD: tuple[np.ndarray, np.ndarray] | None,
     *,
     hsv_low: Sequence[int],
     hsv_high: Sequence[int],
     tolerance: float,
     calibration: Any = None,
+    masks: tuple[str, list[tuple[int, np.ndarray]]] | None = None,
 ) -> tuple[Any, np.ndarray, Any, list[str]]:
     """Segment and extract time-sorted frames [(t_ns, RGB image or a () -> image loader)]
-    with the gripper poses [(t_ns, [x, y, theta])] interpolated at their times; K, D (when
-    given) replace the camera's intrinsics and undistort; a `calibration` replaces the camera
-    config's pose over the plane (`rodctl.recordings.calibration`). The body of
+    with the end effectors' poses (`poses`: one or two `RowSeries`/`TfSeries`) at their
+    times; K, D (when given) replace the camera's intrinsics and undistort; a `calibration`
+    replaces the camera config's pose over the plane (`rodctl.recordings.calibration`);
+    `masks` = (topic, [(t_ns, (H, W) bool)]) replaces the HSV threshold. The body of
     `read_bag_images`, of the image-folder and of the video import; see `read_bag_images` for
-    the result and the errors."""
+    the walk's start, the result and the errors."""
     import cv2
 
     from rodctl.recordings.segment import hsv_mask, mask_image
@@ -663,7 +787,7 @@ def extract_frames(
     from rodctl.vision.camera import Camera
     from rodctl.vision.centerline import CenterlineExtractor
 
-    path, image_topic, pose_topic = source, image_label, pose_label
+    path, image_topic = source, image_label
 
     def load(f: Any) -> np.ndarray:
         return f() if callable(f) else f
@@ -688,30 +812,53 @@ def extract_frames(
         dist = D if D is not None else np.zeros(5)
         cam, note = calibration.camera(camera, cam.camera_matrix, dist)
         notes.append(note)
-    extractor = CenterlineExtractor(camera, cam, np.asarray(clamp_pose, dtype=float))
     t0 = frames[0][0]
-    ft = (np.array([f[0] for f in frames], dtype=np.int64) - t0) / 1e9
-    pt = (np.array([p[0] for p in poses], dtype=np.int64) - t0) / 1e9
-    grip, inside = sync_poses(ft, pt, np.array([p[1] for p in poses]), pose_topic, tolerance)
+    frame_ns = np.array([f[0] for f in frames], dtype=np.int64)
+    ft = (frame_ns - t0) / 1e9
+    inside = np.ones(len(frames), dtype=bool)
+    synced = []
+    for series in poses:
+        vals, ins = series.at(frame_ns, t0, tolerance)
+        full = np.full((len(frames), 3), np.nan)
+        full[ins] = vals
+        synced.append(full)
+        inside &= ins
+    ends = np.stack(synced, axis=1)[inside]  # (K, E, 3)
+    two = ends.shape[1] == 2
     if not inside.all():
         notes.append(
             f"{int((~inside).sum())} of {len(frames)} frames lie outside the poses' time span "
             "and were left out"
         )
+    fixed = None if two else CenterlineExtractor(camera, cam, np.asarray(clamp_pose, float))
     rod, bg = camera.render.rod_color, camera.render.background_color
     pts = []
     undistort = D is not None and np.any(D != 0.0)
     chosen = np.flatnonzero(inside)
+    given = None
+    if masks is not None:
+        given = _match_masks(masks[0], masks[1], frame_ns, t0, chosen, (w, h), tolerance)
     try:
-        for k, g in zip(chosen, grip, strict=True):
+        for i, (k, g) in enumerate(zip(chosen, ends, strict=True)):
             t_ns, img = frames[k][0], load(frames[k][1])
-            if undistort:
-                img = cv2.undistort(img, K, D)
-            mask = hsv_mask(img, hsv_low, hsv_high)
             where = f"{image_topic}: frame {int(k)} (t = {(t_ns - t0) / 1e9:.6f} s)"
-            if not mask.any():
-                raise UserError(f"{where}: the HSV threshold finds no rod (--hsv-low/--hsv-high)")
-            ex = extractor.extract(mask_image(mask, rod, bg), g)
+            if given is not None:
+                mask = given[i].astype(np.uint8) * 255
+                if undistort:
+                    mask = np.where(cv2.undistort(mask, K, D) >= 128, 255, 0).astype(np.uint8)
+                if not mask.any():
+                    raise UserError(f"{where}: its mask ({masks[0]}) has no rod pixel")
+            else:
+                if undistort:
+                    img = cv2.undistort(img, K, D)
+                mask = hsv_mask(img, hsv_low, hsv_high)
+                if not mask.any():
+                    raise UserError(
+                        f"{where}: the HSV threshold finds no rod (--hsv-low/--hsv-high)"
+                    )
+            # two moving ends: the walk starts at end effector 0's pose of this frame
+            extractor = CenterlineExtractor(camera, cam, g[0]) if two else fixed
+            ex = extractor.extract(mask_image(mask, rod, bg), g[-1])
             if not ex.ok:
                 raise UserError(f"{where}: the centerline was not extracted: {ex.note}")
             pts.append(ex.points)
@@ -722,7 +869,7 @@ def extract_frames(
     n = len(pts)
     px = np.stack(pts)
     world = np.stack([cam.unproject(p) for p in px])
-    rec = PointsRecording(t=ft[chosen[:n]], points=px, poses=grip[:n, None, :], units="px")
+    rec = PointsRecording(t=ft[chosen[:n]], points=px, poses=ends[:n], units="px")
     return rec, world, camera, notes
 
 
