@@ -1010,6 +1010,9 @@ def import_recording(
 
     from rodctl.recordings.video import VIDEO_SUFFIXES
 
+    no_mask = "--mask-topic: masks are read from a ROS 2 bag beside its --image-topic"
+    if mask_topic and (Path(path).suffix.lower() in VIDEO_SUFFIXES or poses):
+        raise UserError(no_mask)
     if Path(path).suffix.lower() in VIDEO_SUFFIXES:
         from rodctl.recordings.importer import import_video
 
@@ -1042,6 +1045,10 @@ def import_recording(
             tf_topic = tf_topic or mapping.tf.topic
             tf_world = tf_world or mapping.tf.world
     tf_topic = tf_topic or "/tf"
+    if mask_topic and not image_topic:
+        raise UserError(no_mask)
+    if tf_world and not tf_frame:
+        raise UserError("--tf-world: goes with --tf-frame (the tf chains it ends)")
     ends = len(pose_topic or []) + len(tf_frame or [])
     if Path(path).is_dir() and image_topic:
         from rodctl.recordings.importer import import_bag_images

@@ -161,6 +161,29 @@ def test_a_tf_chain_refuses_an_unconnected_world_or_a_gap_naming_frame_and_time(
         assert n in res.output, res.output
 
 
+def test_a_tf_child_with_two_parents_and_misplaced_flags_are_refused(tmp_path):
+    from rodctl.errors import UserError
+    from rodctl.recordings.tf import TfTree
+
+    ts = _ts()
+    tree = TfTree("/tf")
+    tree.add(_tf(ts, 0.0, ["link1"]), _ns(0.0), static=False, topic="/tf")
+    with pytest.raises(UserError, match="'tool0' has two parents, 'link1' \\(/tf\\) and 'world'"):
+        tree.add(_tf(ts, 0.0, ["tool0"]), _ns(0.0), static=False, topic="/tf")
+        msg = _tf(ts, 0.1, ["tool0"])
+        msg.transforms[0].header.frame_id = "world"
+        tree.add(msg, _ns(0.1), static=False, topic="/tf")
+    _chain_bag(tmp_path / "bag")
+    for args, needle in [
+        (["--points-topic", "/tracker/points", "--pose-topic", "/p", "--tf-world", "base"],
+         "--tf-world: goes with --tf-frame"),
+        (["--points-topic", "/tracker/points", "--tf-frame", "tool0", "--mask-topic", "/m"],
+         "--mask-topic: masks are read from a ROS 2 bag beside its --image-topic"),
+    ]:  # fmt: skip
+        res = _import(tmp_path / "bag", tmp_path / "r", *args)
+        assert res.exit_code == 2 and needle in res.output, res.output
+
+
 def test_slerp_interpolates_a_general_rotation_along_the_shortest_arc():
     from rodctl.recordings.tf import slerp, yaw
 
