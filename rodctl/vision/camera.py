@@ -294,17 +294,20 @@ class Camera:
         """Fill fixture boxes given in the frame of `pose`; append their corners to `drawn`."""
         x, y, th = (float(c) for c in pose)
         c, s = math.cos(th), math.sin(th)
-        for (a0, a1), (l0, l1) in boxes:
-            local = np.array([[a0, l0], [a1, l0], [a1, l1], [a0, l1]])
-            world = np.column_stack(
-                [x + c * local[:, 0] - s * local[:, 1], y + s * local[:, 0] + c * local[:, 1]]
-            )
-            pix = self.project(world)
-            if not np.isfinite(pix).all():
-                continue
-            fixed = np.round(pix * _SCALE).astype(np.int32)
-            cv2.fillConvexPoly(img, fixed, color, cv2.LINE_AA, _SHIFT)
-            drawn.append((fixed, 0))
+        # every box's four corners in one projection (element-wise: the same bits box by box)
+        local = np.array(
+            [[[a0, l0], [a1, l0], [a1, l1], [a0, l1]] for (a0, a1), (l0, l1) in boxes]
+        ).reshape(-1, 2)
+        world = np.column_stack(
+            [x + c * local[:, 0] - s * local[:, 1], y + s * local[:, 0] + c * local[:, 1]]
+        )
+        pix = self.project(world).reshape(-1, 4, 2)
+        finite = np.isfinite(pix).all(axis=(1, 2))
+        fixed = np.round(np.where(finite[:, None, None], pix, 0.0) * _SCALE).astype(np.int32)
+        for corners, ok in zip(fixed, finite.tolist(), strict=True):
+            if ok:
+                cv2.fillConvexPoly(img, corners, color, cv2.LINE_AA, _SHIFT)
+                drawn.append((corners, 0))
 
     def render(
         self, centerline_world: np.ndarray, gripper_pose: np.ndarray, clamp_pose: np.ndarray

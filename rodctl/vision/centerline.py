@@ -418,7 +418,7 @@ class CenterlineExtractor:
 
     def _walk(
         self, image: np.ndarray, p: np.ndarray, d: np.ndarray, turn: float
-    ) -> tuple[list[np.ndarray], np.ndarray, float, list[float], str]:
+    ) -> tuple[list[tuple[float, float]], np.ndarray, float, list[float], str]:
         """Track the rod from p (last chord direction d, turn per step) until it ends.
 
         Each iteration predicts `_LOOKAHEAD` steps along the constant-curvature arc and samples
@@ -436,7 +436,7 @@ class CenterlineExtractor:
         t = np.arange(-m, m + 1) * _DT
         px, py = float(p[0]), float(p[1])
         heading = math.atan2(float(d[1]), float(d[0]))
-        out: list[np.ndarray] = []
+        out: list[tuple[float, float]] = []
         widths: list[float] = []
         w_max, h_max = self.camera.width - 1, self.camera.height - 1
         for _ in range(self._max_steps):
@@ -496,7 +496,7 @@ class CenterlineExtractor:
                 change = math.remainder(new_heading - heading, 2 * math.pi)
                 turn = min(max(change / len(accepted), -_MAX_TURN), _MAX_TURN)
             heading = new_heading
-            out.extend(np.array(q) for q in accepted)
+            out.extend(accepted)
             px, py = lx, ly
         else:
             return (
@@ -636,7 +636,7 @@ class CenterlineExtractor:
             widths.extend(w)
             if why:
                 return None, widths, gaps, why
-            p = path[-1]
+            p = np.array(path[-1], dtype=np.float64)
             band = _median(widths) if widths else self._band_prior
             end, end_dir = self._find_end(img, p, d, turn, 0.5 * band)
             if grip_px is not None:
