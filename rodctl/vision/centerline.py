@@ -374,14 +374,17 @@ class CenterlineExtractor:
             return off_w_st[:, 0], off_w_st[:, 1], off_w_st[:, 2].astype(np.int64)
         above = s >= 0.5
         idx = np.arange(2 * m + 1)
-        dist = np.where(above, np.abs(idx - c), 10**6)
+        # j: the "rod" sample nearest the prediction (the first of a tie, as in `_locate_row`);
+        # a row without one gets j = 0 and is lost. left/right: the nearest non-rod samples on
+        # either side of j (-1 and 2m + 1 when the run reaches the window's end).
+        dist = np.where(above, np.abs(idx - c), 2 * m + 1)
         j = dist.argmin(axis=1)
-        lost = dist[np.arange(k), j] >= 10**6
-        below = ~above
-        left = np.where(below & (idx < j[:, None]), idx, -1).max(axis=1)
-        right = np.where(below & (idx > j[:, None]), idx, 2 * m + 1).min(axis=1)
-        touches = (left < 0) | (right > 2 * m)
         rows = np.arange(k)
+        lost = ~above[rows, j]
+        jc = j[:, None]
+        left = np.where(above | (idx >= jc), -1, idx).max(axis=1)
+        right = np.where(above | (idx <= jc), 2 * m + 1, idx).min(axis=1)
+        touches = (left < 0) | (right > 2 * m)
         lc = np.clip(left, 0, 2 * m - 1)
         rc = np.clip(right, 1, 2 * m)
         s0, s1 = s[rows, lc], s[rows, lc + 1]
