@@ -93,6 +93,7 @@ class Camera:
         self.camera_matrix = np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
         self._noise_key: tuple[float, int] | None = None
         self._noise_pool = np.empty(0, np.int16)
+        self._scratch = np.empty(0, np.uint8)  # the frame drawn before a blur, reused
         self._set_extrinsics(cfg)
 
     def _set_extrinsics(self, cfg: CameraConfig) -> None:
@@ -329,7 +330,13 @@ class Camera:
         pts = self.project(_as_points(centerline_world, "centerline_world"))
         if len(pts) < 2 or not np.isfinite(pts).all():
             raise ValueError("centerline_world needs >= 2 points, all in front of the camera")
-        img = self._background.copy()
+        if r.blur_sigma > 0:  # drawn on a scratch frame; the blur writes the returned one
+            if self._scratch.shape != self._background.shape:
+                self._scratch = np.empty_like(self._background)
+            img = self._scratch
+            np.copyto(img, self._background)
+        else:
+            img = self._background.copy()
         # What was drawn over the background, for the blur: (points in 1/16 px, half-thickness)
         # and pixel boxes [u0, u1) x [v0, v1).
         drawn: list[tuple[np.ndarray, int]] = []
@@ -392,9 +399,17 @@ class Camera:
             self._blurred_key = key
         out = self._blurred.copy()
         dirty = list(rects)
-        for fixed, margin in drawn:  # a long polyline in chunks: its boxes hug the curve
-            for i in range(0, max(len(fixed) - 1, 1), _CHUNK):
-                dirty.append(_pixel_box(fixed[i : i + _CHUNK + 1], margin))
+        for fixed, margin in drawn:
+            if len(fixed) <= _CHUNK + 1:
+                dirty.append(_pixel_box(fixed, margin))
+                continue
+            # a long polyline in chunks of _CHUNK segments, so that the boxes hug the curve
+            lo = np.minimum(fixed[:-1], fixed[1:])
+            hi = np.maximum(fixed[:-1], fixed[1:])
+            starts = np.arange(0, len(lo), _CHUNK)
+            lo = (np.minimum.reduceat(lo, starts) >> _SHIFT) - (margin + 2)
+            hi = (np.maximum.reduceat(hi, starts) >> _SHIFT) + (margin + 3)
+            dirty.extend(zip(*lo.T.tolist(), *hi.T.tolist(), strict=True))
         h, w = self.height, self.width
         rows, cols = -(-h // _TILE), -(-w // _TILE)
         tiles = np.zeros((rows, cols), bool)
@@ -403,15 +418,20 @@ class Camera:
             u1, v1 = min(u1 + rad, w), min(v1 + rad, h)
             if u0 < u1 and v0 < v1:
                 tiles[v0 // _TILE : (v1 - 1) // _TILE + 1, u0 // _TILE : (u1 - 1) // _TILE + 1] = 1
-        for row in range(rows):
-            line = tiles[row]
-            if not line.any():
+        for row, line in enumerate(tiles.tolist()):
+            if not any(line):
                 continue
             # runs of dirty tiles in this row: [start, end) in tiles
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], line.view(np.int8), [0]])))
+            runs, start = [], None
+            for col, on in enumerate([*line, False]):
+                if on and start is None:
+                    start = col
+                elif not on and start is not None:
+                    runs.append((start, col))
+                    start = None
             y0, y1 = row * _TILE, min((row + 1) * _TILE, h)
             sy0, sy1 = max(y0 - rad, 0), min(y1 + rad, h)
-            for start, end in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+            for start, end in runs:
                 x0, x1 = start * _TILE, min(end * _TILE, w)
                 sx0, sx1 = max(x0 - rad, 0), min(x1 + rad, w)
                 part = cv2.GaussianBlur(img[sy0:sy1, sx0:sx1], (ksize, ksize), sigma)
@@ -441,4 +461,4 @@ class Camera:
             self._noise_key = (std, size)
         offset = draw % (len(self._noise_pool) - size + 1)
         noise = self._noise_pool[offset : offset + size].reshape(img.shape)
-        return cv2.add(img, noise, dtype=cv2.CV_8U)  # saturating add
+        return cv2.add(img, noise, dst=img, dtype=cv2.CV_8U)  # saturating, in place: img is new
