@@ -37,6 +37,9 @@ _CHUNK = 16
 _TILE = 32
 #: Frames' worth of pixel noise drawn once per camera (`Camera._add_noise`).
 _NOISE_POOL_FRAMES = 2
+#: Backgrounds kept across cameras (`Camera._make_background`), oldest dropped first.
+_BACKGROUNDS_KEPT = 4
+_BACKGROUNDS: dict[tuple, np.ndarray] = {}
 
 # Fixture outlines in the frame of their pose (metres): ``along`` the pose's tangent, ``lateral``
 # to its left. The clamp block sits behind the clamped end; the gripper's palm sits beyond the
@@ -271,7 +274,30 @@ class Camera:
 
     # ------------------------------------------------------------------ rendering
     def _make_background(self) -> np.ndarray:
-        """(H, W, 3) uint8: plain colour, or a checkerboard on the plane (seen in perspective)."""
+        """(H, W, 3) uint8, read-only: plain colour, or a checkerboard on the plane (seen in
+        perspective). A checkerboard costs ~30 ms (every pixel unprojected), and every episode
+        makes two cameras with the same scene (rodctl/env.py), so the last few are kept, keyed
+        by everything they depend on (the exact bits of the inverse homography included)."""
+        r = self.cfg.render
+        key = (
+            self.width,
+            self.height,
+            r.background,
+            tuple(r.background_color),
+            tuple(r.checker_color),
+            r.checker_size,
+            self._homography_inv.tobytes() if r.background == "checker" else b"",
+        )
+        img = _BACKGROUNDS.get(key)
+        if img is None:
+            img = self._draw_background()
+            img.flags.writeable = False
+            if len(_BACKGROUNDS) >= _BACKGROUNDS_KEPT:
+                del _BACKGROUNDS[next(iter(_BACKGROUNDS))]  # the oldest
+            _BACKGROUNDS[key] = img
+        return img
+
+    def _draw_background(self) -> np.ndarray:
         r = self.cfg.render
         img = np.empty((self.height, self.width, 3), np.uint8)
         img[:] = r.background_color

@@ -160,3 +160,13 @@ def test_pixel_noise_is_gaussian_fresh_each_frame_and_follows_set_noise() -> Non
     assert (
         abs((cam.render(line, grip, np.zeros(3)).astype(int) - clean)[:100, :100].std() - 2.0) < 0.1
     )
+
+
+def test_checker_backgrounds_are_shared_only_between_equal_scenes() -> None:
+    cfg = CameraConfig(render={"background": "checker"})
+    a, b = Camera(cfg), Camera(cfg)
+    assert a._background is b._background and not a._background.flags.writeable
+    assert np.array_equal(a._background, a._draw_background())
+    b.set_pose(tilt_deg=30.0)  # a bump: a new view of the board
+    assert not np.array_equal(a._background, b._background)
+    assert np.array_equal(b._background, b._draw_background())
