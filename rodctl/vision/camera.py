@@ -31,6 +31,15 @@ from rodctl.config.camera import CameraConfig
 #: Sub-pixel bits for OpenCV drawing calls: coordinates are passed in units of 1/16 px.
 _SHIFT = 4
 _SCALE = float(1 << _SHIFT)
+#: Points of the rod's polyline per dirty box (the region a frame's blur must recompute).
+_CHUNK = 16
+#: Side (px) of the tiles in which `Camera._blur` recomputes the blur.
+_TILE = 32
+#: Frames' worth of pixel noise drawn once per camera (`Camera._add_noise`).
+_NOISE_POOL_FRAMES = 2
+#: Backgrounds kept across cameras (`Camera._make_background`), oldest dropped first.
+_BACKGROUNDS_KEPT = 4
+_BACKGROUNDS: dict[tuple, np.ndarray] = {}
 
 # Fixture outlines in the frame of their pose (metres): ``along`` the pose's tangent, ``lateral``
 # to its left. The clamp block sits behind the clamped end; the gripper's palm sits beyond the
@@ -42,6 +51,15 @@ _GRIPPER_BOXES = (
     ((-0.025, 0.006), (0.007, 0.015)),  # left finger
     ((-0.025, 0.006), (-0.015, -0.007)),  # right finger
 )
+
+
+def _pixel_box(fixed: np.ndarray, margin: int) -> tuple[int, int, int, int]:
+    """Pixel box [u0, u1) x [v0, v1) holding everything OpenCV draws through the points `fixed`
+    (1/16 px units) grown by `margin` px (half a line's thickness): two more pixels on each side
+    for the anti-aliased fringe and the rounding of the coordinates."""
+    lo, hi = fixed.min(axis=0) >> _SHIFT, fixed.max(axis=0) >> _SHIFT
+    grow = margin + 2
+    return int(lo[0]) - grow, int(lo[1]) - grow, int(hi[0]) + grow + 1, int(hi[1]) + grow + 1
 
 
 def _as_points(points: np.ndarray, name: str) -> np.ndarray:
@@ -76,6 +94,9 @@ class Camera:
         cx = (self.width - 1) / 2.0 if cfg.cx is None else float(cfg.cx)
         cy = (self.height - 1) / 2.0 if cfg.cy is None else float(cfg.cy)
         self.camera_matrix = np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
+        self._noise_key: tuple[float, int] | None = None
+        self._noise_pool = np.empty(0, np.int16)
+        self._scratch = np.empty(0, np.uint8)  # the frame drawn before a blur, reused
         self._set_extrinsics(cfg)
 
     def _set_extrinsics(self, cfg: CameraConfig) -> None:
@@ -104,6 +125,8 @@ class Camera:
         self.homography /= self.homography[2, 2]
         self._homography_inv = fla.inv3(self.homography)
         self._background = self._make_background()
+        self._blurred_key: tuple[float, int] | None = None  # the blurred background is stale
+        self._blurred = self._background
 
     # ------------------------------------------------------------------ mid-run changes
     def _with(self, **changes: object) -> CameraConfig:
@@ -251,7 +274,30 @@ class Camera:
 
     # ------------------------------------------------------------------ rendering
     def _make_background(self) -> np.ndarray:
-        """(H, W, 3) uint8: plain colour, or a checkerboard on the plane (seen in perspective)."""
+        """(H, W, 3) uint8, read-only: plain colour, or a checkerboard on the plane (seen in
+        perspective). A checkerboard costs ~30 ms (every pixel unprojected), and every episode
+        makes two cameras with the same scene (rodctl/env.py), so the last few are kept, keyed
+        by everything they depend on (the exact bits of the inverse homography included)."""
+        r = self.cfg.render
+        key = (
+            self.width,
+            self.height,
+            r.background,
+            tuple(r.background_color),
+            tuple(r.checker_color),
+            r.checker_size,
+            self._homography_inv.tobytes() if r.background == "checker" else b"",
+        )
+        img = _BACKGROUNDS.get(key)
+        if img is None:
+            img = self._draw_background()
+            img.flags.writeable = False
+            if len(_BACKGROUNDS) >= _BACKGROUNDS_KEPT:
+                del _BACKGROUNDS[next(iter(_BACKGROUNDS))]  # the oldest
+            _BACKGROUNDS[key] = img
+        return img
+
+    def _draw_background(self) -> np.ndarray:
         r = self.cfg.render
         img = np.empty((self.height, self.width, 3), np.uint8)
         img[:] = r.background_color
@@ -265,21 +311,30 @@ class Camera:
         return img
 
     def _fill_world_boxes(
-        self, img: np.ndarray, pose: np.ndarray, boxes: tuple, color: tuple[int, int, int]
+        self,
+        img: np.ndarray,
+        pose: np.ndarray,
+        boxes: tuple,
+        color: tuple[int, int, int],
+        drawn: list[tuple[np.ndarray, int]],
     ) -> None:
+        """Fill fixture boxes given in the frame of `pose`; append their corners to `drawn`."""
         x, y, th = (float(c) for c in pose)
         c, s = math.cos(th), math.sin(th)
-        for (a0, a1), (l0, l1) in boxes:
-            local = np.array([[a0, l0], [a1, l0], [a1, l1], [a0, l1]])
-            world = np.column_stack(
-                [x + c * local[:, 0] - s * local[:, 1], y + s * local[:, 0] + c * local[:, 1]]
-            )
-            pix = self.project(world)
-            if not np.isfinite(pix).all():
-                continue
-            cv2.fillConvexPoly(
-                img, np.round(pix * _SCALE).astype(np.int32), color, cv2.LINE_AA, _SHIFT
-            )
+        # every box's four corners in one projection (element-wise: the same bits box by box)
+        local = np.array(
+            [[[a0, l0], [a1, l0], [a1, l1], [a0, l1]] for (a0, a1), (l0, l1) in boxes]
+        ).reshape(-1, 2)
+        world = np.column_stack(
+            [x + c * local[:, 0] - s * local[:, 1], y + s * local[:, 0] + c * local[:, 1]]
+        )
+        pix = self.project(world).reshape(-1, 4, 2)
+        finite = np.isfinite(pix).all(axis=(1, 2))
+        fixed = np.round(np.where(finite[:, None, None], pix, 0.0) * _SCALE).astype(np.int32)
+        for corners, ok in zip(fixed, finite.tolist(), strict=True):
+            if ok:
+                cv2.fillConvexPoly(img, corners, color, cv2.LINE_AA, _SHIFT)
+                drawn.append((corners, 0))
 
     def render(
         self, centerline_world: np.ndarray, gripper_pose: np.ndarray, clamp_pose: np.ndarray
@@ -301,14 +356,30 @@ class Camera:
         pts = self.project(_as_points(centerline_world, "centerline_world"))
         if len(pts) < 2 or not np.isfinite(pts).all():
             raise ValueError("centerline_world needs >= 2 points, all in front of the camera")
-        img = self._background.copy()
+        if r.blur_sigma > 0:  # drawn on a scratch frame; the blur writes the returned one
+            if self._scratch.shape != self._background.shape:
+                self._scratch = np.empty_like(self._background)
+            img = self._scratch
+            np.copyto(img, self._background)
+        else:
+            img = self._background.copy()
+        # What was drawn over the background, for the blur: (points in 1/16 px, half-thickness)
+        # and pixel boxes [u0, u1) x [v0, v1).
+        drawn: list[tuple[np.ndarray, int]] = []
+        rects: list[tuple[int, int, int, int]] = []
         if r.draw_clamp:
-            self._fill_world_boxes(img, np.asarray(clamp_pose), _CLAMP_BOXES, r.fixture_color)
+            self._fill_world_boxes(
+                img, np.asarray(clamp_pose), _CLAMP_BOXES, r.fixture_color, drawn
+            )
         if r.draw_gripper:
-            self._fill_world_boxes(img, np.asarray(gripper_pose), _GRIPPER_BOXES, r.fixture_color)
+            self._fill_world_boxes(
+                img, np.asarray(gripper_pose), _GRIPPER_BOXES, r.fixture_color, drawn
+            )
         # Keep coordinates inside int32 even for absurd inputs; OpenCV clips the drawing itself.
         fixed = np.clip(np.round(pts * _SCALE), -(2**28), 2**28).astype(np.int32)
-        cv2.polylines(img, [fixed], False, r.rod_color, int(r.rod_width_px), cv2.LINE_AA, _SHIFT)
+        width = int(r.rod_width_px)
+        cv2.polylines(img, [fixed], False, r.rod_color, width, cv2.LINE_AA, _SHIFT)
+        drawn.append((fixed, width // 2 + 1))
         boxes = [tuple(b) for b in r.occlusions]
         if self.rng is not None and r.random_occlusions:
             side = r.occlusion_size_px
@@ -320,21 +391,100 @@ class Camera:
             boxes += [(u, v, u + side, v + side) for u, v in corners]
         for u0, v0, u1, v1 in boxes:
             # A box covers the pixels whose centres lie inside [u0, u1] x [v0, v1].
-            cv2.rectangle(
-                img,
-                (int(np.ceil(u0)), int(np.ceil(v0))),
-                (int(np.floor(u1)), int(np.floor(v1))),
-                r.occluder_color,
-                thickness=-1,
-            )
+            c0, c1 = (int(np.ceil(u0)), int(np.ceil(v0))), (int(np.floor(u1)), int(np.floor(v1)))
+            cv2.rectangle(img, c0, c1, r.occluder_color, thickness=-1)
+            rects.append((c0[0], c0[1], c1[0] + 1, c1[1] + 1))
         if r.blur_sigma > 0:
-            img = cv2.GaussianBlur(img, (0, 0), r.blur_sigma)
+            img = self._blur(img, drawn, rects, float(r.blur_sigma))
         if self.rng is not None and r.noise_std > 0:
-            # OpenCV's normal generator is ~4x faster than numpy's for a whole frame (2 ms vs
-            # 8 ms at 640x480x3); its global state is reseeded from our generator every frame,
-            # so frames stay reproducible from the config's seed.
-            cv2.setRNGSeed(int(self.rng.integers(2**31 - 1)))
-            noise = np.empty(img.shape, np.int16)
-            cv2.randn(noise, (0.0,) * 3, (float(r.noise_std),) * 3)  # every channel
-            img = cv2.add(img, noise, dtype=cv2.CV_8U)  # saturating add
+            img = self._add_noise(img, float(r.noise_std))
         return img
+
+    def _blur(
+        self,
+        img: np.ndarray,
+        drawn: list[tuple[np.ndarray, int]],
+        rects: list[tuple[int, int, int, int]],
+        sigma: float,
+    ) -> np.ndarray:
+        """`cv2.GaussianBlur(img, (0, 0), sigma)`, bit for bit, computed only near what was drawn.
+
+        The background is blurred once (per pose and sigma) and copied; only the tiles within the
+        kernel's reach of a drawn box are blurred again, each from a source window one kernel
+        radius larger on every side (clipped at the image's edge, where the window's own border
+        reflection is the full image's). OpenCV's 8-bit Gaussian is fixed-point integer
+        arithmetic, so a pixel's value depends only on its neighbourhood, never on the window it
+        was computed in (tests/vision/test_camera.py compares with the whole-frame blur).
+        """
+        # OpenCV's own kernel size for 8-bit images and ksize (0, 0) (cv::createGaussianKernels)
+        ksize = int(round(sigma * 3 * 2 + 1)) | 1
+        rad = ksize // 2
+        key = (sigma, ksize)
+        if self._blurred_key != key:
+            self._blurred = cv2.GaussianBlur(self._background, (ksize, ksize), sigma)
+            self._blurred_key = key
+        out = self._blurred.copy()
+        dirty = list(rects)
+        for fixed, margin in drawn:
+            if len(fixed) <= _CHUNK + 1:
+                dirty.append(_pixel_box(fixed, margin))
+                continue
+            # a long polyline in chunks of _CHUNK segments, so that the boxes hug the curve
+            lo = np.minimum(fixed[:-1], fixed[1:])
+            hi = np.maximum(fixed[:-1], fixed[1:])
+            starts = np.arange(0, len(lo), _CHUNK)
+            lo = (np.minimum.reduceat(lo, starts) >> _SHIFT) - (margin + 2)
+            hi = (np.maximum.reduceat(hi, starts) >> _SHIFT) + (margin + 3)
+            dirty.extend(zip(*lo.T.tolist(), *hi.T.tolist(), strict=True))
+        h, w = self.height, self.width
+        rows, cols = -(-h // _TILE), -(-w // _TILE)
+        tiles = np.zeros((rows, cols), bool)
+        for u0, v0, u1, v1 in dirty:
+            u0, v0 = max(u0 - rad, 0), max(v0 - rad, 0)
+            u1, v1 = min(u1 + rad, w), min(v1 + rad, h)
+            if u0 < u1 and v0 < v1:
+                tiles[v0 // _TILE : (v1 - 1) // _TILE + 1, u0 // _TILE : (u1 - 1) // _TILE + 1] = 1
+        for row, line in enumerate(tiles.tolist()):
+            if not any(line):
+                continue
+            # runs of dirty tiles in this row: [start, end) in tiles
+            runs, start = [], None
+            for col, on in enumerate([*line, False]):
+                if on and start is None:
+                    start = col
+                elif not on and start is not None:
+                    runs.append((start, col))
+                    start = None
+            y0, y1 = row * _TILE, min((row + 1) * _TILE, h)
+            sy0, sy1 = max(y0 - rad, 0), min(y1 + rad, h)
+            for start, end in runs:
+                x0, x1 = start * _TILE, min(end * _TILE, w)
+                sx0, sx1 = max(x0 - rad, 0), min(x1 + rad, w)
+                part = cv2.GaussianBlur(img[sy0:sy1, sx0:sx1], (ksize, ksize), sigma)
+                out[y0:y1, x0:x1] = part[y0 - sy0 : y1 - sy0, x0 - sx0 : x1 - sx0]
+        return out
+
+    def _add_noise(self, img: np.ndarray, std: float) -> np.ndarray:
+        """Add seeded Gaussian pixel noise of σ `std` (grey levels, every channel), saturating.
+
+        Drawing 921,600 normal values per 640x480 frame costs about 3 ms, more than all the rest
+        of a frame. So the camera draws a pool of `_NOISE_POOL_FRAMES` frames' worth of rounded
+        N(0, σ²) values once (seeded from its generator's draw for the first noisy frame), and each
+        frame adds the pool's slice at an offset drawn from the generator: every frame's noise is
+        a contiguous run of i.i.d. values, so within a frame it is i.i.d. N(0, σ²) rounded as
+        before; two frames share values only at shifted positions (identical only when two
+        offsets coincide, about one chance in a million per pair). One draw per frame, as
+        before, so the generator's other draws (random occluders) are unchanged; the values
+        themselves differ from the per-frame `cv2.randn` stream of earlier versions.
+        """
+        draw = int(self.rng.integers(2**31 - 1))  # type: ignore[union-attr]
+        size = img.size
+        if self._noise_key != (std, size):
+            cv2.setRNGSeed(draw)
+            pool = np.empty((_NOISE_POOL_FRAMES * size, 1), np.int16)
+            cv2.randn(pool, 0.0, std)
+            self._noise_pool = pool.ravel()
+            self._noise_key = (std, size)
+        offset = draw % (len(self._noise_pool) - size + 1)
+        noise = self._noise_pool[offset : offset + size].reshape(img.shape)
+        return cv2.add(img, noise, dst=img, dtype=cv2.CV_8U)  # saturating, in place: img is new

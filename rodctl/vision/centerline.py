@@ -126,11 +126,33 @@ def _min_norm_lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x / np.array([scale, scale, scale, 1.0])
 
 
+def _median(values: list[float]) -> float:
+    """`np.median` of a short list, bit for bit, without numpy's per-call overhead."""
+    v = sorted(values)
+    k = len(v) // 2
+    return v[k] if len(v) % 2 else (v[k - 1] + v[k]) / 2.0
+
+
 def _unit_normals(points: np.ndarray) -> np.ndarray:
     """(M, 2) unit normals (left of the direction of travel in image coordinates)."""
-    d = np.gradient(points, axis=0)
+    # np.gradient(points, axis=0) written out (M >= 3): central differences inside, one-sided
+    # at the ends, the same operations and so the same bits
+    d = np.empty_like(points)
+    d[1:-1] = (points[2:] - points[:-2]) / 2.0
+    d[0] = points[1] - points[0]
+    d[-1] = points[-1] - points[-2]
     d /= np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
     return np.column_stack([-d[:, 1], d[:, 0]])
+
+
+def _section_map(centres: np.ndarray, normals: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(K, T, 2) float32 sample positions centre + t * normal, for `cv2.remap`: computed in
+    float64 and rounded once, the bits of ``(centres[:, None] + t[None, :, None] *
+    normals[:, None]).astype(np.float32)`` in a third of its time."""
+    out = np.empty((len(centres), len(t), 2), np.float32)
+    np.add(centres[:, 0:1], t * normals[:, 0:1], out=out[..., 0])
+    np.add(centres[:, 1:2], t * normals[:, 1:2], out=out[..., 1])
+    return out
 
 
 def _hermite(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray, n: int) -> np.ndarray:
@@ -244,6 +266,14 @@ class CenterlineExtractor:
         self._half_refine = 0.5 * self._band_prior + 2.5
         self._coverage_w, self._coverage_b = self._coverage_map()
         self._cov_b32 = np.float32(self._coverage_b)
+        # The affine map as three per-channel tables of the same float32 products (w_c * value,
+        # the bias folded into the last), so that sampling is one cv2.LUT and two additions
+        # with the bits of `_affine`.
+        v = np.arange(256, dtype=np.float32)
+        w = self._coverage_w
+        self._coverage_lut = np.stack(
+            [v * w[0], v * w[1], v * w[2] + self._cov_b32], axis=-1
+        ).reshape(1, 256, 3)
         self._bg_value = tuple(float(c) for c in r.background_color)
         self._max_steps = int(4 * (camera.width + camera.height) / self._step) + 10
 
@@ -291,18 +321,22 @@ class CenterlineExtractor:
 
     def _sample(self, image: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """Rod coverage at (..., 2) pixel positions, bilinear; 0 outside the image (unclipped)."""
-        shape = pts.shape[:-1]
-        flat = pts.reshape(1, -1, 2).astype(np.float32)
-        rgb = cv2.remap(
+        return self._sample_map(image, pts.astype(np.float32))
+
+    def _sample_map(self, image: np.ndarray, map32: np.ndarray) -> np.ndarray:
+        """`_sample` at (..., 2) float32 pixel positions."""
+        shape = map32.shape[:-1]
+        rgb = cv2.remap(  # one two-channel map: the same samples as two maps, one copy fewer
             image,
-            flat[..., 0],
-            flat[..., 1],
+            map32.reshape(1, -1, 2),
+            None,
             cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_CONSTANT,
             borderValue=self._bg_value,
         )
         # not clipped to [0, 1]: only 50 % crossings are used, and clipping costs time
-        return self._affine(rgb.reshape(-1, 3).astype(np.float32)).reshape(shape)
+        part = cv2.LUT(rgb, self._coverage_lut)
+        return ((part[..., 0] + part[..., 1]) + part[..., 2]).reshape(shape)
 
     # ------------------------------------------------------------------ cross-sections
     def _cross_sections(
@@ -333,21 +367,24 @@ class CenterlineExtractor:
         t = np.arange(-m, m + 1) * _DT
         c = m
         k = len(centres)
-        s = self._sample(image, centres[:, None, :] + t[None, :, None] * normals[:, None, :])
+        s = self._sample_map(image, _section_map(centres, normals, t))
         if k <= _SCALAR_ROWS:
             rows_out = [_locate_row(row, m, band, max_width) for row in s.tolist()]
             off_w_st = np.array(rows_out, dtype=np.float64).reshape(k, 3)
             return off_w_st[:, 0], off_w_st[:, 1], off_w_st[:, 2].astype(np.int64)
         above = s >= 0.5
         idx = np.arange(2 * m + 1)
-        dist = np.where(above, np.abs(idx - c), 10**6)
+        # j: the "rod" sample nearest the prediction (the first of a tie, as in `_locate_row`);
+        # a row without one gets j = 0 and is lost. left/right: the nearest non-rod samples on
+        # either side of j (-1 and 2m + 1 when the run reaches the window's end).
+        dist = np.where(above, np.abs(idx - c), 2 * m + 1)
         j = dist.argmin(axis=1)
-        lost = dist[np.arange(k), j] >= 10**6
-        below = ~above
-        left = np.where(below & (idx < j[:, None]), idx, -1).max(axis=1)
-        right = np.where(below & (idx > j[:, None]), idx, 2 * m + 1).min(axis=1)
-        touches = (left < 0) | (right > 2 * m)
         rows = np.arange(k)
+        lost = ~above[rows, j]
+        jc = j[:, None]
+        left = np.where(above | (idx >= jc), -1, idx).max(axis=1)
+        right = np.where(above | (idx <= jc), 2 * m + 1, idx).min(axis=1)
+        touches = (left < 0) | (right > 2 * m)
         lc = np.clip(left, 0, 2 * m - 1)
         rc = np.clip(right, 1, 2 * m)
         s0, s1 = s[rows, lc], s[rows, lc + 1]
@@ -384,7 +421,7 @@ class CenterlineExtractor:
 
     def _walk(
         self, image: np.ndarray, p: np.ndarray, d: np.ndarray, turn: float
-    ) -> tuple[list[np.ndarray], np.ndarray, float, list[float], str]:
+    ) -> tuple[list[tuple[float, float]], np.ndarray, float, list[float], str]:
         """Track the rod from p (last chord direction d, turn per step) until it ends.
 
         Each iteration predicts `_LOOKAHEAD` steps along the constant-curvature arc and samples
@@ -402,7 +439,7 @@ class CenterlineExtractor:
         t = np.arange(-m, m + 1) * _DT
         px, py = float(p[0]), float(p[1])
         heading = math.atan2(float(d[1]), float(d[0]))
-        out: list[np.ndarray] = []
+        out: list[tuple[float, float]] = []
         widths: list[float] = []
         w_max, h_max = self.camera.width - 1, self.camera.height - 1
         for _ in range(self._max_steps):
@@ -418,7 +455,7 @@ class CenterlineExtractor:
                 a_t = a + 0.5 * turn
                 ns.append((-math.sin(a_t), math.cos(a_t)))
             qa, na = np.array(qs), np.array(ns)
-            rows = self._sample(image, qa[:, None, :] + t[None, :, None] * na[:, None, :])
+            rows = self._sample_map(image, _section_map(qa, na, t))
             accepted: list[tuple[float, float]] = []
             any_ok = False
             for i, row in enumerate(rows.tolist()):
@@ -462,7 +499,7 @@ class CenterlineExtractor:
                 change = math.remainder(new_heading - heading, 2 * math.pi)
                 turn = min(max(change / len(accepted), -_MAX_TURN), _MAX_TURN)
             heading = new_heading
-            out.extend(np.array(q) for q in accepted)
+            out.extend(accepted)
             px, py = lx, ly
         else:
             return (
@@ -602,8 +639,8 @@ class CenterlineExtractor:
             widths.extend(w)
             if why:
                 return None, widths, gaps, why
-            p = path[-1]
-            band = float(np.median(widths)) if widths else self._band_prior
+            p = np.array(path[-1], dtype=np.float64)
+            band = _median(widths) if widths else self._band_prior
             end, end_dir = self._find_end(img, p, d, turn, 0.5 * band)
             if grip_px is not None:
                 complete = np.hypot(*(end - grip_px)) <= max(2.0 * band, 6.0)
@@ -653,7 +690,7 @@ class CenterlineExtractor:
     ) -> Extraction:
         """Refine and resample the traced line to N points, then judge it: bridged gaps and a
         traced length unlike the rod's make the frame not ok."""
-        line = self._refine(img, line, float(np.median(widths)) if widths else self._band_prior)
+        line = self._refine(img, line, _median(widths) if widths else self._band_prior)
         out = self._resample_out(line, self.points)
         if not np.isfinite(out).all():
             return Extraction(fail, False, "the traced rod leaves the plane's visible side")

@@ -125,3 +125,48 @@ def test_projection_jacobian_matches_finite_differences():
         d[i] = h
         fd = (cam.project(pts + d) - cam.project(pts - d)) / (2 * h)
         np.testing.assert_allclose(jac[:, :, i], fd, rtol=1e-6, atol=1e-4)
+
+
+@pytest.mark.parametrize(
+    "render",
+    [
+        {"blur_sigma": 0.8},
+        {"background": "checker", "blur_sigma": 1.0, "occlusions": [(-5, -5, 40, 30)]},
+        {"background": "checker", "blur_sigma": 2.5, "random_occlusions": 3, "rod_width_px": 12},
+    ],
+)
+def test_blur_near_the_drawing_equals_the_whole_frame_blur(render: dict) -> None:
+    """The renderer re-blurs only the tiles near what it drew: bit for bit the whole-frame blur,
+    also for a rod that leaves the image (its boxes are clipped at the border)."""
+    cfg = CameraConfig(render=render)
+    sharp = CameraConfig(render={**render, "blur_sigma": 0.0})
+    shapes = [rod_shape("hook"), rod_shape("straight", length=1.5, clamp_pose=(-0.5, 0.1, 0.3))]
+    for line, grip in shapes:
+        got = Camera(cfg, np.random.default_rng(2)).render(line, grip, np.zeros(3))
+        img = Camera(sharp, np.random.default_rng(2)).render(line, grip, np.zeros(3))
+        assert np.array_equal(got, cv2.GaussianBlur(img, (0, 0), render["blur_sigma"]))
+
+
+def test_pixel_noise_is_gaussian_fresh_each_frame_and_follows_set_noise() -> None:
+    cam = Camera(CameraConfig(render={"noise_std": 5.0}), np.random.default_rng(3))
+    line, grip = rod_shape("arc")
+    clean = Camera(CameraConfig()).render(line, grip, np.zeros(3)).astype(int)
+    frames = [cam.render(line, grip, np.zeros(3)).astype(int) - clean for _ in range(3)]
+    corner = [f[:100, :100].ravel() for f in frames]  # plain background, far from saturation
+    for c in corner:
+        assert abs(c.mean()) < 0.1 and abs(c.std() - 5.0) < 0.1
+    assert abs(np.corrcoef(corner[0], corner[1])[0, 1]) < 0.02  # frames do not repeat
+    cam.set_noise(2.0)
+    assert (
+        abs((cam.render(line, grip, np.zeros(3)).astype(int) - clean)[:100, :100].std() - 2.0) < 0.1
+    )
+
+
+def test_checker_backgrounds_are_shared_only_between_equal_scenes() -> None:
+    cfg = CameraConfig(render={"background": "checker"})
+    a, b = Camera(cfg), Camera(cfg)
+    assert a._background is b._background and not a._background.flags.writeable
+    assert np.array_equal(a._background, a._draw_background())
+    b.set_pose(tilt_deg=30.0)  # a bump: a new view of the board
+    assert not np.array_equal(a._background, b._background)
+    assert np.array_equal(b._background, b._draw_background())
