@@ -351,6 +351,18 @@ class RodSim:
         """
         pose = np.asarray(pose, dtype=float)
         ws = self.cfg.workspace
+        # Fast path (the usual case; the quasi-static engine's step costs about as much as this
+        # check otherwise): a pose inside the box and the reach is returned unchanged, exactly
+        # what the cuts below would return for it.
+        x, y, t = pose.tolist()
+        cx, cy = self.chain.current_clamp_pose()[:2].tolist()
+        if (
+            ws.x_limits[0] <= x <= ws.x_limits[1]
+            and ws.y_limits[0] <= y <= ws.y_limits[1]
+            and ws.theta_limits[0] <= t <= ws.theta_limits[1]
+            and float(np.hypot(x - cx, y - cy)) <= ws.max_reach * self.held_length
+        ):
+            return pose.copy(), False
         lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]])
         hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]])
         out = np.clip(pose, lo, hi)
