@@ -683,13 +683,22 @@ class QuasiStaticChain:
         """Whether the angles are all finite (their sum is: NaN and inf propagate)."""
         return math.isfinite(float(self.theta.sum()))
 
+    def _joints(self) -> np.ndarray:
+        """The joint points of the current state (cached per state: do not modify)."""
+        cached = self.__dict__.get("_points_cache")
+        clamp = self._clamp.tolist()
+        if cached is None or cached[0] is not self.theta or cached[1] != clamp:
+            pts = np.empty((self.segments + 1, 2))
+            pts[0] = clamp[:2]
+            np.cumsum(self._tangents() * self.seg_length, out=pts[1:].view(np.complex128)[:, 0])
+            pts[1:] += pts[0]
+            cached = (self.theta, clamp, pts)
+            self._points_cache = cached
+        return cached[2]
+
     def joint_points(self) -> np.ndarray:
         """(N+1, 2) centreline at the joints, clamp end first (exact: the chain is closed)."""
-        pts = np.empty((self.segments + 1, 2))
-        pts[0] = self._clamp[:2]
-        np.cumsum(self._tangents() * self.seg_length, out=pts[1:].view(np.complex128)[:, 0])
-        pts[1:] += pts[0]
-        return pts
+        return self._joints().copy()
 
     def segment_states(self) -> np.ndarray:
         """(N, 3) segment centres and angles [x, y, angle], world frame."""
@@ -706,13 +715,9 @@ class QuasiStaticChain:
         entry is how far the chain's end is from the gripper (the constraint residual)."""
         gaps = np.zeros(self.segments + (1 if self.gripped else 0))
         if self.gripped:
-            seg = self.seg_length
-            cx, cy, _ = self._clamp.tolist()
+            ex, ey = self._joints()[-1].tolist()
             gx, gy, _ = self._grip.tolist()
-            zs = complex(self._tangents().sum())
-            ex = cx + seg * zs.real - gx
-            ey = cy + seg * zs.imag - gy
-            gaps[-1] = math.hypot(ex, ey)
+            gaps[-1] = math.hypot(ex - gx, ey - gy)
         if not self._finite():
             gaps[:] = math.nan
         return gaps
