@@ -70,6 +70,9 @@ MAX_BRANCH_STEP = 0.35
 MIN_FRACTION = 1.0 / 512.0
 #: Backward-Euler gradient-flow steps allowed for one snap.
 MAX_FLOW_STEPS = 4000
+#: Accepted flow steps after a failed Newton try before the next one (unless the residual has
+#: fallen 4-fold since).
+FLOW_RETRY = 50
 #: Residual tolerances: torque residual relative to the chain's torque scale, and the gripper
 #: constraint relative to L.
 TORQUE_TOL = 1e-9
@@ -588,6 +591,11 @@ class QuasiStaticChain:
             return self.energy(th, grip, clamp) + 0.5 * rho * float(hh[0] ** 2 + hh[1] ** 2)
 
         m0 = merit(theta, h)
+        # Newton is tried once the flow is near a stable state, then again only after the
+        # residual has fallen 4-fold or FLOW_RETRY accepted steps later: each failed try costs
+        # up to MAX_NEWTON iterations with their line searches, and trying after every flow
+        # step made a snap cost seconds.
+        retry_res, since_try = math.inf, 0
         for _ in range(MAX_FLOW_STEPS):
             try:
                 dth, dlam, _ = self._kkt_solve(diag + 1.0 / tau, a, -grad, -h)
@@ -605,10 +613,13 @@ class QuasiStaticChain:
                 theta, lam, grad, diag, a, h, m0 = th2, lam2, grad2, diag2, a2, h2, m2
                 tau *= 2.0
                 res = self._measures(grad, float(h[0]), float(h[1]), self._model())[0]
-                if res < 1e6 and self.stable(hessian=(diag, a)):
+                since_try += 1
+                due = res < 0.25 * retry_res or since_try >= FLOW_RETRY
+                if res < 1e6 and due and self.stable(hessian=(diag, a)):
                     th3, lam3, conv, hess = self._newton(theta.copy(), lam.copy(), grip, clamp)
                     if conv and self._stable_newton(hess):
                         return th3, lam3, True
+                    retry_res, since_try = res, 0
             else:
                 tau *= 0.25
                 if tau * k < 1e-12:
