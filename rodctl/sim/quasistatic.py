@@ -582,15 +582,18 @@ class QuasiStaticChain:
         """Overdamped gradient flow θ' = −P ∇E on the constraint manifold, by backward-Euler
         steps (each a KKT solve with H + I/τ), τ doubling after a step that lowers the penalised
         energy and quartered after one that does not; ends with Newton once the state is stable."""
-        k, _ = self._stiffness()
-        rho = 1e3 * k / self.seg_length**2  # penalty on the end-position constraint in the merit
+        m = self._model()
+        k = m.k
+        rho = 1e3 * k / m.seg2  # penalty on the end-position constraint in the merit
         tau = 1.0 / k
-        grad, diag, a, h = self._grad_hess(theta, lam, grip, clamp)
+        ends = _ends(grip, clamp)
+        l0, l1 = lam.tolist()
+        grad, diag, z, h0, h1 = self._eval(theta, l0, l1, m, ends)
 
-        def merit(th: np.ndarray, hh: np.ndarray) -> float:
-            return self.energy(th, grip, clamp) + 0.5 * rho * float(hh[0] ** 2 + hh[1] ** 2)
+        def merit(th: np.ndarray, hx: float, hy: float) -> float:
+            return self.energy(th, grip, clamp) + 0.5 * rho * (hx * hx + hy * hy)
 
-        m0 = merit(theta, h)
+        m0 = merit(theta, h0, h1)
         # Newton is tried once the flow is near a stable state, then again only after the
         # residual has fallen 4-fold or FLOW_RETRY accepted steps later: each failed try costs
         # up to MAX_NEWTON iterations with their line searches, and trying after every flow
@@ -598,25 +601,25 @@ class QuasiStaticChain:
         retry_res, since_try = math.inf, 0
         for _ in range(MAX_FLOW_STEPS):
             try:
-                dth, dlam, _ = self._kkt_solve(diag + 1.0 / tau, a, -grad, -h)
+                # One backward-Euler step: the KKT solve with H + I/τ.
+                dth, d0, d1, _ = self._newton_step(diag + 1.0 / tau, z, grad, h0, h1, m)
             except (np.linalg.LinAlgError, ValueError):
                 tau *= 0.25
                 if tau * k < 1e-12:
                     break
                 continue
-            if dlam is None:
-                dlam = np.zeros(2)
-            th2, lam2 = theta + dth, lam + dlam
-            grad2, diag2, a2, h2 = self._grad_hess(th2, lam2, grip, clamp)
-            m2 = merit(th2, h2)
-            if np.all(np.isfinite(th2)) and m2 <= m0 + 1e-15 * abs(m0):
-                theta, lam, grad, diag, a, h, m0 = th2, lam2, grad2, diag2, a2, h2, m2
+            th2, n0, n1 = theta + dth, l0 + d0, l1 + d1
+            grad2, diag2, z2, g0, g1 = self._eval(th2, n0, n1, m, ends)
+            m2 = merit(th2, g0, g1)
+            if math.isfinite(float(_SUM(th2))) and m2 <= m0 + 1e-15 * abs(m0):
+                theta, l0, l1, grad, diag, z, h0, h1, m0 = th2, n0, n1, grad2, diag2, z2, g0, g1, m2
                 tau *= 2.0
-                res = self._measures(grad, float(h[0]), float(h[1]), self._model())[0]
+                res = self._measures(grad, h0, h1, m)[0]
                 since_try += 1
                 due = res < 0.25 * retry_res or since_try >= FLOW_RETRY
-                if res < 1e6 and due and self.stable(hessian=(diag, a)):
-                    th3, lam3, conv, hess = self._newton(theta.copy(), lam.copy(), grip, clamp)
+                if res < 1e6 and due and self._stable_newton((diag, z, None)):
+                    lam = np.array([l0, l1])
+                    th3, lam3, conv, hess = self._newton(theta, lam, grip, clamp)
                     if conv and self._stable_newton(hess):
                         return th3, lam3, True
                     retry_res, since_try = res, 0
@@ -624,7 +627,7 @@ class QuasiStaticChain:
                 tau *= 0.25
                 if tau * k < 1e-12:
                     break
-        return theta, lam, False
+        return theta, np.array([l0, l1]), False
 
     def _hermite_guess(self, grip: np.ndarray, clamp: np.ndarray) -> np.ndarray:
         """Segment angles along the cubic Hermite curve between the two end poses."""
