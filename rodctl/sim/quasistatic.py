@@ -339,7 +339,7 @@ class QuasiStaticChain:
                 dth, d0, d1, info = self._newton_step(diag, z, grad, h0, h1, m)
             except (np.linalg.LinAlgError, ValueError):
                 return theta, np.array([l0, l1]), False, (diag, z, None)
-            top = float(np.abs(dth).max())
+            top = float(_MAX(np.abs(dth)))
             if top != top:
                 return theta, np.array([l0, l1]), False, (diag, z, None)
             if top < m.converged_step:
@@ -450,7 +450,7 @@ class QuasiStaticChain:
         y1 = (s00 * b1 - s10 * b0) / det
         dth = cols[3] * r - cols[1] * y0
         dth -= cols[2] * y1
-        if not float(np.abs(dth).max()) <= MAX_BRANCH_STEP:
+        if not float(_MAX(np.abs(dth))) <= MAX_BRANCH_STEP:
             return None
         l0, l1 = self.lam.tolist()
         return self.theta + dth, np.array([l0 + y0, l1 + y1])
@@ -539,7 +539,7 @@ class QuasiStaticChain:
                 theta, lam, conv, hess = self._newton(guess, lam0, g, c)
                 good = (
                     conv
-                    and float(np.abs(theta - self.theta).max()) <= MAX_BRANCH_STEP
+                    and float(_MAX(np.abs(theta - self.theta))) <= MAX_BRANCH_STEP
                     and self._stable_newton(hess)
                 )
                 if good:
@@ -702,11 +702,12 @@ class QuasiStaticChain:
         cached = self.__dict__.get("_points_cache")
         clamp = self._clamp.tolist()
         if cached is None or cached[0] is not self.theta or cached[1] != clamp:
-            pts = np.empty((self.segments + 1, 2))
-            pts[0] = clamp[:2]
-            np.cumsum(self._tangents() * self.seg_length, out=pts[1:].view(np.complex128)[:, 0])
-            pts[1:] += pts[0]
-            cached = (self.theta, clamp, pts)
+            # p_0 = clamp, p_{k+1} = p_k + l e^{iθ_k}, as one complex cumulative sum.
+            w = np.empty(self.segments + 1, dtype=np.complex128)
+            w[0] = complex(clamp[0], clamp[1])
+            np.multiply(self._tangents(), self.seg_length, out=w[1:])
+            np.cumsum(w, out=w)
+            cached = (self.theta, clamp, w.view(np.float64).reshape(self.segments + 1, 2))
             self._points_cache = cached
         return cached[2]
 
