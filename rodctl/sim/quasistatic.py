@@ -19,9 +19,11 @@ The chain is the same as the pymunk one, term for term (module docstring of `cha
 Newton on the KKT system of the Lagrangian E + λ·h (N angles + 2 multipliers): the Hessian H of
 the Lagrangian in θ is tridiagonal (springs) plus a diagonal (gravity and the constraint's
 curvature), and the constraint Jacobian A is a 2-row border, so each Newton step is one banded
-solve with three right-hand sides (LAPACK's tridiagonal gtsv) and a 2×2 Schur complement
-S = A H⁻¹ Aᵀ: O(N). A full step that does not reduce the residual is halved (backtracking line
-search).
+solve with four right-hand sides (LAPACK's tridiagonal gtsv: −∇L, the rows of A, e_{N−1}) and a
+2×2 Schur complement S = A H⁻¹ Aᵀ: O(N). A full step that does not reduce the residual is halved
+(backtracking line search). Newton starts from a tangent predictor, the previous equilibrium plus
+(dθ/dg)·Δg by the implicit-function theorem, from the columns the previous step's last solve left
+(`_predict`).
 
 Stability: at every converged equilibrium the Hessian reduced to the constraints' tangent space
 must be positive definite. By Sylvester's law of inertia on the block factorisation of the KKT
@@ -44,19 +46,28 @@ Not supported (refused at config validation, `rodctl/config/rod.py`): table fric
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.linalg import get_lapack_funcs
 
 from rodctl.config.rod import RodConfig
 from rodctl.records import SNAP_NOTE
 from rodctl.sim.rod import ApplyResult, RodSim, register_engine
 
-#: LAPACK's tridiagonal solver (Gaussian elimination with partial pivoting): the banded solve of
-#: `scipy.linalg.solve_banded` with one sub- and super-diagonal, without its per-call overhead.
-_GTSV = get_lapack_funcs("gtsv", dtype=np.float64)
+
+@functools.cache
+def _gtsv():  # noqa: ANN202 (an f2py function)
+    """LAPACK's tridiagonal solver (Gaussian elimination with partial pivoting): the banded
+    solve of `scipy.linalg.solve_banded` with one sub- and super-diagonal, without its per-call
+    overhead. Imported on first use, not when `rodctl.sim` registers this engine: scipy.linalg
+    costs ~0.27 s of CPU at start-up, which runs on the default pymunk engine never need."""
+    from scipy.linalg import get_lapack_funcs
+
+    return get_lapack_funcs("gtsv", dtype=np.float64)
+
+
 #: The reductions as bare ufunc methods (`ndarray.sum`/`max` add a Python layer per call).
 _SUM = np.add.reduce
 _MAX = np.maximum.reduce
@@ -275,7 +286,7 @@ class QuasiStaticChain:
         """H⁻¹ rhs for H = tridiag(−k, diag, −k) (LAPACK gtsv, partial pivoting)."""
         off = self._model().off
         # f2py copies every argument it is not told to overwrite: the inputs stay intact.
-        _, _, _, x, info = _GTSV(off, diag, off, rhs)
+        _, _, _, x, info = _gtsv()(off, diag, off, rhs)
         if info != 0:
             raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
         return x
@@ -294,7 +305,7 @@ class QuasiStaticChain:
         np.negative(grad, out=m.rhs_grad)
         np.multiply(z.imag, -m.seg, out=m.rhs_a0)
         np.multiply(z.real, m.seg, out=m.rhs_a1)
-        _, _, _, sol, info = _GTSV(m.off, diag, m.off, m.rhs)
+        _, _, _, sol, info = m.gtsv(m.off, diag, m.off, m.rhs)
         if info != 0:
             raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
         seg = m.seg
@@ -920,7 +931,7 @@ class _Model:
     __slots__ = (
         "key", "k", "ke", "seg", "seg2", "off", "diag0", "kk", "pad", "pad_mid", "pad_lo",
         "pad_hi", "wg", "scale2", "torque_unit", "position_unit", "converged_step", "rhs",
-        "rhs_grad", "rhs_a0", "rhs_a1",
+        "rhs_grad", "rhs_a0", "rhs_a1", "gtsv",
     )  # fmt: skip
 
     def __init__(self, chain: QuasiStaticChain, key: tuple) -> None:
@@ -955,6 +966,7 @@ class _Model:
         self.rhs = np.zeros((n, 4), order="F")
         self.rhs[-1, 3] = 1.0
         self.rhs_grad, self.rhs_a0, self.rhs_a1 = self.rhs[:, 0], self.rhs[:, 1], self.rhs[:, 2]
+        self.gtsv = _gtsv()
 
 
 def _ends(grip: np.ndarray, clamp: np.ndarray) -> tuple[float, float, float, float]:
