@@ -41,6 +41,7 @@ reader detects the missing footer and refuses the file unless asked to recover w
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import threading
@@ -287,6 +288,35 @@ def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, A
 CameraViews = dict[int, tuple[dict[str, Any], dict[str, Any]]]
 
 
+def _quaternion(matrix: np.ndarray) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation matrix, w >= 0 (what scipy's `Rotation.as_quat(canonical=
+    True)` gives, without importing scipy.spatial at start-up: Shepperd's method, from the
+    largest of 1 + trace and 1 + 2 m_ii − trace for accuracy)."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(matrix, dtype=float).tolist()
+    trace = m00 + m11 + m22
+    big = max(range(4), key=(1 + trace, 1 + 2 * m00 - trace, 1 + 2 * m11 - trace,
+                             1 + 2 * m22 - trace).__getitem__)  # fmt: skip
+    if big == 0:
+        w = 0.5 * math.sqrt(1 + trace)
+        x, y, z = (m21 - m12) / (4 * w), (m02 - m20) / (4 * w), (m10 - m01) / (4 * w)
+    elif big == 1:
+        x = 0.5 * math.sqrt(1 + 2 * m00 - trace)
+        w, y, z = (m21 - m12) / (4 * x), (m01 + m10) / (4 * x), (m02 + m20) / (4 * x)
+    elif big == 2:
+        y = 0.5 * math.sqrt(1 + 2 * m11 - trace)
+        w, x, z = (m02 - m20) / (4 * y), (m01 + m10) / (4 * y), (m12 + m21) / (4 * y)
+    else:
+        z = 0.5 * math.sqrt(1 + 2 * m22 - trace)
+        w, x, y = (m10 - m01) / (4 * z), (m02 + m20) / (4 * z), (m12 + m21) / (4 * z)
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    q = [v / norm for v in (x, y, z, w)]
+    # Canonical sign: w > 0, or for w = 0 the first nonzero of x, y, z positive.
+    first = next((v for v in (q[3], q[0], q[1], q[2]) if v != 0.0), 1.0)
+    if first < 0:
+        q = [-v for v in q]
+    return q[0], q[1], q[2], q[3]
+
+
 def camera_views(config_yaml: str) -> CameraViews:
     """The camera as Foxglove places it, by the control step from which it holds: step 0 the
     configured camera, then one entry per `camera_bump` event (`rodctl.events`), replayed on
@@ -299,7 +329,6 @@ def camera_views(config_yaml: str) -> CameraViews:
     `Camera.rotation` (world -> camera).
     """
     from pydantic import ValidationError
-    from scipy.spatial.transform import Rotation
 
     from rodctl.config.camera import CameraConfig
     from rodctl.events import CameraBump
@@ -318,7 +347,7 @@ def camera_views(config_yaml: str) -> CameraViews:
         return {}
 
     def view(camera: Camera) -> tuple[dict[str, Any], dict[str, Any]]:
-        qx, qy, qz, qw = Rotation.from_matrix(camera.rotation.T).as_quat(canonical=True)
+        qx, qy, qz, qw = _quaternion(camera.rotation.T)
         cx, cy, cz = (float(v) for v in camera.center)
         transform = {
             "parent_frame_id": "world",

@@ -19,9 +19,11 @@ The chain is the same as the pymunk one, term for term (module docstring of `cha
 Newton on the KKT system of the Lagrangian E + λ·h (N angles + 2 multipliers): the Hessian H of
 the Lagrangian in θ is tridiagonal (springs) plus a diagonal (gravity and the constraint's
 curvature), and the constraint Jacobian A is a 2-row border, so each Newton step is one banded
-solve with three right-hand sides (LAPACK's tridiagonal gtsv) and a 2×2 Schur complement
-S = A H⁻¹ Aᵀ: O(N). A full step that does not reduce the residual is halved (backtracking line
-search).
+solve with four right-hand sides (LAPACK's tridiagonal gtsv: −∇L, the rows of A, e_{N−1}) and a
+2×2 Schur complement S = A H⁻¹ Aᵀ: O(N). A full step that does not reduce the residual is halved
+(backtracking line search). Newton starts from a tangent predictor, the previous equilibrium plus
+(dθ/dg)·Δg by the implicit-function theorem, from the columns the previous step's last solve left
+(`_predict`).
 
 Stability: at every converged equilibrium the Hessian reduced to the constraints' tangent space
 must be positive definite. By Sylvester's law of inertia on the block factorisation of the KKT
@@ -36,7 +38,7 @@ I/τ added to H, τ growing as the flow settles — to the next stable equilibri
 and keeps a note of it (`QuasiStaticChain.snap_notes`). A jump inside a converged sub-step is
 caught by a heuristic only (no segment turns more than `MAX_BRANCH_STEP` in one sub-step).
 
-No BLAS call in the solve (LAPACK's gtsv and pttrf are plain loops; the few products are
+No BLAS call in the solve (LAPACK's gtsv is a plain loop; the few products are
 elementwise), so results do not depend on the BLAS kernel.
 
 Not supported (refused at config validation, `rodctl/config/rod.py`): table friction.
@@ -44,22 +46,31 @@ Not supported (refused at config validation, `rodctl/config/rod.py`): table fric
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.linalg import get_lapack_funcs
 
 from rodctl.config.rod import RodConfig
 from rodctl.records import SNAP_NOTE
 from rodctl.sim.rod import ApplyResult, RodSim, register_engine
 
-#: LAPACK's tridiagonal solver (Gaussian elimination with partial pivoting): the banded solve of
-#: `scipy.linalg.solve_banded` with one sub- and super-diagonal, without its per-call overhead.
-_GTSV = get_lapack_funcs("gtsv", dtype=np.float64)
-#: LAPACK's L D Lᵀ of a symmetric tridiagonal matrix; fails (info > 0) unless it is positive
-#: definite.
-_PTTRF = get_lapack_funcs("pttrf", dtype=np.float64)
+
+@functools.cache
+def _gtsv():  # noqa: ANN202 (an f2py function)
+    """LAPACK's tridiagonal solver (Gaussian elimination with partial pivoting): the banded
+    solve of `scipy.linalg.solve_banded` with one sub- and super-diagonal, without its per-call
+    overhead. Imported on first use, not when `rodctl.sim` registers this engine: scipy.linalg
+    costs ~0.27 s of CPU at start-up, which runs on the default pymunk engine never need."""
+    from scipy.linalg import get_lapack_funcs
+
+    return get_lapack_funcs("gtsv", dtype=np.float64)
+
+
+#: The reductions as bare ufunc methods (`ndarray.sum`/`max` add a Python layer per call).
+_SUM = np.add.reduce
+_MAX = np.maximum.reduce
 
 #: Newton iterations allowed per solve before the sub-step is halved.
 MAX_NEWTON = 25
@@ -70,6 +81,9 @@ MAX_BRANCH_STEP = 0.35
 MIN_FRACTION = 1.0 / 512.0
 #: Backward-Euler gradient-flow steps allowed for one snap.
 MAX_FLOW_STEPS = 4000
+#: Accepted flow steps after a failed Newton try before the next one (unless the residual has
+#: fallen 4-fold since).
+FLOW_RETRY = 50
 #: Residual tolerances: torque residual relative to the chain's torque scale, and the gripper
 #: constraint relative to L.
 TORQUE_TOL = 1e-9
@@ -167,14 +181,6 @@ class QuasiStaticChain:
         k = self.bending_stiffness / self.seg_length
         return k, 2.0 * k
 
-    def _offdiag(self) -> np.ndarray:
-        """H's constant off-diagonal −k (N−1,), cached per EI (do not modify: copy)."""
-        cached = self.__dict__.get("_off_cache")
-        if cached is None or cached[0] != self.bending_stiffness:
-            cached = (self.bending_stiffness, np.full(self.segments - 1, -self._stiffness()[0]))
-            self._off_cache = cached
-        return cached[1]
-
     def _torque_scale(self) -> float:
         """EI/L + ρA|g|L² + |P|L: the size of the torques, for the residual tolerance."""
         key = (self.bending_stiffness, self.mass_per_length)
@@ -191,61 +197,60 @@ class QuasiStaticChain:
             self._scale_cache = cached
         return cached[1]
 
+    def _model(self) -> _Model:
+        """The constant parts of the system for the current EI, ρA and tolerance (cached)."""
+        m = self.__dict__.get("_model_cache")
+        key = (self.bending_stiffness, self.mass_per_length, self.torque_tol)
+        if m is None or m.key != key:
+            m = _Model(self, key)
+            self._model_cache = m
+        return m
+
+    def _eval(
+        self, theta: np.ndarray, l0: float, l1: float, m: _Model, ends: tuple
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+        """(∇_θ L, main diagonal of H, z = e^{iθ} (N,) complex, h_x, h_y) at θ, λ = (l0, l1);
+        `ends` = (θ_clamp, θ_gripper, gripper x − clamp x, gripper y − clamp y). H's
+        off-diagonal is the constant −k; the constraint Jacobian is A = l (−sin θ, cos θ).
+
+        Few numpy calls on purpose: at N = 50 a call costs more than its O(N) algebra. The
+        springs' gradient is τ_j − τ_{j+1} with τ = k_j Δθ over the padded angles
+        [θ_c, θ, θ_g] (k_j = k_e at the two ends, 0 at a free end); the body loads (gravity at
+        the centres, a dead tip load) and the constraint's λ·A are all of the form
+        α_j cos θ_j + β_j sin θ_j, in the gradient and in H's diagonal alike, so one complex
+        product ζ·z gives both (its imaginary part the gradient, its real part the diagonal)."""
+        pad = m.pad
+        pad[0] = ends[0]
+        m.pad_mid[...] = theta
+        pad[-1] = ends[1]
+        tau = np.subtract(m.pad_hi, m.pad_lo)
+        tau *= m.kk
+        grad = np.subtract(tau[:-1], tau[1:])
+        z = np.exp(theta * 1j)
+        seg = m.seg
+        lam = complex(-seg * l0, seg * l1)
+        prod = z * lam if m.wg is None else (m.wg + lam) * z
+        grad += prod.imag
+        diag = np.add(m.diag0, prod.real)
+        if not self.gripped:
+            return grad, diag, z, 0.0, 0.0
+        zs = complex(_SUM(z))
+        return grad, diag, z, seg * zs.real - ends[2], seg * zs.imag - ends[3]
+
     def _grad_hess(
         self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(∇_θ L, main diagonal of H, A (2, N), h (2,)); H's off-diagonal is the constant −k.
-
-        Few numpy calls on purpose: at N = 50 the algebra is cheaper than the call overhead."""
-        seg = self.seg_length
-        k, ke = self._stiffness()
-        c = np.cos(theta)
-        s = np.sin(theta)
-        kd = (theta[1:] - theta[:-1]) * k
-        grad = np.empty(self.segments)
-        grad[:-1] = -kd
-        grad[-1] = 0.0
-        grad[1:] += kd
-        grad[0] += ke * (float(theta[0]) - float(clamp[2]))
-        diag = self._diag0().copy()
-        a = np.empty((2, self.segments))
-        np.multiply(s, -seg, out=a[0])  # A = l (−sin θ_j, cos θ_j)
-        np.multiply(c, seg, out=a[1])
-        # Body loads: gravity at the centres (weights N − j − 1/2) and a dead tip load.
-        gx, gy = self.gravity
-        if gx or gy:
-            w = (self.segment_mass * seg) * self._weights
-            grad -= w * (gy * c - gx * s)
-            diag += w * (gx * c + gy * s)
-        if self.tip_force is not None:
-            px, py = self.tip_force.tolist()
-            grad -= seg * (py * c - px * s)
-            diag += seg * (px * c + py * s)
-        if not self.gripped:
-            return grad, diag, a, np.zeros(2)
+        """(∇_θ L, main diagonal of H, A (2, N), h (2,)); H's off-diagonal is the constant −k."""
         l0, l1 = lam.tolist()
-        grad[-1] -= ke * (float(grip[2]) - float(theta[-1]))
-        grad += l1 * a[1] + l0 * a[0]
-        diag -= (seg * l0) * c + (seg * l1) * s
-        h = np.array(
-            [
-                seg * float(c.sum()) - (float(grip[0]) - float(clamp[0])),
-                seg * float(s.sum()) - (float(grip[1]) - float(clamp[1])),
-            ]
-        )
-        return grad, diag, a, h
+        grad, diag, z, h0, h1 = self._eval(theta, l0, l1, self._model(), _ends(grip, clamp))
+        a = np.empty((2, self.segments))
+        np.multiply(z.imag, -self.seg_length, out=a[0])  # A = l (−sin θ_j, cos θ_j)
+        np.multiply(z.real, self.seg_length, out=a[1])
+        return grad, diag, a, np.array([h0, h1])
 
-    def _diag0(self) -> np.ndarray:
-        """The springs' part of H's main diagonal (N,), cached per EI (do not modify: copy)."""
-        cached = self.__dict__.get("_diag_cache")
-        if cached is None or cached[0] != self.bending_stiffness:
-            k, ke = self._stiffness()
-            d = np.full(self.segments, 2.0 * k)
-            d[0] = k + ke
-            d[-1] = k + ke if self.gripped else k
-            cached = (self.bending_stiffness, d)
-            self._diag_cache = cached
-        return cached[1]
+    def _offdiag(self) -> np.ndarray:
+        """H's constant off-diagonal −k (N−1,) (do not modify)."""
+        return self._model().off
 
     def _kkt_solve(
         self, diag: np.ndarray, a: np.ndarray, rhs_theta: np.ndarray, rhs_h: np.ndarray
@@ -253,7 +258,8 @@ class QuasiStaticChain:
         """Solve [H Aᵀ; A 0] [x; y] = [rhs_theta; rhs_h] (rhs_theta (N,) or (N, q)) with one
         tridiagonal solve of H against [rhs, Aᵀ] and the 2×2 Schur complement S = A H⁻¹ Aᵀ.
 
-        Returns (x, y, S); y and S are None for a free-ended chain (no constraint)."""
+        Returns (x, y, S); y and S are None for a free-ended chain (no constraint). The
+        general form (the gradient flow, the Jacobian); Newton's steps use `_newton_step`."""
         if not self.gripped:
             return self._tridiag(diag, rhs_theta), None, None
         q = 1 if rhs_theta.ndim == 1 else rhs_theta.shape[1]
@@ -278,57 +284,93 @@ class QuasiStaticChain:
 
     def _tridiag(self, diag: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """H⁻¹ rhs for H = tridiag(−k, diag, −k) (LAPACK gtsv, partial pivoting)."""
-        off = self._offdiag()
+        off = self._model().off
         # f2py copies every argument it is not told to overwrite: the inputs stay intact.
-        _, _, _, x, info = _GTSV(off, diag, off, rhs)
+        _, _, _, x, info = _gtsv()(off, diag, off, rhs)
         if info != 0:
             raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
         return x
 
-    def _measures(self, grad: np.ndarray, h: np.ndarray) -> tuple[float, float]:
+    def _newton_step(
+        self, diag: np.ndarray, z: np.ndarray, grad: np.ndarray, h0: float, h1: float, m: _Model
+    ) -> tuple[np.ndarray, float, float, tuple | None]:
+        """One Newton step of the KKT system: (dθ, dλ_x, dλ_y, what the solve left over).
+
+        One gtsv call solves H against four columns at once: −∇L, the two rows of Aᵀ and the
+        unit vector e_{N−1}; the 2×2 Schur complement S = A H⁻¹ Aᵀ and the four products
+        A H⁻¹(·) come from one complex sum (A = l (−Im, Re) of e^{iθ}). Left over, for the
+        stability check and the tangent predictor: (S, A H⁻¹ e_{N−1}, the solution columns)."""
+        if not self.gripped:
+            return self._tridiag(diag, -grad), 0.0, 0.0, None
+        np.negative(grad, out=m.rhs_grad)
+        np.multiply(z.imag, -m.seg, out=m.rhs_a0)
+        np.multiply(z.real, m.seg, out=m.rhs_a1)
+        _, _, _, sol, info = m.gtsv(m.off, diag, m.off, m.rhs)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
+        seg = m.seg
+        r0, r1, r2, r3 = _SUM(z[:, None] * sol, axis=0).tolist()  # Σ e^{iθ} (H⁻¹ columns)
+        s00, s01 = -seg * r1.imag, -seg * r2.imag
+        s10, s11 = seg * r1.real, seg * r2.real
+        det = s00 * s11 - s01 * s10
+        if det == 0.0 or det != det:
+            raise np.linalg.LinAlgError("singular Schur complement")
+        # A x = −h with x = H⁻¹ (−∇L − Aᵀ y)  ->  S y = A H⁻¹(−∇L) + h.
+        b0, b1 = h0 - seg * r0.imag, h1 + seg * r0.real
+        y0 = (s11 * b0 - s01 * b1) / det
+        y1 = (s00 * b1 - s10 * b0) / det
+        cols = sol.T
+        dth = cols[0] - cols[1] * y0
+        dth -= cols[2] * y1
+        return dth, y0, y1, ((s00, s01, s10, s11), (-seg * r3.imag, seg * r3.real), cols)
+
+    def _measures(self, grad: np.ndarray, h0: float, h1: float, m: _Model) -> tuple[float, float]:
         """(residual in units of the tolerance (<= 1: converged), merit for the line search)."""
-        scale = self._torque_scale()
-        h0, h1 = h.tolist()
-        g = float(np.abs(grad).max()) / (self.torque_tol * scale)
-        hh = (abs(h0) + abs(h1)) / (POSITION_TOL * self.length)
-        merit = float((grad * grad).sum()) / scale**2 + (h0 * h0 + h1 * h1) / self.seg_length**2
+        sq = grad * grad
+        g = math.sqrt(float(_MAX(sq))) / m.torque_unit
+        hh = (abs(h0) + abs(h1)) / m.position_unit
+        merit = float(_SUM(sq)) / m.scale2 + (h0 * h0 + h1 * h1) / m.seg2
         return max(g, hh), merit
 
     def _newton(
         self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, bool, tuple]:
-        """Newton with backtracking on the KKT residual; (θ, λ, converged, (diag, A) at θ)."""
-        grad, diag, a, h = self._grad_hess(theta, lam, grip, clamp)
-        res, merit = self._measures(grad, h)
+        """Newton with backtracking on the KKT residual; (θ, λ, converged, hess) where hess =
+        (diag of H, e^{iθ}, the last solve's left-overs or None) at the last linearisation."""
+        m = self._model()
+        ends = _ends(grip, clamp)
+        l0, l1 = lam.tolist()
+        grad, diag, z, h0, h1 = self._eval(theta, l0, l1, m, ends)
+        res, merit = self._measures(grad, h0, h1, m)
         for _ in range(MAX_NEWTON):
             if res <= 1.0:
-                return theta, lam, True, (diag, a)
+                return theta, np.array([l0, l1]), True, (diag, z, None)
             self.newton_iterations += 1
             try:
-                dth, dlam, _ = self._kkt_solve(diag, a, -grad, -h)
+                dth, d0, d1, info = self._newton_step(diag, z, grad, h0, h1, m)
             except (np.linalg.LinAlgError, ValueError):
-                return theta, lam, False, (diag, a)
-            if dlam is None:
-                dlam = np.zeros(2)
-            if not np.isfinite(dth).all():
-                return theta, lam, False, (diag, a)
-            if float(np.abs(dth).max()) < CONVERGED_STEP * math.sqrt(self.torque_tol):
+                return theta, np.array([l0, l1]), False, (diag, z, None)
+            top = float(_MAX(np.abs(dth)))
+            if top != top:
+                return theta, np.array([l0, l1]), False, (diag, z, None)
+            if top < m.converged_step:
                 # Quadratic convergence: the residual after this step is O(step²), far below
                 # the tolerance; the Hessian at θ stands for the one at θ + dθ.
-                return theta + dth, lam + dlam, True, (diag, a)
+                return theta + dth, np.array([l0 + d0, l1 + d1]), True, (diag, z, info)
             step = 1.0
             for _ in range(30):
-                th2 = theta + step * dth
-                lam2 = lam + step * dlam
-                grad2, diag2, a2, h2 = self._grad_hess(th2, lam2, grip, clamp)
-                res2, merit2 = self._measures(grad2, h2)
+                th2 = theta + step * dth if step != 1.0 else theta + dth
+                m0, m1 = l0 + step * d0, l1 + step * d1
+                grad2, diag2, z2, g0, g1 = self._eval(th2, m0, m1, m, ends)
+                res2, merit2 = self._measures(grad2, g0, g1, m)
                 if res2 <= 1.0 or merit2 < (1.0 - 1e-4 * step) * merit:
                     break
                 step *= 0.5
             else:
-                return theta, lam, False, (diag, a)
-            theta, lam, grad, diag, a, h, res, merit = th2, lam2, grad2, diag2, a2, h2, res2, merit2
-        return theta, lam, res <= 1.0, (diag, a)
+                return theta, np.array([l0, l1]), False, (diag, z, None)
+            theta, l0, l1, grad, diag, z, h0, h1 = th2, m0, m1, grad2, diag2, z2, g0, g1
+            res, merit = res2, merit2
+        return theta, np.array([l0, l1]), res <= 1.0, (diag, z, None)
 
     def stable(
         self,
@@ -342,8 +384,8 @@ class QuasiStaticChain:
         the tangent space of the end-position constraint is positive definite.
 
         By Sylvester's law of inertia on [H Aᵀ; A 0] = [I 0; A H⁻¹ I] [H 0; 0 −S] [...]ᵀ, that
-        is: (negative eigenvalues of H) + (positive eigenvalues of S = A H⁻¹ Aᵀ) = 2. H positive
-        definite (LAPACK pttrf succeeds) is the common case and settles it at once.
+        is: (negative eigenvalues of H) + (positive eigenvalues of S = A H⁻¹ Aᵀ) = 2; the
+        negative eigenvalues of the tridiagonal H are its negative L D Lᵀ pivots.
         `hessian`: (diag, A) already computed at this state."""
         if hessian is None:
             theta = self.theta if theta is None else theta
@@ -353,20 +395,9 @@ class QuasiStaticChain:
             _, diag, a, _ = self._grad_hess(theta, lam, grip, clamp)
         else:
             diag, a = hessian
-        k = self._stiffness()[0]
-        *_, info = _PTTRF(diag, self._offdiag())
-        if info == 0:
-            return True
-        # Negative pivots of H = L D Lᵀ (the tridiagonal recurrence counts them).
-        off2 = k * k
-        negative = 0
-        pivot = 1.0
-        for i, di in enumerate(diag.tolist()):
-            pivot = di - (off2 / pivot if i else 0.0)
-            if pivot == 0.0 or pivot != pivot:
-                return False
-            if pivot < 0.0:
-                negative += 1
+        negative = self._negative_pivots(diag)
+        if negative is None:
+            return False
         if not self.gripped:
             return negative == 0
         try:
@@ -374,9 +405,66 @@ class QuasiStaticChain:
         except (np.linalg.LinAlgError, ValueError):
             return False
         (s00, s01), (s10, s11) = _mat2(a, hinv_at).tolist()
-        det = s00 * s11 - 0.25 * (s01 + s10) ** 2
-        positive = 1 if det < 0 else (2 if s00 + s11 > 0 else 0) if det > 0 else -9
-        return negative + positive == 2
+        return negative + _positive_eigenvalues(s00, s01, s10, s11) == 2
+
+    def _stable_newton(self, hess: tuple) -> bool:
+        """`stable` at the end of `_newton`, reusing its last solve's Schur complement."""
+        diag, z, info = hess
+        if info is None:
+            a = np.empty((2, self.segments))
+            np.multiply(z.imag, -self.seg_length, out=a[0])
+            np.multiply(z.real, self.seg_length, out=a[1])
+            return self.stable(hessian=(diag, a))
+        negative = self._negative_pivots(diag)
+        if negative is None:
+            return False
+        if not self.gripped:
+            return negative == 0
+        return negative + _positive_eigenvalues(*info[0]) == 2
+
+    def _negative_pivots(self, diag: np.ndarray) -> int | None:
+        """How many pivots of H = L D Lᵀ (tridiag(−k, diag, −k)) are negative (None: a zero
+        or NaN pivot); > 2 is returned as 3 (unstable whatever S)."""
+        k = self._model().k
+        off2 = k * k
+        values = diag.tolist()
+        pivot = values[0]
+        negative = pivot < 0.0
+        try:
+            for di in values[1:]:
+                pivot = di - off2 / pivot
+                if pivot < 0.0:
+                    negative += 1
+                    if negative > 2:
+                        return 3
+        except ZeroDivisionError:
+            return None
+        if pivot == 0.0 or pivot != pivot:
+            return None
+        return int(negative)
+
+    def _predict(self, grip: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Tangent predictor: the current equilibrium plus (dθ/dg, dλ/dg) · (grip − g), from the
+        implicit-function theorem on the KKT system (see `pose_jacobian`), with the columns the
+        last Newton solve left over; None when there are none for this state, or the
+        prediction turns a segment by more than `MAX_BRANCH_STEP`."""
+        tangent = self.__dict__.get("_tangent")
+        if tangent is None or tangent[0] is not self.theta or tangent[1] != self._model().key:
+            return None
+        (s00, s01, s10, s11), (aw0, aw1), cols = tangent[2]
+        gx, gy, gt = grip.tolist()
+        ox, oy, ot = self._grip.tolist()
+        r = self._model().ke * (gt - ot)
+        b0, b1 = r * aw0 - (gx - ox), r * aw1 - (gy - oy)
+        det = s00 * s11 - s01 * s10
+        y0 = (s11 * b0 - s01 * b1) / det
+        y1 = (s00 * b1 - s10 * b0) / det
+        dth = cols[3] * r - cols[1] * y0
+        dth -= cols[2] * y1
+        if not float(_MAX(np.abs(dth))) <= MAX_BRANCH_STEP:
+            return None
+        l0, l1 = self.lam.tolist()
+        return self.theta + dth, np.array([l0 + y0, l1 + y1])
 
     def energy(
         self,
@@ -427,14 +515,15 @@ class QuasiStaticChain:
         self.steps += 1
 
     def _solve_to(self, grip: np.ndarray, clamp: np.ndarray) -> bool:
-        if not (np.isfinite(self.theta).all() and np.isfinite(self.lam).all()):
+        if not (self._finite() and math.isfinite(sum(self.lam.tolist()))):
             self._grip, self._clamp = grip, clamp
             return False
         g0, c0 = self._grip, self._clamp
         # Unchanged end poses (a change of the rod itself, or a free end): there is no path to
         # sub-step along, so where Newton does not reach a stable state near the old one the
         # overdamped gradient flow from the old shape is the rod's response, not a snap.
-        moving = not (np.array_equal(grip, g0) and np.array_equal(clamp, c0))
+        moving = not (grip.tolist() == g0.tolist() and clamp.tolist() == c0.tolist())
+        clamp_fixed = clamp.tolist() == c0.tolist()
         done, frac = 0.0, 1.0
         ok = True
         while done < 1.0:
@@ -445,19 +534,30 @@ class QuasiStaticChain:
                 g = g0 + (grip - g0) * f
                 c = c0 + (clamp - c0) * f
             start = self.theta  # never modified in place: every update makes a new array
+            guesses: list[tuple[np.ndarray, np.ndarray]] = [(start, self.lam)]
             if self.gripped and self._maybe_straight and float(np.ptp(start)) < 1e-9:
                 # A straight chain: the end-position constraint is degenerate along the rod
                 # (its Jacobian has rank 1), so Newton cannot start there; start from a smooth
                 # curve through both end poses instead.
-                start = self._hermite_guess(g, c)
-            theta, lam, conv, hess = self._newton(start, self.lam, g, c)
-            good = (
-                conv
-                and float(np.abs(theta - self.theta).max()) <= MAX_BRANCH_STEP
-                and self.stable(hessian=hess)
-            )
+                guesses = [(self._hermite_guess(g, c), self.lam)]
+            elif self.gripped and clamp_fixed:
+                # Along the path, start from the tangent predictor (1-2 Newton iterations
+                # instead of 3-5); where it does not lead to an accepted state, from the old one.
+                predicted = self._predict(g)
+                if predicted is not None:
+                    guesses.insert(0, predicted)
+            for guess, lam0 in guesses:
+                theta, lam, conv, hess = self._newton(guess, lam0, g, c)
+                good = (
+                    conv
+                    and float(_MAX(np.abs(theta - self.theta))) <= MAX_BRANCH_STEP
+                    and self._stable_newton(hess)
+                )
+                if good:
+                    break
             if good:
                 self.theta, self.lam, self._grip, self._clamp = theta, lam, g, c
+                self._tangent = None if hess[2] is None else (theta, self._model().key, hess[2])
                 self._maybe_straight = False
                 done = f
                 frac = min(2.0 * frac, 1.0)
@@ -493,40 +593,52 @@ class QuasiStaticChain:
         """Overdamped gradient flow θ' = −P ∇E on the constraint manifold, by backward-Euler
         steps (each a KKT solve with H + I/τ), τ doubling after a step that lowers the penalised
         energy and quartered after one that does not; ends with Newton once the state is stable."""
-        k, _ = self._stiffness()
-        rho = 1e3 * k / self.seg_length**2  # penalty on the end-position constraint in the merit
+        m = self._model()
+        k = m.k
+        rho = 1e3 * k / m.seg2  # penalty on the end-position constraint in the merit
         tau = 1.0 / k
-        grad, diag, a, h = self._grad_hess(theta, lam, grip, clamp)
+        ends = _ends(grip, clamp)
+        l0, l1 = lam.tolist()
+        grad, diag, z, h0, h1 = self._eval(theta, l0, l1, m, ends)
 
-        def merit(th: np.ndarray, hh: np.ndarray) -> float:
-            return self.energy(th, grip, clamp) + 0.5 * rho * float(hh[0] ** 2 + hh[1] ** 2)
+        def merit(th: np.ndarray, hx: float, hy: float) -> float:
+            return self.energy(th, grip, clamp) + 0.5 * rho * (hx * hx + hy * hy)
 
-        m0 = merit(theta, h)
+        m0 = merit(theta, h0, h1)
+        # Newton is tried once the flow is near a stable state, then again only after the
+        # residual has fallen 4-fold or FLOW_RETRY accepted steps later: each failed try costs
+        # up to MAX_NEWTON iterations with their line searches, and trying after every flow
+        # step made a snap cost seconds.
+        retry_res, since_try = math.inf, 0
         for _ in range(MAX_FLOW_STEPS):
             try:
-                dth, dlam, _ = self._kkt_solve(diag + 1.0 / tau, a, -grad, -h)
+                # One backward-Euler step: the KKT solve with H + I/τ.
+                dth, d0, d1, _ = self._newton_step(diag + 1.0 / tau, z, grad, h0, h1, m)
             except (np.linalg.LinAlgError, ValueError):
                 tau *= 0.25
                 if tau * k < 1e-12:
                     break
                 continue
-            if dlam is None:
-                dlam = np.zeros(2)
-            th2, lam2 = theta + dth, lam + dlam
-            grad2, diag2, a2, h2 = self._grad_hess(th2, lam2, grip, clamp)
-            m2 = merit(th2, h2)
-            if np.all(np.isfinite(th2)) and m2 <= m0 + 1e-15 * abs(m0):
-                theta, lam, grad, diag, a, h, m0 = th2, lam2, grad2, diag2, a2, h2, m2
+            th2, n0, n1 = theta + dth, l0 + d0, l1 + d1
+            grad2, diag2, z2, g0, g1 = self._eval(th2, n0, n1, m, ends)
+            m2 = merit(th2, g0, g1)
+            if math.isfinite(float(_SUM(th2))) and m2 <= m0 + 1e-15 * abs(m0):
+                theta, l0, l1, grad, diag, z, h0, h1, m0 = th2, n0, n1, grad2, diag2, z2, g0, g1, m2
                 tau *= 2.0
-                if self._measures(grad, h)[0] < 1e6 and self.stable(hessian=(diag, a)):
-                    th3, lam3, conv, hess = self._newton(theta.copy(), lam.copy(), grip, clamp)
-                    if conv and self.stable(hessian=hess):
+                res = self._measures(grad, h0, h1, m)[0]
+                since_try += 1
+                due = res < 0.25 * retry_res or since_try >= FLOW_RETRY
+                if res < 1e6 and due and self._stable_newton((diag, z, None)):
+                    lam = np.array([l0, l1])
+                    th3, lam3, conv, hess = self._newton(theta, lam, grip, clamp)
+                    if conv and self._stable_newton(hess):
                         return th3, lam3, True
+                    retry_res, since_try = res, 0
             else:
                 tau *= 0.25
                 if tau * k < 1e-12:
                     break
-        return theta, lam, False
+        return theta, np.array([l0, l1]), False
 
     def _hermite_guess(self, grip: np.ndarray, clamp: np.ndarray) -> np.ndarray:
         """Segment angles along the cubic Hermite curve between the two end poses."""
@@ -583,9 +695,36 @@ class QuasiStaticChain:
         pts[1:, 1] = clamp[1] + np.cumsum(seg * np.sin(theta))
         return pts
 
+    def _tangents(self) -> np.ndarray:
+        """e^{iθ} (N,) complex of the current angles (cached per state: the readouts after a
+        step share it)."""
+        cached = self.__dict__.get("_z_cache")
+        if cached is None or cached[0] is not self.theta:
+            cached = (self.theta, np.exp(1j * self.theta))
+            self._z_cache = cached
+        return cached[1]
+
+    def _finite(self) -> bool:
+        """Whether the angles are all finite (their sum is: NaN and inf propagate)."""
+        return math.isfinite(float(self.theta.sum()))
+
+    def _joints(self) -> np.ndarray:
+        """The joint points of the current state (cached per state: do not modify)."""
+        cached = self.__dict__.get("_points_cache")
+        clamp = self._clamp.tolist()
+        if cached is None or cached[0] is not self.theta or cached[1] != clamp:
+            # p_0 = clamp, p_{k+1} = p_k + l e^{iθ_k}, as one complex cumulative sum.
+            w = np.empty(self.segments + 1, dtype=np.complex128)
+            w[0] = complex(clamp[0], clamp[1])
+            np.multiply(self._tangents(), self.seg_length, out=w[1:])
+            np.cumsum(w, out=w)
+            cached = (self.theta, clamp, w.view(np.float64).reshape(self.segments + 1, 2))
+            self._points_cache = cached
+        return cached[2]
+
     def joint_points(self) -> np.ndarray:
         """(N+1, 2) centreline at the joints, clamp end first (exact: the chain is closed)."""
-        return self._points(self.theta, self._clamp)
+        return self._joints().copy()
 
     def segment_states(self) -> np.ndarray:
         """(N, 3) segment centres and angles [x, y, angle], world frame."""
@@ -602,18 +741,15 @@ class QuasiStaticChain:
         entry is how far the chain's end is from the gripper (the constraint residual)."""
         gaps = np.zeros(self.segments + (1 if self.gripped else 0))
         if self.gripped:
-            seg = self.seg_length
-            cx, cy, _ = self._clamp.tolist()
+            ex, ey = self._joints()[-1].tolist()
             gx, gy, _ = self._grip.tolist()
-            ex = cx + seg * float(np.cos(self.theta).sum()) - gx
-            ey = cy + seg * float(np.sin(self.theta).sum()) - gy
-            gaps[-1] = math.hypot(ex, ey)
-        if not np.isfinite(self.theta).all():
+            gaps[-1] = math.hypot(ex - gx, ey - gy)
+        if not self._finite():
             gaps[:] = math.nan
         return gaps
 
     def max_speed(self) -> float:
-        return math.nan if not np.all(np.isfinite(self.theta)) else 0.0
+        return 0.0 if self._finite() else math.nan
 
     def kinetic_energy(self) -> float:
         return self.max_speed()
@@ -693,7 +829,7 @@ class QuasiStaticSim(RodSim):
 
     def _settle(self, target: np.ndarray) -> tuple[bool, bool]:
         """Nothing to wait for: the step's solve already is the settled state."""
-        if not np.all(np.isfinite(self.chain.theta)):
+        if not self.chain._finite():
             return False, True
         return bool(self.chain.converged), False
 
@@ -785,6 +921,69 @@ class QuasiStaticSim(RodSim):
     def centerline_jacobian(self) -> np.ndarray:
         """(N+1, 2, 3) d(joint points)/d(gripper pose [x, y, θ]) at the current equilibrium."""
         return self.chain.joint_points_jacobian()
+
+
+class _Model:
+    """The parts of a chain's KKT system that stay constant while EI, ρA and the tolerance do:
+    the springs' part of H, the loads' complex weights, the tolerance units and the
+    right-hand-side buffer of `_newton_step` (column 3 is the fixed unit vector e_{N−1})."""
+
+    __slots__ = (
+        "key", "k", "ke", "seg", "seg2", "off", "diag0", "kk", "pad", "pad_mid", "pad_lo",
+        "pad_hi", "wg", "scale2", "torque_unit", "position_unit", "converged_step", "rhs",
+        "rhs_grad", "rhs_a0", "rhs_a1", "gtsv",
+    )  # fmt: skip
+
+    def __init__(self, chain: QuasiStaticChain, key: tuple) -> None:
+        n, seg = chain.segments, chain.seg_length
+        k, ke = chain._stiffness()
+        self.key, self.k, self.ke, self.seg, self.seg2 = key, k, ke, seg, seg * seg
+        self.off = np.full(n - 1, -k)
+        self.diag0 = np.full(n, 2.0 * k)
+        self.diag0[0] = k + ke
+        self.diag0[-1] = k + ke if chain.gripped else k
+        # Spring constants of the N+1 links of the padded angles [θ_c, θ_0..θ_{N-1}, θ_g].
+        self.kk = np.full(n + 1, k)
+        self.kk[0] = ke
+        self.kk[-1] = ke if chain.gripped else 0.0
+        self.pad = np.zeros(n + 2)
+        self.pad_mid, self.pad_lo, self.pad_hi = self.pad[1:-1], self.pad[:-1], self.pad[1:]
+        # Body loads as complex weights: gravity at the centres (segment j's angle moves the
+        # centres of j, by l/2, and of all after it) and a dead tip load.
+        gx, gy = chain.gravity
+        wg = None
+        if gx or gy:
+            wg = ((chain.segment_mass * seg) * chain._weights) * complex(gx, -gy)
+        if chain.tip_force is not None:
+            px, py = chain.tip_force.tolist()
+            wg = (0.0 if wg is None else wg) + np.full(n, seg * complex(px, -py))
+        self.wg = wg
+        scale = chain._torque_scale()
+        self.scale2 = scale * scale
+        self.torque_unit = chain.torque_tol * scale
+        self.position_unit = POSITION_TOL * chain.length
+        self.converged_step = CONVERGED_STEP * math.sqrt(chain.torque_tol)
+        self.rhs = np.zeros((n, 4), order="F")
+        self.rhs[-1, 3] = 1.0
+        self.rhs_grad, self.rhs_a0, self.rhs_a1 = self.rhs[:, 0], self.rhs[:, 1], self.rhs[:, 2]
+        self.gtsv = _gtsv()
+
+
+def _ends(grip: np.ndarray, clamp: np.ndarray) -> tuple[float, float, float, float]:
+    """(θ_clamp, θ_gripper, gripper x − clamp x, gripper y − clamp y) as floats."""
+    gx, gy, gt = grip.tolist()
+    cx, cy, ct = clamp.tolist()
+    return ct, gt, gx - cx, gy - cy
+
+
+def _positive_eigenvalues(s00: float, s01: float, s10: float, s11: float) -> int:
+    """Positive eigenvalues of the (symmetrised) 2×2 matrix; −9 when it is singular."""
+    det = s00 * s11 - 0.25 * (s01 + s10) ** 2
+    if det < 0:
+        return 1
+    if det > 0:
+        return 2 if s00 + s11 > 0 else 0
+    return -9
 
 
 def _mat2(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -33,6 +33,9 @@ DEFAULT_HOME_IN_CLAMP_FRAME = (0.8, 0.2, 0.5)
 #: Settled home states by rod configuration (`RodSim.at_home`).
 _HOME_STATES: dict[str, dict] = {}
 
+#: The reduction as a bare ufunc method (np.max adds a Python layer per call).
+_MAX = np.maximum.reduce
+
 #: Steps between two speed checks while settling (a batch read costs about one step).
 SETTLE_CHECK_EVERY = 5
 
@@ -351,6 +354,18 @@ class RodSim:
         """
         pose = np.asarray(pose, dtype=float)
         ws = self.cfg.workspace
+        # Fast path (the usual case; the quasi-static engine's step costs about as much as this
+        # check otherwise): a pose inside the box and the reach is returned unchanged, exactly
+        # what the cuts below would return for it.
+        x, y, t = pose.tolist()
+        cx, cy = self.chain.current_clamp_pose()[:2].tolist()
+        if (
+            ws.x_limits[0] <= x <= ws.x_limits[1]
+            and ws.y_limits[0] <= y <= ws.y_limits[1]
+            and ws.theta_limits[0] <= t <= ws.theta_limits[1]
+            and float(np.hypot(x - cx, y - cy)) <= ws.max_reach * self.held_length
+        ):
+            return pose.copy(), False
         lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]])
         hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]])
         out = np.clip(pose, lo, hi)
@@ -381,7 +396,7 @@ class RodSim:
         u = np.asarray(u, dtype=float).reshape(3)
         if not np.all(np.isfinite(u)):
             raise ValueError(f"RodSim.apply: non-finite command {u}")
-        u_sat = np.clip(u, -self._max_step, self._max_step)
+        u_sat = np.minimum(np.maximum(u, -self._max_step), self._max_step)  # np.clip, cheaper
         saturated = u_sat != u
         result = self._move(self.gripper_pose + u_sat)
         result.saturated = saturated
@@ -457,7 +472,7 @@ class RodSim:
         settle_steps = chain.steps - steps0 - n
         if not diverged:
             gaps = chain.joint_gaps()
-            diverged = not bool(np.all(np.isfinite(gaps)) and np.max(gaps) <= self.cfg.gap_limit)
+            diverged = not float(_MAX(gaps)) <= self.cfg.gap_limit  # NaN and inf: diverged
         if diverged:
             self._diverged = True
             settled = False

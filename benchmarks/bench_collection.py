@@ -1,0 +1,110 @@
+"""Data collection for `train-encoder` with each rod engine: shapes per second, and where a
+shape's time goes (issue 24).
+
+Goal: >= 2,000 shapes/s on 2 cores with `rod.engine=quasistatic` (`rodctl/features/collection.py`:
+a random walk of settled control steps, each shape rendered and extracted by the camera pipeline).
+
+Two figures per engine: the throughput of `collect_dataset` with 2 worker processes (wall time:
+on a loaded machine it also counts waiting for a core), and the CPU time per shape of one walk in
+this process, split into the physics (`RodSim.apply`), the rendering (`Camera.render`), the
+extraction (`CenterlineExtractor.extract`) and the rest of the walk; 2 / (CPU per shape) is what
+2 free cores would give.
+
+    python benchmarks/bench_collection.py [--samples 600] [--engines quasistatic pymunk]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections import defaultdict
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from rodctl.config import load_config  # noqa: E402
+from rodctl.features import collection  # noqa: E402
+from rodctl.sim import RodSim  # noqa: E402
+from rodctl.vision import Camera, CenterlineExtractor  # noqa: E402
+
+GOAL = 2000.0
+
+
+def config(engine: str, samples: int, workers: int):
+    return load_config(
+        "configs/default.yaml",
+        [
+            f"rod.engine={engine}",
+            f"feature.data.samples={samples}",
+            f"feature.data.chunk={max(1, samples // 2)}",
+            f"feature.data.workers={workers}",
+        ],
+    )
+
+
+def breakdown(engine: str, samples: int) -> tuple[float, dict[str, float]]:
+    """(CPU s per shape, {part: CPU s per shape}) of one walk in this process."""
+    spent: dict[str, float] = defaultdict(float)
+    patched = []
+    for cls, name, part in (
+        (RodSim, "apply", "physics"),
+        (Camera, "render", "render"),
+        (CenterlineExtractor, "extract", "extract"),
+    ):
+        original = getattr(cls, name)
+
+        def timed(*args, _original=original, _part=part, **kwargs):
+            t0 = time.process_time()
+            try:
+                return _original(*args, **kwargs)
+            finally:
+                spent[_part] += time.process_time() - t0
+
+        setattr(cls, name, timed)
+        patched.append((cls, name, original))
+    try:
+        cfg = config(engine, samples, 1)
+        c0 = time.process_time()
+        out = collection.collect_chunk(cfg.model_dump_json(), samples, np.random.SeedSequence(7))
+        total = time.process_time() - c0
+    finally:
+        for cls, name, original in patched:
+            setattr(cls, name, original)
+    n = len(out["centerlines"])
+    parts = {k: v / n for k, v in spent.items()}
+    parts["rest of the walk (incl. building the rod)"] = (total - sum(spent.values())) / n
+    return total / n, parts
+
+
+def throughput(engine: str, samples: int) -> float:
+    """Shapes per second of `collect_dataset` with 2 workers (wall time, pool start included)."""
+    cfg = config(engine, samples, 2)
+    t0 = time.perf_counter()
+    data = collection.collect_dataset(cfg, progress=False)
+    return len(data) / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=600)
+    ap.add_argument("--engines", nargs="+", default=["quasistatic", "pymunk"])
+    args = ap.parse_args()
+    print(f"load average before: {os.getloadavg()}")
+    for engine in args.engines:
+        per_shape, parts = breakdown(engine, args.samples)
+        rate = throughput(engine, 2 * args.samples)
+        goal = f"   (goal >= {GOAL:.0f} shapes/s on 2 cores)" if engine == "quasistatic" else ""
+        print(
+            f"{engine}: collect_dataset, 2 workers: {rate:7.1f} shapes/s (wall){goal}; "
+            f"one walk: {1e3 * per_shape:.3f} ms CPU per shape = {2 / per_shape:7.1f} shapes/s "
+            "on 2 free cores"
+        )
+        for part, cpu in parts.items():
+            print(f"    {part:<42} {1e3 * cpu:7.3f} ms  {100 * cpu / per_shape:5.1f} %")
+    print(f"load average after: {os.getloadavg()}")
+
+
+if __name__ == "__main__":
+    main()
