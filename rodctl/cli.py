@@ -224,10 +224,8 @@ def config_show(config: ConfigArg, set_: SetOpt = None) -> None:
 
 def _derived_values(cfg: ExperimentConfig) -> dict[str, Any]:
     """What the null keys resolve to when the run starts (shown by `config show`)."""
-    import math
-
-    from rodctl.sim.chain import stable_dt_limit
-    from rodctl.sim.rod import DEFAULT_HOME_IN_CLAMP_FRAME, DT_SAFETY
+    from rodctl.sim.rod import home_pose, time_step
+    from rodctl.vision.camera import principal_point
 
     def clean(v: float) -> float:
         return float(f"{v:.6g}")
@@ -235,22 +233,14 @@ def _derived_values(cfg: ExperimentConfig) -> dict[str, Any]:
     rod, cam = cfg.rod, cfg.camera
     out: dict[str, Any] = {}
     if rod.home_pose is None:
-        cx, cy, cth = rod.clamp_pose
-        hx, hy, hth = DEFAULT_HOME_IN_CLAMP_FRAME
-        c, s = math.cos(cth), math.sin(cth)
-        x, y = hx * rod.length, hy * rod.length
-        out["rod.home_pose"] = [
-            clean(cx + c * x - s * y),
-            clean(cy + s * x + c * y),
-            clean(cth + hth),
-        ]
+        out["rod.home_pose"] = [clean(v) for v in home_pose(rod)]
     if rod.dt is None:
-        args = (rod.length, rod.bending_stiffness, rod.mass_per_length, rod.segments)
-        out["rod.dt"] = clean(DT_SAFETY * stable_dt_limit(*args, rod.inertia_radius))
+        out["rod.dt"] = clean(time_step(rod))
+    cx, cy = principal_point(cam)
     if cam.cx is None:
-        out["camera.cx"] = clean((cam.width - 1) / 2.0)
+        out["camera.cx"] = clean(cx)
     if cam.cy is None:
-        out["camera.cy"] = clean((cam.height - 1) / 2.0)
+        out["camera.cy"] = clean(cy)
     checkpoint = getattr(cfg.feature, "checkpoint", "")
     if checkpoint is None:
         out["feature.checkpoint"] = "the packaged rodctl/assets/encoder.npz"

@@ -63,8 +63,9 @@ from rodctl.executors.local import CANCELLED
 from rodctl.report import markdown_table
 from rodctl.runs import RunDir, jsonable, seed_sequence, write_json_atomic
 
-#: Episode outcomes, in the order the summary lists them ("error": the episode raised).
-OUTCOMES = ("converged", "stalled", "pinned", "step_limit", "diverged", "lost_tracking", "error")
+#: Episode outcomes, in the order the summary lists them ("error": the episode raised); a
+#: comparison's episodes are closed-loop (never "completed") and none counts as "interrupted".
+OUTCOMES = tuple(o.value for o in Outcome if o not in (Outcome.COMPLETED, Outcome.INTERRUPTED))
 
 #: Columns of results.csv, in order.
 CSV_COLUMNS = (

@@ -31,6 +31,16 @@ real robot would not see: ground truth, projected truth, the settle result, the 
 `render()` (render_mode "rgb_array") returns the camera frame. Mid-run events (`run.events`)
 are applied before the move of their step; `info["events"]` has their log lines.
 
+What the control loop (`rodctl.episode.run_episode`) needs comes through `reset`/`step`, so it
+runs on `gymnasium.make(...)` and on wrapped environments: every `info` has `gripper` (the
+simulator's gripper pose), `extraction_ok` (bool) and `image` (the camera frame the observation
+was extracted from, the array `render()` returns, not a copy); the `info` of `reset` also has
+`target` (the episode's `Target`). Beside them the loop reads three public members of the base
+environment (`env.unwrapped`, as Gymnasium recommends for environment-specific attributes),
+declared on the `ServoEnv` protocol: `config`, `task` (the `Task` a method starts from: it holds
+the live camera model and the simulator's Jacobian, so it is no `info` value, which must pickle
+for vector envs) and `stage_times()`.
+
 The episode is a pure function of (config, seed): `reset(seed)` rebuilds the rod, the camera
 and its noise stream, and the target, from named seed streams (`rodctl.runs.rng`).
 
@@ -43,8 +53,8 @@ normalised observations, a success bonus, a goal-conditioned form for HER): docs
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
@@ -149,6 +159,26 @@ class StageTimes:
         return {k: round(1e3 * v / n, 4) for k, v in self.__dict__.items()}
 
 
+@runtime_checkable
+class ServoEnv(Protocol):
+    """What the control loop reads of a base environment besides `reset`/`step` and their `info`
+    (`ShapeServoEnv` is one; `run_episode` reaches it through `env.unwrapped`)."""
+
+    @property
+    def config(self) -> ExperimentConfig:
+        """The experiment config the environment runs (its rod, camera and run sections)."""
+        ...
+
+    @property
+    def task(self) -> Task | None:
+        """What a method is told at the start of the episode (None before the first reset)."""
+        ...
+
+    def stage_times(self) -> StageTimes:
+        """Wall time spent in the simulator and in vision since the last `reset` (a copy)."""
+        ...
+
+
 def _home_sim(rod: Any) -> RodSim:
     """A fresh rod at home. The quasi-static engine restores its home state, computed once per
     rod config (`RodSim.at_home`); pymunk still drives every new rod home, because its restored
@@ -225,6 +255,16 @@ class ShapeServoEnv(gym.Env):
         )
         self._lost_frame_cost = big
 
+    @property
+    def config(self) -> ExperimentConfig:
+        """The experiment config this environment runs (replaced by `reset(options=config)`)."""
+        return self.cfg
+
+    def stage_times(self) -> StageTimes:
+        """Wall time spent in the simulator (`sim`) and in rendering and extraction (`vision`)
+        since the last `reset`, target making included; a copy."""
+        return replace(self.times)
+
     # --- Gymnasium API -------------------------------------------------------------------------
 
     def reset(
@@ -286,8 +326,10 @@ class ShapeServoEnv(gym.Env):
             points=cfg.camera.points,
             true_jacobian=self.true_jacobian,
         )
-        self._last_info = self._info(None)
-        return self._observation(np.zeros(Q)), dict(self._last_info)
+        return self._observation(np.zeros(Q)), {
+            **self._info(None),
+            "target": self.target,
+        }
 
     def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
         """Move the gripper by `action` = [dx, dy, dtheta], let the rod settle, look at it.
@@ -311,7 +353,6 @@ class ShapeServoEnv(gym.Env):
             info["snap"] = bool(notes)
             events = [*events, *notes]
         info["events"] = events
-        self._last_info = info
         err = info["pixel_error"]
         reward = -err if np.isfinite(err) else -self._lost_frame_cost
         diverged = bool(res.diverged)
@@ -503,6 +544,9 @@ class ShapeServoEnv(gym.Env):
             "diverged": False if res is None else bool(res.diverged),
             "max_joint_gap": float(health.max_joint_gap),
             "kinetic_energy": float(health.kinetic_energy),
+            "gripper": np.array(self.sim.gripper_pose, dtype=float),
+            "extraction_ok": bool(f.ok),
+            "image": f.image,
         }
 
     def _make_target(self, pose: Any, seed: int) -> Target:

@@ -2,13 +2,18 @@
 
 One episode, top to bottom:
 
-    obs = env.reset(seed)           a fresh rod, camera-noise stream and target
+    obs, info = env.reset(seed)     a fresh rod, camera-noise stream and target
     method.start(env.task)          fresh estimator and controller, target feature, probing plan
     u = method.act(obs)             record 0 (the initial observation) → sinks
     repeat:                         stop requested?  → interrupted
-        obs = env.step(u)           move, settle, render, extract
+        obs, info = env.step(u)     move, settle, render, extract
         u = method.act(obs)         fold the observation in, choose the next move
         record k → sinks            the stop rule decides: converged / stalled / … / go on
+
+The loop uses the env through `reset`/`step` and their `info` only, plus the base env's
+`config`, `task` and `stage_times()` (the `ServoEnv` protocol, through `env.unwrapped`): it runs on
+`gymnasium.make("rodctl/ShapeServo-v0", ...)` and on wrapped envs alike (a wrapper's
+`truncated`, e.g. `TimeLimit`'s, ends the episode as `step_limit`).
 
 `rodctl simulate`, every `rodctl compare` episode and `rodctl replay --verify` call it. The sinks
 (MCAP, Rerun) are opened, written and closed here and nowhere else, always with the episode's
@@ -19,7 +24,6 @@ record made is complete and in every sink.
 
 from __future__ import annotations
 
-import enum
 import time
 import traceback
 from collections import deque
@@ -27,41 +31,20 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from rodctl import fixedla as fla
 from rodctl import metrics
 from rodctl.config import ExperimentConfig, dump_config
-from rodctl.env import Q, ShapeServoEnv, StageTimes
+from rodctl.env import Q, ServoEnv, StageTimes, Target, Task
 from rodctl.errors import UserError, describe_os_error
 from rodctl.logs.base import Sink
 from rodctl.method import CONTROL, INITIAL, Method
 from rodctl.numenv import numeric_environment
+from rodctl.outcome import Outcome
 from rodctl.records import RunHeader, RunSummary, StepRecord
 from rodctl.registry import plugin_provenance
-
-
-class Outcome(enum.StrEnum):
-    """How an episode ended; the value is what records, summaries and results.csv hold."""
-
-    CONVERGED = "converged"  # pixel error (and T1 if asked) below tolerance
-    STALLED = "stalled"  # no progress while the descent direction J^T e has vanished
-    PINNED = "pinned"  # no progress while every command is clipped by the workspace
-    STEP_LIMIT = "step_limit"  # run.max_steps reached
-    DIVERGED = "diverged"  # NaN, a joint gap, or a non-finite command
-    LOST_TRACKING = "lost_tracking"  # the camera lost the rod for too many frames
-    COMPLETED = "completed"  # an open-loop (scripted) path reached its end
-    INTERRUPTED = "interrupted"  # SIGINT / SIGTERM between two steps
-    ERROR = "error"  # an exception inside the episode
-
-    @property
-    def status(self) -> str:
-        """The run status this outcome closes the logs and meta.json with."""
-        if self is Outcome.INTERRUPTED:
-            return "interrupted"
-        if self in (Outcome.DIVERGED, Outcome.LOST_TRACKING, Outcome.ERROR):
-            return "failed"
-        return "completed"
 
 
 class Interrupted(Exception):
@@ -184,7 +167,7 @@ class EpisodeResult:
 
 
 def run_episode(
-    env: ShapeServoEnv,
+    env: gym.Env,
     method: Method,
     stop_rule: StopRule | None = None,
     sinks: Sequence[Sink] = (),
@@ -198,7 +181,10 @@ def run_episode(
     """Run one episode of `method` in `env` to its end; every record goes to every sink.
 
     Args:
-        env: the environment (its config decides rod, camera, run limits).
+        env: the environment: a `ShapeServoEnv`, as made or through `gymnasium.make` and any
+            wrappers that keep the observation keys a method reads and the `info` keys of
+            `ShapeServoEnv`; its base (`env.unwrapped`) is a `ServoEnv` whose config decides
+            the run limits.
         method: the method under test.
         stop_rule: when to stop (default: from the env's run config).
         sinks: outputs; opened with the header, closed here with the episode's real status.
@@ -217,13 +203,17 @@ def run_episode(
         EpisodeFailed: an exception ended it after it started; `.result` holds the records,
             and the sinks were closed with status `failed`.
     """
-    cfg = env.cfg
+    base = _servo_env(env)
+    wall0 = time.perf_counter()
+    obs, info = env.reset(seed=base.config.seed if seed is None else seed, options=options)
+    cfg = base.config  # after reset: `options` may have replaced it
     stop_rule = stop_rule or StopRule.from_config(cfg)
     stop_rule.reset()
-    wall0 = time.perf_counter()
-    obs, info = env.reset(seed=cfg.seed if seed is None else seed, options=options)
-    method.start(env.task)
-    loop = _Loop(env, method, sinks, on_step, wall0)
+    task = base.task
+    if task is None:
+        raise TypeError(f"run_episode: {type(base).__name__}.reset() left its `task` unset")
+    method.start(task)
+    loop = _Loop(base, cfg, task, info, method, sinks, on_step, wall0)
     try:
         loop.open(run_id)  # closes what it opened if one sink fails to open
     except Exception as exc:
@@ -249,7 +239,7 @@ def run_episode(
                 outcome = Outcome.DIVERGED
                 loop.reason = divergence(rec, False)
                 break
-            obs, _, _, _, info = env.step(u)
+            obs, _, _, truncated, info = env.step(u)
             u_raw = u
             u = method.act(obs)
             rec = loop.record(info, u=obs["applied"], u_raw=u_raw, phase=phase)
@@ -257,6 +247,8 @@ def run_episode(
             outcome = stop_rule.check(rec, method, diverged=info["diverged"])
             if outcome is Outcome.DIVERGED:
                 loop.reason = divergence(rec, info["diverged"])
+            elif outcome is None and truncated:
+                outcome = Outcome.STEP_LIMIT  # a time limit: run.max_steps or a wrapper's
         outcome = outcome or Outcome.STEP_LIMIT
     except (Interrupted, KeyboardInterrupt) as exc:
         outcome = Outcome.INTERRUPTED
@@ -271,6 +263,17 @@ def run_episode(
     if result.error is not None:  # the logs could not be finalised
         raise EpisodeFailed(result)
     return result
+
+
+def _servo_env(env: gym.Env) -> ServoEnv:
+    """The base environment of `env` (Gymnasium's `env.unwrapped`), checked to be a `ServoEnv`."""
+    base = getattr(env, "unwrapped", env)
+    if not isinstance(base, ServoEnv):
+        raise TypeError(
+            f"run_episode: the base environment {type(base).__name__} is not a ServoEnv "
+            "(it needs `config`, `task` and `stage_times()`, as rodctl.env.ShapeServoEnv has)"
+        )
+    return base
 
 
 def _numbers(v: np.ndarray) -> str:
@@ -307,13 +310,22 @@ class _Loop:
 
     def __init__(
         self,
-        env: ShapeServoEnv,
+        env: ServoEnv,
+        cfg: ExperimentConfig,
+        task: Task,
+        info: dict[str, Any],
         method: Method,
         sinks: Sequence[Sink],
         on_step: Callable[[StepRecord], None] | None,
         wall0: float,
     ) -> None:
         self.env, self.method, self.sinks, self.on_step = env, method, list(sinks), on_step
+        self.cfg = cfg
+        #: the episode's set-up: what the method was told, and the target (`info` of `reset`)
+        self.task = task
+        self.target: Target = info["target"]
+        #: the `info` of the last reset or step (the state the current records describe)
+        self.info = info
         self.wall0 = wall0
         self.records: list[StepRecord] = []
         self.header: RunHeader | None = None
@@ -322,20 +334,15 @@ class _Loop:
         self.reason: str | None = None
         self.setup_time = 0.0
 
-    @property
-    def info(self) -> dict[str, Any]:
-        return self.env._last_info
-
     def open(self, run_id: str) -> None:
-        env, method, cfg = self.env, self.method, self.env.cfg
-        target = env.target
+        method, cfg, task, target = self.method, self.cfg, self.task, self.target
         self.header = RunHeader(
             run_id=run_id,
             method=method.label,
             config_yaml=dump_config(cfg),
             image_size=(cfg.camera.width, cfg.camera.height),
-            clamp_pose=env.clamp_pose,
-            home_pose=env.home_pose,
+            clamp_pose=task.clamp_pose,
+            home_pose=task.home_pose,
             target_centerline=target.centerline,
             target_pixels=target.pixels,
             target_feature=method.s_target,
@@ -369,13 +376,14 @@ class _Loop:
     ) -> StepRecord:
         """The record of the current step from the env's info and the method's state."""
         m = self.method
+        self.info = info
         k = len(self.records)
         J = np.array(m.J, dtype=float)
         return StepRecord(
             step=k,
             sim_time=info["sim_time"],
             phase=phase,
-            gripper=self.env.sim.gripper_pose,
+            gripper=info["gripper"],
             centerline=info["ground_truth"],
             extracted=info["extracted"],
             projected_truth=info["projected_truth"],
@@ -392,7 +400,7 @@ class _Loop:
             clipped=info["clipped"] if moved else False,
             max_joint_gap=info["max_joint_gap"],
             kinetic_energy=info["kinetic_energy"],
-            extraction_ok=self.env.frame.ok,
+            extraction_ok=info["extraction_ok"],
             extraction_note=info["extraction_note"],
             estimator_info=m.estimator_info(),
             events=list(info.get("events", [])) if moved else [],
@@ -401,7 +409,7 @@ class _Loop:
     def emit(self, rec: StepRecord) -> None:
         # Every record carries its frame; the sinks pick frames by simulated time
         # (logging.image_rate_hz), so the rate holds in the log's own clock.
-        rec.image = self.env.frame.image
+        rec.image = self.info["image"]
         t = time.perf_counter()
         for sink in self.sinks:
             sink.write(rec)
@@ -448,9 +456,9 @@ class _Loop:
 
     def _benchmark_metrics(self, outcome: Outcome) -> dict[str, Any]:
         """The comparison metrics of `rodctl.metrics` for this episode."""
-        env, recs = self.env, self.records
-        pose_steps = metrics.pose_steps(env.home_pose, env.target.pose, env.max_step)
-        trans, rot = metrics.smoothness(recs, env.max_step)
+        task, cfg, recs = self.task, self.cfg, self.records
+        pose_steps = metrics.pose_steps(task.home_pose, self.target.pose, task.max_step)
+        trans, rot = metrics.smoothness(recs, task.max_step)
         converged = outcome is Outcome.CONVERGED
         peak, reconverge = metrics.after_event(recs, converged)
         return {
@@ -459,21 +467,22 @@ class _Loop:
             "smoothness_translation": trans,
             "smoothness_rotation": rot,
             "near_origin_steps": (
-                metrics.near_origin_steps(recs, env.cfg.run.pixel_tolerance) if converged else None
+                metrics.near_origin_steps(recs, cfg.run.pixel_tolerance) if converged else None
             ),
             "event_peak_error": peak,
             "event_steps_to_converge": reconverge,
-            "finished_before_event": metrics.finished_before_event(recs, bool(env.cfg.run.events)),
+            "finished_before_event": metrics.finished_before_event(recs, bool(cfg.run.events)),
         }
 
     def summary(self, outcome: Outcome) -> RunSummary:
-        env, method, recs = self.env, self.method, self.records
+        method, recs, target = self.method, self.records, self.target
         wall = time.perf_counter() - self.wall0
         steps = recs[-1].step if recs else 0
         last = recs[-1] if recs else None
+        env_times = self.env.stage_times()
         times = StageTimes(
-            sim=env.times.sim,
-            vision=env.times.vision,
+            sim=env_times.sim,
+            vision=env_times.vision,
             feature=method.times.feature,
             control=method.times.control,
             logging=self.logging,
@@ -484,9 +493,9 @@ class _Loop:
             extra.update(
                 setup_time_s=round(self.setup_time, 4),
                 probe_steps=sum(r.phase == "probe" for r in recs),
-                target_pose=[float(v) for v in env.target.pose],
-                target_difficulty=round(env.target.difficulty, 6),
-                home_pose=[float(v) for v in env.home_pose],
+                target_pose=[float(v) for v in target.pose],
+                target_difficulty=round(target.difficulty, 6),
+                home_pose=[float(v) for v in self.task.home_pose],
                 final_gripper=[float(v) for v in last.gripper],
                 final_J_singular_values=[float(v) for v in last.J_singular_values],
                 path_length=float(np.sum(np.linalg.norm(us[:, :2], axis=1))),

@@ -25,10 +25,19 @@ from typing import Any
 import numpy as np
 
 from rodctl import fixedla as fla
+from rodctl.config import ExperimentConfig
+from rodctl.control.base import Controller, OpenLoopController
 from rodctl.env import Q, StageTimes, Task
 from rodctl.errors import UserError
+from rodctl.estimation.base import JacobianEstimator, ObservingEstimator, PreparingEstimator
 from rodctl.estimation.probing import fit_jacobian, probe_moves
-from rodctl.registry import CONTROLLERS, ESTIMATORS, FEATURES, BuildContext, load_plugins
+from rodctl.registry import (
+    CONTROLLERS,
+    ESTIMATORS,
+    FEATURES,
+    BuildContext,
+    load_plugins,
+)
 
 #: Phases of a command: the first observation, a probing move, a move of the control law.
 INITIAL, PROBE, CONTROL = "initial", "probe", "control"
@@ -58,11 +67,13 @@ class Method:
         estimator: Any,
         controller: Any,
         *,
-        experiment: Any = None,
+        experiment: ExperimentConfig | None = None,
         points: int | None = None,
     ) -> None:
         load_plugins()
         if points is None:
+            if experiment is None:
+                raise TypeError("Method: give `points` or the `experiment` config")
             points = experiment.camera.points
         self.configs = {"feature": feature, "estimator": estimator, "controller": controller}
         self.label = f"{feature.type}/{estimator.type}/{controller.type}"
@@ -76,7 +87,7 @@ class Method:
         self.task: Task | None = None
 
     @classmethod
-    def from_config(cls, cfg: Any) -> Method:
+    def from_config(cls, cfg: ExperimentConfig) -> Method:
         """The method an `ExperimentConfig` describes (its feature, estimator, controller)."""
         return cls(cfg.feature, cfg.estimator, cfg.controller, experiment=cfg)
 
@@ -108,8 +119,8 @@ class Method:
                 else None
             ),
         )
-        self.estimator = ESTIMATORS.build(self.configs["estimator"], ctx)
-        self.controller = CONTROLLERS.build(self.configs["controller"], ctx)
+        self.estimator: JacobianEstimator = ESTIMATORS.build(self.configs["estimator"], ctx)
+        self.controller: Controller = CONTROLLERS.build(self.configs["controller"], ctx)
         for kind, registry in (("estimator", ESTIMATORS), ("controller", CONTROLLERS)):
             self.stages[kind] = registry.provenance(self.configs[kind].type)
         self.J = np.zeros((self.p, self.q))
@@ -124,12 +135,14 @@ class Method:
     @property
     def open_loop(self) -> bool:
         """The controller ignores the feature and J (a scripted path): nothing to converge."""
-        return bool(getattr(self.controller, "open_loop", False))
+        c = self.controller
+        return isinstance(c, OpenLoopController) and bool(c.open_loop)
 
     @property
     def finished(self) -> bool:
         """The controller has nothing left to do (the end of a scripted path)."""
-        return bool(getattr(self.controller, "done", False))
+        c = self.controller
+        return isinstance(c, OpenLoopController) and bool(c.done)
 
     @property
     def T1(self) -> float:
@@ -163,8 +176,8 @@ class Method:
     def _first(self, obs: dict[str, Any]) -> None:
         pixels = np.asarray(obs["centerline"])
         self.s = self._encode(pixels)
-        prepare = getattr(self.estimator, "prepare", None)
-        model = prepare(pixels) if prepare is not None else None
+        est = self.estimator
+        model = est.prepare(pixels) if isinstance(est, PreparingEstimator) else None
         if model is not None:
             self.J = np.array(model, dtype=float)
         elif not self.open_loop:
@@ -189,9 +202,10 @@ class Method:
         if ok:
             s_new = self._encode(obs["centerline"])
             t = time.perf_counter()
-            observe = getattr(self.estimator, "observe", None)
-            if observe is not None:  # a state-dependent model (the learned one) sees the state
-                observe(np.asarray(obs["centerline"]), np.asarray(obs["gripper"], dtype=float))
+            if isinstance(self.estimator, ObservingEstimator):  # a state-dependent model
+                self.estimator.observe(
+                    np.asarray(obs["centerline"]), np.asarray(obs["gripper"], dtype=float)
+                )
             self.J = self.estimator.update(s_new - self.s, self._unseen)
             self.times.control += time.perf_counter() - t
             self._unseen[:] = 0.0

@@ -126,6 +126,53 @@ class StepRecord:
     image: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class Unit:
+    """The unit of a StepRecord field.
+
+    Attributes:
+        symbol: the unit itself, as `replay --verify` reports deviations in it.
+        detail: what the MCAP channel metadata adds to it (frame, order, layout).
+    """
+
+    symbol: str
+    detail: str = ""
+
+    @property
+    def described(self) -> str:
+        """The unit with its detail: the MCAP channels' `unit.<field>` metadata."""
+        return self.symbol + self.detail
+
+
+_POSE = "m, m, rad"
+_FEATURE = "feature units"
+_JACOBIAN = "feature units per (m, m, rad)"
+_PIXELS = "px"
+
+#: The unit of each StepRecord field that has one: the one table that the MCAP channel metadata
+#: (`rodctl.logs.codec.UNITS`) and `replay --verify` reports read.
+FIELD_UNITS: dict[str, Unit] = {
+    "step": Unit("1"),
+    "sim_time": Unit("s"),
+    "gripper": Unit(_POSE, " (world frame, y up)"),
+    "centerline": Unit("m", " (world frame, y up; clamp end first)"),
+    "extracted": Unit(_PIXELS, " (u right, v down)"),
+    "projected_truth": Unit(_PIXELS, " (u right, v down)"),
+    "u": Unit(_POSE, " (pose increment dx, dy, dtheta)"),
+    "u_raw": Unit(_POSE),
+    "s": Unit(_FEATURE),
+    "s_target": Unit(_FEATURE),
+    "T1": Unit(_FEATURE),
+    "J": Unit(_JACOBIAN, "; row-major p x q"),
+    "J_singular_values": Unit(_JACOBIAN),
+    "pixel_error": Unit(_PIXELS),
+    "max_joint_gap": Unit("m"),
+    "kinetic_energy": Unit("J"),
+    "estimator_info": Unit("estimator units"),
+    "image": Unit("8-bit levels"),
+}
+
+
 @dataclass
 class RunSummary:
     """The run's outcome; written as summary.json (keys in docs/outputs.md).

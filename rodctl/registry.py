@@ -29,7 +29,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 from pydantic import BaseModel
@@ -46,6 +46,25 @@ _PACKAGE_DIR = Path(__file__).resolve().parent
 
 C = TypeVar("C", bound=BaseModel)
 T = TypeVar("T")
+
+
+class ExperimentSpec(Protocol):
+    """The experiment a stage is built for (`rodctl.config.ExperimentConfig` is one), as far as
+    the registry knows it: a protocol, so that the registry, which the config models import,
+    does not import them back. A stage that needs more of it (the autoencoder checks its
+    checkpoint against the whole config) takes the `ExperimentConfig` it is given."""
+
+    @property
+    def seed(self) -> int: ...
+
+    @property
+    def rod(self) -> BaseModel: ...
+
+    @property
+    def camera(self) -> BaseModel: ...
+
+    @property
+    def feature(self) -> BaseModel: ...
 
 
 @dataclass(frozen=True)
@@ -72,7 +91,7 @@ class BuildContext:
     max_step: np.ndarray | None = None
     camera: Any = None
     oracle: Any = None
-    experiment: Any = None
+    experiment: ExperimentSpec | None = None
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from rodctl.config.logging import LoggingConfig
 from rodctl.errors import RunFailed, UserError
 from rodctl.figure_worker import FiguresFailed, FigureWorker, save_figures
 from rodctl.logs.codec import ReadRun
+from rodctl.records import FIELD_UNITS as RECORD_UNITS
 from rodctl.records import RunSummary, StepRecord
 
 __all__ = [
@@ -298,26 +299,9 @@ def _dict_differences(a: Any, b: Any, prefix: str = "") -> list[str]:
     return [] if a == b else [f"{prefix}: logged {a!r}, config.yaml {b!r}"]
 
 
-#: Units of the StepRecord fields in verify reports (the MCAP channels' `unit.*` metadata, short).
-FIELD_UNITS = {
-    "sim_time": "s",
-    "gripper": "m, m, rad",
-    "centerline": "m",
-    "extracted": "px",
-    "projected_truth": "px",
-    "u": "m, m, rad",
-    "u_raw": "m, m, rad",
-    "s": "feature units",
-    "s_target": "feature units",
-    "T1": "feature units",
-    "J": "feature units per (m, m, rad)",
-    "J_singular_values": "feature units per (m, m, rad)",
-    "pixel_error": "px",
-    "max_joint_gap": "m",
-    "kinetic_energy": "J",
-    "estimator_info": "estimator units",
-    "image": "8-bit levels",
-}
+#: Units of the StepRecord fields in verify reports (`rodctl.records.FIELD_UNITS`, without the
+#: MCAP metadata's detail).
+FIELD_UNITS = {name: unit.symbol for name, unit in RECORD_UNITS.items()}
 
 
 @dataclass

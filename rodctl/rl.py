@@ -26,7 +26,8 @@ Options (keyword arguments, also through `gymnasium.make`):
 
 Reward: minus the pixel error (mean point distance to the target, px; a lost frame costs the
 image diagonal), plus the bonus on convergence. `info` is the core environment's plus
-`is_success` (converged: SB3 logs its rate) and `extraction_ok`. The core environment is
+`is_success` (converged: SB3 logs its rate) and `extraction_ok`, without the camera frame
+(`image`; `render()` returns it). The core environment is
 `env.core`; its observation of the last step, float64 and unchanged, is `env.core_observation`.
 """
 
@@ -181,7 +182,9 @@ class ShapeServoRLEnv(gym.Env):
 
     def _info(self, info: dict[str, Any], *, converged: bool) -> dict[str, Any]:
         ok = self.core.frame is not None and bool(self.core.frame.ok)
-        return {**info, "is_success": converged, "extraction_ok": ok}
+        # Not the camera frame: replay buffers that keep infos (HER's) would hold every image.
+        kept = {k: v for k, v in info.items() if k != "image"}
+        return {**kept, "is_success": converged, "extraction_ok": ok}
 
     def _reward(self, obs: dict, core_reward: float, converged: bool, info: dict) -> float:
         return float(core_reward) + (self.success_bonus if converged else 0.0)

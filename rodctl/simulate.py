@@ -12,14 +12,13 @@ of following them; the command still writes them, and waits for them, before it 
 
 from __future__ import annotations
 
-import signal
-import threading
 from collections.abc import Callable, Sequence
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rodctl import signals
 from rodctl.config import ExperimentConfig
 from rodctl.env import ShapeServoEnv
 from rodctl.episode import EpisodeFailed, Outcome, run_episode
@@ -74,23 +73,13 @@ class StopRequests:
         return self._reason
 
     def _handler(self, signum: int, _frame: object) -> None:
-        self._reason = self._reason or signal.Signals(signum).name
+        self._reason = self._reason or signals.name(signum)
 
     @contextmanager
     def installed(self):
         """Catch SIGINT and SIGTERM for the duration (main thread only; no-op elsewhere)."""
-        if threading.current_thread() is not threading.main_thread():
+        with signals.handled(self._handler):
             yield self
-            return
-        previous = {}
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            if signal.getsignal(sig) is not signal.SIG_IGN:
-                previous[sig] = signal.signal(sig, self._handler)
-        try:
-            yield self
-        finally:
-            for sig, old in previous.items():
-                signal.signal(sig, old)
 
 
 def simulate(

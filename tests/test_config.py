@@ -208,3 +208,13 @@ def test_mutated_configs_never_traceback(path, value, raw):
         assert result.stderr.startswith("error: "), out
     if result.exception is not None:
         assert isinstance(result.exception, SystemExit), repr(result.exception)
+
+
+@pytest.mark.parametrize("value", ["interrupted", "error", "converge"])
+def test_run_expect_takes_only_an_outcome_a_config_can_reach(value):
+    """`run.expect` is one of the episode's outcomes, but not an interruption or an error."""
+    with pytest.raises(ConfigError, match=r"run\.expect: .*'lost_tracking' or 'completed'"):
+        load_config(REPO / "configs/default.yaml", [f"run.expect={value}"])
+    cfg = load_config(REPO / "configs/default.yaml", ["run.expect=completed"])
+    assert cfg.run.expect == "completed"
+    assert "expect: completed" in dump_config(cfg)  # the outcome's value, as it was written

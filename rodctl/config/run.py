@@ -5,15 +5,35 @@ Owned by `rodctl/episode.py` (stop rules) and `rodctl/env.py` (targets).
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated
 
-from pydantic import Field, PositiveFloat, PositiveInt, model_validator
+from pydantic import (
+    BeforeValidator,
+    Field,
+    PositiveFloat,
+    PositiveInt,
+    WithJsonSchema,
+    model_validator,
+)
 
 from rodctl.config.base import Pose, StrictModel, bounded
 from rodctl.events import Event
+from rodctl.outcome import EXPECTABLE, Outcome
 
-Outcome = Literal[
-    "converged", "stalled", "pinned", "step_limit", "diverged", "lost_tracking", "completed"
+
+def _expectable(value: object) -> object:
+    """Refuse what no config can expect, with the list of what it can (before the enum)."""
+    if isinstance(value, str) and value not in EXPECTABLE:
+        names = [repr(o.value) for o in EXPECTABLE]
+        raise ValueError(f"Input should be {', '.join(names[:-1])} or {names[-1]}")
+    return value
+
+
+#: An outcome a config may declare (`run.expect`): one of `rodctl.outcome.EXPECTABLE`.
+ExpectedOutcome = Annotated[
+    Outcome,
+    BeforeValidator(_expectable),
+    WithJsonSchema({"enum": [o.value for o in EXPECTABLE], "type": "string"}),
 ]
 
 
@@ -94,7 +114,8 @@ class RunConfig(StrictModel):
         description="Mid-run events: at a control step (probing included), before its move, the "
         "rod, the clamp, the grasp or the camera changes (rodctl/events.py, docs/simulation.md).",
     )
-    expect: Outcome | None = Field(
+    expect: ExpectedOutcome | None = Field(
         None,
+        title="Expect",  # WithJsonSchema drops the title pydantic would give the field
         description="Outcome this config is expected to reach (checked by the config test suite).",
     )

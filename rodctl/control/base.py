@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -10,9 +10,7 @@ import numpy as np
 class Controller(Protocol):
     """Computes the next command u_k = Delta r_k (q,) for a feature-space shape servo.
 
-    Optional attributes the episode reads: `open_loop` (True: the law ignores the feature and
-    J, so there is no probing and nothing converges) and `done` (True: nothing left to do; an
-    open-loop run then ends as `completed`).
+    The optional hooks a method reads are declared on `OpenLoopController`.
     """
 
     def reset(self) -> None:
@@ -33,4 +31,23 @@ class Controller(Protocol):
         Returns:
             (q,) pose increment u_k = [dx, dy, dtheta].
         """
+        ...
+
+
+@runtime_checkable
+class OpenLoopController(Controller, Protocol):
+    """A controller with the optional open-loop hooks (`ScriptedController` has them).
+
+    A controller without them is closed-loop: probed for J_0 and stopped by the stop rule.
+    """
+
+    @property
+    def open_loop(self) -> bool:
+        """True: the law ignores the feature and J, so there is no probing and nothing
+        converges; the run ends when `done`."""
+        ...
+
+    @property
+    def done(self) -> bool:
+        """True: nothing left to do; an open-loop run then ends as `completed`."""
         ...

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 
 class JacobianEstimator(Protocol):
-    """Estimates the deformation Jacobian J (p x q) from (Delta s, Delta r) pairs."""
+    """Estimates the deformation Jacobian J (p x q) from (Delta s, Delta r) pairs.
+
+    The optional hooks a method reads are declared on `PreparingEstimator` (`prepare`: J from
+    the first frame, no probing) and `ObservingEstimator` (`observe`: the state before each
+    update).
+    """
 
     @property
     def J(self) -> np.ndarray:
@@ -28,6 +33,27 @@ class JacobianEstimator(Protocol):
 
     def info(self) -> dict[str, float]:
         """Scalar diagnostics for the log (e.g. adaptive factor, innovation statistic)."""
+        ...
+
+
+@runtime_checkable
+class PreparingEstimator(Protocol):
+    """An estimator with the start hook `prepare` (the offline ASAP model, the learned model,
+    the oracle): it builds J from the first frame, so the online probing is skipped."""
+
+    def prepare(self, pixels: np.ndarray) -> np.ndarray | None:
+        """The (p, q) Jacobian from the first extracted centerline (N, 2) pixels, or None when
+        there is no model to build (then the method probes as for an online estimator)."""
+        ...
+
+
+@runtime_checkable
+class ObservingEstimator(Protocol):
+    """An estimator with the hook `observe`: a state-dependent model (the learned one) is told
+    the state after each move, before `update` folds in the move's (Delta s, Delta r)."""
+
+    def observe(self, pixels: np.ndarray, gripper: np.ndarray) -> None:
+        """The new state: its centerline (N, 2) pixels and the gripper pose (q,)."""
         ...
 
 

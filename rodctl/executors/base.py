@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import signal
 import sys
-import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
+
+from rodctl import signals
 
 #: How many times a task whose worker (or node) was lost is run again before it is recorded
 #: as an error. Exceptions raised *inside* a task are never retried: they are the result.
@@ -53,7 +54,7 @@ def clear_stop() -> None:
 
 
 def _handler(signum: int, _frame: object) -> None:
-    request_stop(signal.Signals(signum).name)
+    request_stop(signals.name(signum))
 
 
 @contextmanager
@@ -63,39 +64,20 @@ def stop_handlers() -> Iterator[None]:
     A flag polled at one safe point cannot cut a step, or the writing of a log, in half. A
     signal the process was started ignoring (nohup) stays ignored.
     """
-    if threading.current_thread() is not threading.main_thread():
+    with signals.handled(_handler):
         yield
-        return
-    previous = {}
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        if signal.getsignal(sig) is not signal.SIG_IGN:
-            previous[sig] = signal.signal(sig, _handler)
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
 
 
 @contextmanager
 def sigterm_as_interrupt() -> Iterator[None]:
     """SIGTERM ends a long command like Ctrl-C does (KeyboardInterrupt), so it is caught and
     recorded as `interrupted` instead of killing the process with meta.json left `running`."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
 
     def handler(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt(signal.Signals(signum).name)
+        raise KeyboardInterrupt(signals.name(signum))
 
-    previous = signal.getsignal(signal.SIGTERM)
-    if previous is not signal.SIG_IGN:
-        signal.signal(signal.SIGTERM, handler)
-    try:
+    with signals.handled(handler, (signal.SIGTERM,)):
         yield
-    finally:
-        if previous is not signal.SIG_IGN:
-            signal.signal(signal.SIGTERM, previous)
 
 
 def prepare_worker() -> None:
@@ -116,9 +98,7 @@ def init_worker() -> None:
     """Start of every local pool process: `prepare_worker` (a config naming a plug-in type
     must validate there too), and cooperative stop handlers."""
     prepare_worker()
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, _handler)
+    signals.install(_handler, over_ignored=True)
 
 
 @dataclass

@@ -36,7 +36,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from rodctl.records import RunHeader, RunSummary, StepRecord
+from rodctl.records import FIELD_UNITS, RunHeader, RunSummary, StepRecord
 
 #: Version of the message layout below; bumped when a field changes meaning.
 FORMAT_VERSION = "2"
@@ -56,28 +56,16 @@ TOPIC_LOG = "/log"
 TOPIC_HEADER = "/run/header"
 TOPIC_SUMMARY = "/run/summary"
 
+#: The contract fields of each per-step topic that carry a unit (`rodctl.records.FIELD_UNITS`).
+_UNIT_FIELDS = {
+    TOPIC_ROD_STATE: ("step", "sim_time", "gripper", "centerline"),
+    TOPIC_CAMERA_CENTERLINE: ("step", "extracted", "projected_truth"),
+    TOPIC_CONTROL: ("step", "u", "s", "s_target", "T1", "J", "pixel_error"),
+}
 #: Units of every contract field, also written as MCAP channel metadata.
 UNITS: dict[str, dict[str, str]] = {
-    TOPIC_ROD_STATE: {
-        "step": "1",
-        "sim_time": "s",
-        "gripper": "m, m, rad (world frame, y up)",
-        "centerline": "m (world frame, y up; clamp end first)",
-    },
-    TOPIC_CAMERA_CENTERLINE: {
-        "step": "1",
-        "extracted": "px (u right, v down)",
-        "projected_truth": "px (u right, v down)",
-    },
-    TOPIC_CONTROL: {
-        "step": "1",
-        "u": "m, m, rad (pose increment dx, dy, dtheta)",
-        "s": "feature units",
-        "s_target": "feature units",
-        "T1": "feature units",
-        "J": "feature units per (m, m, rad); row-major p x q",
-        "pixel_error": "px",
-    },
+    topic: {name: FIELD_UNITS[name].described for name in names}
+    for topic, names in _UNIT_FIELDS.items()
 }
 
 #: Log levels shared by foxglove.Log (numbers) and Rerun's TextLog (names).

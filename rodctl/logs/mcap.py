@@ -44,7 +44,6 @@ import json
 import math
 import os
 import signal
-import threading
 from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -63,6 +62,7 @@ from mcap.stream_reader import StreamReader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
+from rodctl import signals
 from rodctl.config.logging import LoggingConfig
 from rodctl.errors import UserError
 from rodctl.logs import codec, schemas
@@ -128,23 +128,16 @@ def signals_deferred() -> Iterator[None]:
     default action), i.e. between two steps. Only the main thread can swap handlers; elsewhere
     this is a no-op. Costs a few microseconds.
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     pending: list[tuple[int, Any]] = []
+    previous: dict[int, Any] = {}
 
     def hold(signum: int, frame: Any) -> None:
         pending.append((signum, frame))
 
-    previous: dict[int, Any] = {}
-    for sig in _DEFERRED:
-        if signal.getsignal(sig) is not None:  # None: a handler not installed from Python
-            previous[sig] = signal.signal(sig, hold)
     try:
-        yield
+        with signals.handled(hold, _DEFERRED, over_ignored=True) as previous:
+            yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
         if pending:
             signum, frame = pending[0]
             handler = previous[signum]

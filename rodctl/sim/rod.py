@@ -46,6 +46,29 @@ DT_SAFETY = 0.5
 MAX_DAMPING_RATE = 700.0
 
 
+def home_pose(cfg: RodConfig) -> np.ndarray:
+    """(3,) the gripper's home pose: `rod.home_pose`, or when it is null the default one
+    (`DEFAULT_HOME_IN_CLAMP_FRAME` in the clamp frame, scaled by the rod length)."""
+    if cfg.home_pose is not None:
+        return np.asarray(cfg.home_pose, dtype=float)
+    cx, cy, cth = cfg.clamp_pose
+    hx, hy, hth = DEFAULT_HOME_IN_CLAMP_FRAME
+    c, s = math.cos(cth), math.sin(cth)
+    x, y = hx * cfg.length, hy * cfg.length
+    return np.array([cx + c * x - s * y, cy + s * x + c * y, cth + hth])
+
+
+def time_step(cfg: RodConfig) -> float:
+    """The pymunk chain's time step (s): `rod.dt`, or when it is null `DT_SAFETY` times the
+    chain's stability limit."""
+    dt = cfg.dt
+    if dt is None:
+        dt = DT_SAFETY * stable_dt_limit(
+            cfg.length, cfg.bending_stiffness, cfg.mass_per_length, cfg.segments, cfg.inertia_radius
+        )
+    return float(dt)
+
+
 @dataclass
 class ApplyResult:
     """What one gripper move did.
@@ -136,14 +159,8 @@ class RodSim:
         if not drive_home:  # `at_home` puts a stored home state in
             return
 
-        if cfg.home_pose is not None:
-            home = np.asarray(cfg.home_pose, dtype=float)
-        else:
-            cx, cy, cth = cfg.clamp_pose
-            hx, hy, hth = DEFAULT_HOME_IN_CLAMP_FRAME
-            c, s = math.cos(cth), math.sin(cth)
-            x, y = hx * cfg.length, hy * cfg.length
-            home = np.array([cx + c * x - s * y, cy + s * x + c * y, cth + hth])
+        home = home_pose(cfg)
+        if cfg.home_pose is None:
             if self.clip_pose(home)[1]:
                 raise UserError(
                     f"rod: the default home pose {list(np.round(home, 4))} is outside "
@@ -196,12 +213,7 @@ class RodSim:
     def _build_chain(self, cfg: RodConfig) -> None:
         """The pymunk chain, its time step and damping (the quasi-static engine overrides it)."""
         n = cfg.segments
-        dt = cfg.dt
-        if dt is None:
-            dt = DT_SAFETY * stable_dt_limit(
-                cfg.length, cfg.bending_stiffness, cfg.mass_per_length, n, cfg.inertia_radius
-            )
-        self.dt = float(dt)
+        self.dt = time_step(cfg)
         #: Estimated first bending-mode frequency (rad/s) of the gripper-held rod.
         self.omega1 = first_mode_rate(
             cfg.length, cfg.bending_stiffness, cfg.mass_per_length, n, cfg.inertia_radius

@@ -69,6 +69,13 @@ def _as_points(points: np.ndarray, name: str) -> np.ndarray:
     return arr
 
 
+def principal_point(cfg: CameraConfig) -> tuple[float, float]:
+    """(cx, cy) in pixels: `camera.cx`/`cy`, or the image centre where they are null."""
+    cx = (int(cfg.width) - 1) / 2.0 if cfg.cx is None else float(cfg.cx)
+    cy = (int(cfg.height) - 1) / 2.0 if cfg.cy is None else float(cfg.cy)
+    return cx, cy
+
+
 class Camera:
     """A calibrated pinhole camera over the rod's plane, and a renderer of the scene it sees.
 
@@ -91,8 +98,7 @@ class Camera:
         self.rng = rng
         self.width = int(cfg.width)
         self.height = int(cfg.height)
-        cx = (self.width - 1) / 2.0 if cfg.cx is None else float(cfg.cx)
-        cy = (self.height - 1) / 2.0 if cfg.cy is None else float(cfg.cy)
+        cx, cy = principal_point(cfg)
         self.camera_matrix = np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
         self._noise_key: tuple[float, int] | None = None
         self._noise_pool = np.empty(0, np.int16)
