@@ -5,12 +5,16 @@ Owned by `rodctl/episode.py` (stop rules) and `rodctl/env.py` (targets).
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import Field, PositiveFloat, PositiveInt, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt, model_validator
 
-from rodctl.config.base import Pose, StrictModel, bounded
-from rodctl.events import Event
+from rodctl.config.base import Pose, StageSlot, StrictModel, bounded
+from rodctl.registry import depends_on_stages
+
+#: One mid-run event, chosen by `type` among every type registered in `rodctl.registry.EVENTS`
+#: (the built-ins are in rodctl/events.py; a plug-in adds more). An unknown `type` is refused.
+Event = Annotated[BaseModel, StageSlot("event")]
 
 Outcome = Literal[
     "converged", "stalled", "pinned", "step_limit", "diverged", "lost_tracking", "completed"
@@ -44,8 +48,13 @@ class TargetConfig(StrictModel):
         return self
 
 
+@depends_on_stages
 class RunConfig(StrictModel):
     """How long a run lasts and when it stops."""
+
+    # The events' union is built from the registry when the schema is first needed (after the
+    # built-in types and plug-ins have registered), and rebuilt when a type is added.
+    model_config = ConfigDict(defer_build=True)
 
     max_steps: PositiveInt = Field(
         200, le=1_000_000, description="Step limit, probing steps included."
