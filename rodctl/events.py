@@ -164,6 +164,10 @@ class EventConfig(StrictModel):
     #: `sim.held_length`; "target_pixels" = re-project the target's world centerline.
     refresh: ClassVar[frozenset[str]] = frozenset()
 
+    #: One valid instance as a dict (with `type` and `at_step`): the meta-tests and
+    #: `rodctl.testing.check_event` apply it to a small rod, so every registered type is run.
+    example: ClassVar[dict[str, Any] | None] = None
+
     def apply(self, sim: RodSim, camera: Camera) -> str:
         """Apply the event through its registered apply function; its log line."""
         return EVENTS.build(self, sim, camera)
@@ -204,6 +208,7 @@ class StiffnessChange(_FactorOrValue):
     """
 
     type: Literal["stiffness"] = "stiffness"
+    example: ClassVar[dict[str, Any] | None] = {"type": "stiffness", "at_step": 1, "factor": 2.0}
 
 
 @EVENTS.register(StiffnessChange)
@@ -222,6 +227,7 @@ class WeightChange(_FactorOrValue):
     """
 
     type: Literal["weight"] = "weight"
+    example: ClassVar[dict[str, Any] | None] = {"type": "weight", "at_step": 1, "factor": 2.0}
 
 
 @EVENTS.register(WeightChange)
@@ -256,6 +262,11 @@ class ClampMove(EventConfig):
     """
 
     type: Literal["clamp_move"] = "clamp_move"
+    example: ClassVar[dict[str, Any] | None] = {
+        "type": "clamp_move",
+        "at_step": 1,
+        "pose": (0.0, 0.02, 0.1),
+    }
     refresh: ClassVar[frozenset[str]] = frozenset({"extractor"})
     pose: Pose = Field(description="New clamp pose [x, y, theta] (world).")
     max_step: tuple[_Step, _Step, _Turn] | None = Field(
@@ -289,6 +300,7 @@ class GraspSlip(EventConfig):
     """
 
     type: Literal["grasp_slip"] = "grasp_slip"
+    example: ClassVar[dict[str, Any] | None] = {"type": "grasp_slip", "at_step": 1, "ds": 0.05}
     refresh: ClassVar[frozenset[str]] = frozenset({"extractor"})
     ds: float = Field(
         ge=-100.0,
@@ -341,6 +353,11 @@ class CameraBump(EventConfig):
     """The camera is knocked: its extrinsics change by the given increments (intrinsics stay)."""
 
     type: Literal["camera_bump"] = "camera_bump"
+    example: ClassVar[dict[str, Any] | None] = {
+        "type": "camera_bump",
+        "at_step": 1,
+        "tilt_deg": 2.0,
+    }
     refresh: ClassVar[frozenset[str]] = frozenset({"extractor", "target_pixels"})
     shift: Point2 = Field((0.0, 0.0), description="Added to camera.look_at (m).")
     distance: float = Field(0.0, ge=-100.0, le=100.0, description="Added to camera.distance (m).")
@@ -392,6 +409,12 @@ class OccluderChange(EventConfig):
     """An occluder (a grey box in pixel coordinates) appears or disappears."""
 
     type: Literal["occluder"] = "occluder"
+    example: ClassVar[dict[str, Any] | None] = {
+        "type": "occluder",
+        "at_step": 1,
+        "action": "add",
+        "box": (0, 0, 10, 10),
+    }
     action: Literal["add", "remove"] = Field(description="add: appears; remove: disappears.")
     box: tuple[_Px, _Px, _Px, _Px] = Field(
         description="[u0, v0, u1, v1] (px), as camera.render.occlusions."
@@ -432,6 +455,7 @@ class NoiseChange(EventConfig):
     """The image gets noisier or cleaner (lighting, gain): pixel noise σ and optionally blur."""
 
     type: Literal["noise"] = "noise"
+    example: ClassVar[dict[str, Any] | None] = {"type": "noise", "at_step": 1, "noise_std": 3.0}
     noise_std: NonNegativeFloat = Field(le=100.0, description="New pixel noise σ (grey levels).")
     blur_sigma: NonNegativeFloat | None = Field(
         None, le=10.0, description="New blur σ (px); None: keep."
