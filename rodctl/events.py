@@ -177,10 +177,6 @@ class EventConfig(StrictModel):
         it, and update `state` with what this event changes. The default checks nothing."""
 
 
-#: The name the models had before events were registered (kept for plug-ins that used it).
-_Event = EventConfig
-
-
 class _FactorOrValue(EventConfig):
     factor: PositiveFloat | None = Field(
         None, le=1e3, description="Multiply the current value by this."
