@@ -150,6 +150,7 @@ def test_an_unknown_event_type_is_refused_naming_the_field(tmp_path):
 #: that runs them instead.
 _RUN_ELSEWHERE = {
     ("sink", "figures"): "tests/test_figure_process.py",  # a helper process drawing matplotlib
+    ("sink", "live"): "tests/logs/test_live.py",  # a WebSocket server: it needs a client
     ("executor", "ray"): "tests/test_executors.py",  # starts a Ray (about 10 s)
 }
 

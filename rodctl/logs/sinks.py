@@ -22,9 +22,12 @@ imported only by a run that writes them), so registering them costs nothing at s
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
+
+from pydantic import Field
 
 from rodctl.config.base import StrictModel
 from rodctl.config.logging import LoggingConfig
@@ -35,6 +38,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FiguresSinkConfig",
+    "LiveSinkConfig",
     "McapSinkConfig",
     "RerunSinkConfig",
     "SinkConfig",
@@ -115,6 +119,60 @@ def _figures(cfg: FiguresSinkConfig, ctx: SinkContext) -> Sink:
     from rodctl.figure_worker import FigureWorker
 
     return FigureWorker.start()
+
+
+class LiveSinkConfig(SinkConfig):
+    """The run streamed to the Foxglove app as it runs (the Foxglove WebSocket protocol on
+    loopback; `pip install 'rodctl[live]'`): the messages of run.mcap, step by step. The server
+    stops when the run ends. `simulate --live` is this sink with a wait for the viewer."""
+
+    type: Literal["live"] = "live"
+    port: int = Field(
+        8765, ge=0, le=65535, description="Loopback port (0: any free one; the URL goes to stderr)."
+    )
+    wait_s: float = Field(
+        0.0,
+        ge=0.0,
+        le=3600.0,
+        description="Seconds to wait for a viewer to subscribe before the first step (0: none).",
+    )
+    grace_s: float = Field(
+        0.5, ge=0.0, le=60.0, description="Seconds the last messages get before the server stops."
+    )
+
+
+class _ServedView:
+    """A started `LiveView` as a sink that waits for a viewer at `open` (up to `wait_s`) and
+    stops its server at `close` (the `LiveView` itself leaves that to its owner)."""
+
+    def __init__(self, view: Any, wait_s: float) -> None:
+        self.view, self.wait_s = view, wait_s
+
+    def open(self, header: Any) -> None:
+        if self.wait_s > 0:
+            self.view.wait_for_client(timeout=self.wait_s)
+        self.view.open(header)
+
+    def write(self, record: Any) -> None:
+        self.view.write(record)
+
+    def close(self, summary: Any, status: str) -> None:
+        try:
+            self.view.close(summary, status)
+        finally:
+            self.view.stop(self.view.grace_s)
+
+
+@SINKS.register(LiveSinkConfig)
+def _live(cfg: LiveSinkConfig, ctx: SinkContext) -> Sink:
+    """A started `LiveView` on 127.0.0.1:`port`, stopped when the run closes its sinks."""
+    from rodctl.logs.live import LiveView
+
+    view = LiveView(ctx.logging, port=cfg.port, grace_s=cfg.grace_s).start()
+    print(
+        f"live view on {view.url} (Foxglove: Open connection > Foxglove WebSocket)", file=sys.stderr
+    )
+    return _ServedView(view, cfg.wait_s)
 
 
 def _folder(ctx: SinkContext, name: str) -> Path:
