@@ -198,7 +198,10 @@ def _registering_modules() -> set[str]:
     """The modules of rodctl that register a type (`<REGISTRY>.register(...)` in their code)."""
     found = set()
     for path in (REPO / "rodctl").rglob("*.py"):
-        tree = ast.parse(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        if ".register(" not in text:
+            continue
+        tree = ast.parse(text)
         for node in ast.walk(tree):
             if (
                 isinstance(node, ast.Call)
