@@ -29,10 +29,11 @@ $(DEMO): pyproject.toml
 	$(BIN)/pip install --quiet -e .
 	touch $(DEMO)
 
-# The example plug-in (examples/plugin/) is part of the test suite: the tests run it through
-# the CLI and compare, as a user who installed it would.
-$(PLUGIN): $(STAMP) examples/plugin/pyproject.toml
-	$(BIN)/pip install --quiet -e examples/plugin
+# The example plug-ins (examples/plugin/: a method; examples/plugin-kinds/: an event, a sink and
+# an executor) are part of the test suite: the tests run them through the CLI and compare, as a
+# user who installed them would.
+$(PLUGIN): $(STAMP) examples/plugin/pyproject.toml examples/plugin-kinds/pyproject.toml
+	$(BIN)/pip install --quiet -e examples/plugin -e examples/plugin-kinds
 	touch $(PLUGIN)
 
 demo: $(DEMO)

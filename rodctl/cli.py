@@ -143,16 +143,17 @@ def _startup(
 
 @app.command()
 def plugins() -> None:
-    """List every registered feature, estimator and controller type, and where it comes from."""
+    """List every registered type (feature, estimator, controller, event, sink, executor), and
+    where it comes from."""
     import textwrap
 
-    from rodctl.registry import STAGES, load_plugins, plugin_provenance
+    from rodctl.registry import KINDS, load_plugins, plugin_provenance
 
     failures = load_plugins(strict=False)
     provenance = plugin_provenance()
     overridden = {(o["kind"], o["type"]) for o in provenance["overrides"]}
-    width = max((len(reg.type) for registry in STAGES.values() for reg in registry), default=0)
-    for kind, registry in STAGES.items():
+    width = max((len(reg.type) for registry in KINDS.values() for reg in registry), default=0)
+    for kind, registry in KINDS.items():
         typer.echo(f"{kind}:")
         for reg in registry:
             default = " (default)" if reg.type == registry.default else ""
@@ -629,7 +630,8 @@ ExecutorOpt = Annotated[
     typer.Option(
         "--executor",
         help="Where episodes run: 'local' (this machine: in-process for 1 worker, else a "
-        "process pool) or 'ray' (a local Ray started for the run, or --address).",
+        "process pool), 'ray' (a local Ray started for the run, or --address), or a plug-in's "
+        "(`rodctl plugins`).",
     ),
 ]
 AddressOpt = Annotated[

@@ -3,12 +3,26 @@
 Why: with a weightless rod every rod is the same rod and nothing ever changes, so the paper's
 claim that the adaptive Jacobian estimate *follows the model as it changes* cannot be tested.
 These events make it change, at a given control step, through small public methods of `RodSim`
-and `Camera` (the mechanics live there; this module is the config and the dispatch).
+and `Camera` (the mechanics live there; this module is the config and the registrations).
 
-Each event is a pydantic model with `type` (the discriminator) and `at_step` (the control step,
-probing included, before whose move it applies), and a method `apply(sim, camera) -> str` that
-mutates the simulator and/or the camera and returns one human-readable log line. The
-environment decides when to call it; see `apply_due` for the intended order.
+An event type is registered like a stage (`rodctl.registry.EVENTS`): a config model derived from
+`EventConfig` (a `type` literal, the discriminator, and `at_step`, the control step, probing
+included, before whose move it applies) and an apply function `apply(event, sim, camera) -> str`
+that mutates the simulator and/or the camera and returns one human-readable log line::
+
+    class Gust(EventConfig):
+        # (a docstring: what happens, in the units of its fields)
+        type: Literal["gust"] = "gust"
+        dy: float = Field(ge=-0.1, le=0.1, description="Sideways push (m).")
+
+    @EVENTS.register(Gust)
+    def _apply(event: Gust, sim, camera) -> str:
+        ...
+        return f"event gust: {event.dy} m"
+
+`run.events` is the union of every registered type, so a plug-in adds one without editing
+rodctl, and an unknown `type` is refused by the config's validation. The environment decides when
+to call `event.apply(sim, camera)`; see `apply_due` for the intended order.
 
 What the environment must redo itself after an event (this module cannot see its objects):
 
@@ -23,26 +37,46 @@ What the environment must redo itself after an event (this module cannot see its
   frame). Each model's `refresh` class attribute says this in code: {"extractor"},
   {"extractor", "target_pixels"} or empty.
 
-`validate_events` checks what can be checked before the run (a slip longer than the rod, a
-clamp pose out of reach of the target, a step past the step limit, removing an occluder that is
-not there) and raises a `UserError` naming the field, e.g. `run.events[2].ds`.
+`validate_events` checks what can be checked before the run: every `at_step` below the step
+limit, then each event's own `check(state, field)` in step order on an `EventState` (what the
+earlier events left: the held length, the clamp pose, the camera pose, the occluders), e.g. a
+slip longer than the rod, a clamp pose out of reach of the target, removing an occluder that is
+not there; it raises a `UserError` naming the field, e.g. `run.events[2].ds`.
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, model_validator
 
 from rodctl.config.base import Point2, Pose, StrictModel
+from rodctl.config.run import Event
 from rodctl.errors import UserError
+from rodctl.registry import EVENTS
 
 if TYPE_CHECKING:
-    from rodctl.config.experiment import ExperimentConfig
     from rodctl.sim.rod import ApplyResult, RodSim
     from rodctl.vision.camera import Camera
+
+__all__ = [
+    "CameraBump",
+    "ClampMove",
+    "Event",
+    "EventConfig",
+    "EventState",
+    "GraspSlip",
+    "NoiseChange",
+    "OccluderChange",
+    "StiffnessChange",
+    "WeightChange",
+    "apply_due",
+    "due",
+    "validate_events",
+]
 
 
 def _settle_note(result: ApplyResult) -> str:
@@ -58,7 +92,68 @@ _Turn = Annotated[float, Field(gt=0.0, le=3.2)]
 _Px = Annotated[float, Field(ge=-1e5, le=1e5)]
 
 
-class _Event(StrictModel):
+@dataclass
+class EventState:
+    """What the events before the one being checked left, as `validate_events` follows them in
+    step order (built from the experiment config; an event's `check` reads and updates it).
+
+    Attributes:
+        segment: rod.length / rod.segments (m).
+        segments: rod.segments.
+        length: rod.length (m).
+        held: segments held between clamp and gripper (grasp slips change it).
+        max_reach: rod.workspace.max_reach (a fraction of the held length).
+        clamp: (3,) the clamp pose (world).
+        target: the fixed target gripper pose (`run.target.pose`), or None (sampled).
+        look_at, distance, tilt_deg, azimuth_deg: the camera pose.
+        boxes: the occluders present ([u0, v0, u1, v1] px each).
+        max_steps: run.max_steps.
+    """
+
+    segment: float
+    segments: int
+    length: float
+    held: int
+    max_reach: float
+    clamp: np.ndarray
+    target: Any
+    look_at: tuple[float, float]
+    distance: float
+    tilt_deg: float
+    azimuth_deg: float
+    boxes: list[tuple[float, ...]] = field(default_factory=list)
+    max_steps: int = 0
+
+    @classmethod
+    def from_config(cls, cfg: Any) -> EventState:
+        """The state before any event, from an experiment config (rod, camera, run)."""
+        rod, cam = cfg.rod, cfg.camera
+        return cls(
+            segment=rod.length / rod.segments,
+            segments=rod.segments,
+            length=rod.length,
+            held=rod.segments,
+            max_reach=rod.workspace.max_reach,
+            clamp=np.asarray(rod.clamp_pose, dtype=float),
+            target=cfg.run.target.pose,
+            look_at=tuple(cam.look_at),
+            distance=cam.distance,
+            tilt_deg=cam.tilt_deg,
+            azimuth_deg=cam.azimuth_deg,
+            boxes=[tuple(float(v) for v in b) for b in cam.render.occlusions],
+            max_steps=cfg.run.max_steps,
+        )
+
+    def target_distance(self) -> float | None:
+        """Distance (m) from the clamp to the fixed target pose; None without one."""
+        if self.target is None:
+            return None
+        return math.hypot(self.target[0] - self.clamp[0], self.target[1] - self.clamp[1])
+
+
+class EventConfig(StrictModel):
+    """Base of every event config model: `at_step`, `refresh`, `apply` and `check`."""
+
     at_step: NonNegativeInt = Field(
         le=1_000_000,
         description="Control step (probing included) before whose move the event applies.",
@@ -69,8 +164,20 @@ class _Event(StrictModel):
     #: `sim.held_length`; "target_pixels" = re-project the target's world centerline.
     refresh: ClassVar[frozenset[str]] = frozenset()
 
+    #: One valid instance as a dict (with `type` and `at_step`): the meta-tests and
+    #: `rodctl.testing.check_event` apply it to a small rod, so every registered type is run.
+    example: ClassVar[dict[str, Any] | None] = None
 
-class _FactorOrValue(_Event):
+    def apply(self, sim: RodSim, camera: Camera) -> str:
+        """Apply the event through its registered apply function; its log line."""
+        return EVENTS.build(self, sim, camera)
+
+    def check(self, state: EventState, field: str) -> None:
+        """Refuse (`UserError` naming `field`.<key>) what cannot apply after the events before
+        it, and update `state` with what this event changes. The default checks nothing."""
+
+
+class _FactorOrValue(EventConfig):
     factor: PositiveFloat | None = Field(
         None, le=1e3, description="Multiply the current value by this."
     )
@@ -97,12 +204,16 @@ class StiffnessChange(_FactorOrValue):
     """
 
     type: Literal["stiffness"] = "stiffness"
+    example: ClassVar[dict[str, Any] | None] = {"type": "stiffness", "at_step": 1, "factor": 2.0}
 
-    def apply(self, sim: RodSim, camera: Camera) -> str:
-        old = sim.bending_stiffness
-        new = self.new_value(old)
-        result = sim.set_bending_stiffness(new)
-        return f"event stiffness: EI {old:.4g} -> {new:.4g} N m^2{_settle_note(result)}"
+
+@EVENTS.register(StiffnessChange)
+def _apply_stiffness(event: StiffnessChange, sim: RodSim, camera: Camera) -> str:
+    """EI changes and the rod settles (`RodSim.set_bending_stiffness`)."""
+    old = sim.bending_stiffness
+    new = event.new_value(old)
+    result = sim.set_bending_stiffness(new)
+    return f"event stiffness: EI {old:.4g} -> {new:.4g} N m^2{_settle_note(result)}"
 
 
 class WeightChange(_FactorOrValue):
@@ -112,15 +223,33 @@ class WeightChange(_FactorOrValue):
     """
 
     type: Literal["weight"] = "weight"
-
-    def apply(self, sim: RodSim, camera: Camera) -> str:
-        old = sim.mass_per_length
-        new = self.new_value(old)
-        result = sim.set_mass_per_length(new)
-        return f"event weight: rho*A {old:.4g} -> {new:.4g} kg/m{_settle_note(result)}"
+    example: ClassVar[dict[str, Any] | None] = {"type": "weight", "at_step": 1, "factor": 2.0}
 
 
-class ClampMove(_Event):
+@EVENTS.register(WeightChange)
+def _apply_weight(event: WeightChange, sim: RodSim, camera: Camera) -> str:
+    """ρA changes and the rod settles (`RodSim.set_mass_per_length`)."""
+    old = sim.mass_per_length
+    new = event.new_value(old)
+    result = sim.set_mass_per_length(new)
+    return f"event weight: rho*A {old:.4g} -> {new:.4g} kg/m{_settle_note(result)}"
+
+
+def _check_reach(state: EventState, name: str, what: str, why: str) -> None:
+    """A fixed target pose must stay within max_reach of the held length from the clamp."""
+    dist = state.target_distance()
+    if dist is None:
+        return
+    reach = state.max_reach * state.held * state.segment
+    if dist > reach:
+        raise UserError(
+            f"{name}.{what}: after this event the target pose run.target.pose is "
+            f"{dist:.4g} m from the clamp, beyond max_reach * held length = {reach:.4g} m"
+            f" ({why})"
+        )
+
+
+class ClampMove(EventConfig):
     """The clamped end is driven to a new pose, the gripper holding still (a bumped fixture).
 
     It moves in a straight line within `max_step` per control period, settling after each
@@ -129,24 +258,37 @@ class ClampMove(_Event):
     """
 
     type: Literal["clamp_move"] = "clamp_move"
+    example: ClassVar[dict[str, Any] | None] = {
+        "type": "clamp_move",
+        "at_step": 1,
+        "pose": (0.0, 0.02, 0.1),
+    }
     refresh: ClassVar[frozenset[str]] = frozenset({"extractor"})
     pose: Pose = Field(description="New clamp pose [x, y, theta] (world).")
     max_step: tuple[_Step, _Step, _Turn] | None = Field(
         None, description="Per-axis limit per control period (m, m, rad); None: rod.max_step."
     )
 
-    def apply(self, sim: RodSim, camera: Camera) -> str:
-        old = sim.clamp_pose
-        result = sim.move_clamp(
-            np.asarray(self.pose, dtype=float),
-            None if self.max_step is None else np.asarray(self.max_step, dtype=float),
-        )
-        new = sim.clamp_pose
-        clip = " (stopped at the reach limit)" if result.clipped else ""
-        return f"event clamp_move: clamp {_fmt(old)} -> {_fmt(new)}{clip}{_settle_note(result)}"
+    def check(self, state: EventState, field: str) -> None:
+        """The fixed target stays within reach of the moved clamp."""
+        state.clamp = np.asarray(self.pose, dtype=float)
+        _check_reach(state, field, "pose", "the clamp pose is out of reach")
 
 
-class GraspSlip(_Event):
+@EVENTS.register(ClampMove)
+def _apply_clamp_move(event: ClampMove, sim: RodSim, camera: Camera) -> str:
+    """The clamp is driven to the new pose (`RodSim.move_clamp`)."""
+    old = sim.clamp_pose
+    result = sim.move_clamp(
+        np.asarray(event.pose, dtype=float),
+        None if event.max_step is None else np.asarray(event.max_step, dtype=float),
+    )
+    new = sim.clamp_pose
+    clip = " (stopped at the reach limit)" if result.clipped else ""
+    return f"event clamp_move: clamp {_fmt(old)} -> {_fmt(new)}{clip}{_settle_note(result)}"
+
+
+class GraspSlip(EventConfig):
     """The grasp point slides along the rod by `ds`: the held length changes, the gripper stays.
 
     ds > 0: towards the clamp (held length shrinks); ds < 0: away from it (grows back, at most
@@ -154,6 +296,7 @@ class GraspSlip(_Event):
     """
 
     type: Literal["grasp_slip"] = "grasp_slip"
+    example: ClassVar[dict[str, Any] | None] = {"type": "grasp_slip", "at_step": 1, "ds": 0.05}
     refresh: ClassVar[frozenset[str]] = frozenset({"extractor"})
     ds: float = Field(
         ge=-100.0,
@@ -167,20 +310,50 @@ class GraspSlip(_Event):
             raise ValueError("ds must be nonzero")
         return self
 
-    def apply(self, sim: RodSim, camera: Camera) -> str:
-        old = sim.held_length
-        result = sim.slip_grasp(self.ds)
-        clip = " (gripper clipped to the reach of the held length)" if result.clipped else ""
-        return (
-            f"event grasp_slip: held length {old:.4f} -> {sim.held_length:.4f} m{clip}"
-            f"{_settle_note(result)}"
-        )
+    def check(self, state: EventState, field: str) -> None:
+        """At least 2 segments stay held, at most rod.length; the target stays within reach."""
+        seg, held = state.segment, state.held
+        k = round(self.ds / seg)
+        if k == 0:
+            raise UserError(
+                f"{field}.ds: {self.ds} m is less than half a segment ({seg:.4g} m); "
+                "the slip is rounded to whole segments"
+            )
+        if held - k < 2:
+            raise UserError(
+                f"{field}.ds: a slip of {self.ds} m is longer than the held rod "
+                f"({held * seg:.4g} m at that step; at least 2 segments must stay held)"
+            )
+        if held - k > state.segments:
+            raise UserError(
+                f"{field}.ds: a slip of {self.ds} m makes the held length "
+                f"{(held - k) * seg:.4g} m, longer than rod.length = {state.length} m"
+            )
+        state.held = held - k
+        _check_reach(state, field, "ds", "the held rod is too short to reach the target")
 
 
-class CameraBump(_Event):
+@EVENTS.register(GraspSlip)
+def _apply_grasp_slip(event: GraspSlip, sim: RodSim, camera: Camera) -> str:
+    """The grasp point slides (`RodSim.slip_grasp`)."""
+    old = sim.held_length
+    result = sim.slip_grasp(event.ds)
+    clip = " (gripper clipped to the reach of the held length)" if result.clipped else ""
+    return (
+        f"event grasp_slip: held length {old:.4f} -> {sim.held_length:.4f} m{clip}"
+        f"{_settle_note(result)}"
+    )
+
+
+class CameraBump(EventConfig):
     """The camera is knocked: its extrinsics change by the given increments (intrinsics stay)."""
 
     type: Literal["camera_bump"] = "camera_bump"
+    example: ClassVar[dict[str, Any] | None] = {
+        "type": "camera_bump",
+        "at_step": 1,
+        "tilt_deg": 2.0,
+    }
     refresh: ClassVar[frozenset[str]] = frozenset({"extractor", "target_pixels"})
     shift: Point2 = Field((0.0, 0.0), description="Added to camera.look_at (m).")
     distance: float = Field(0.0, ge=-100.0, le=100.0, description="Added to camera.distance (m).")
@@ -199,21 +372,45 @@ class CameraBump(_Event):
             "azimuth_deg": azimuth + self.azimuth_deg,
         }
 
-    def apply(self, sim: RodSim, camera: Camera) -> str:
-        c = camera.cfg
-        pose = self.new_pose(c.look_at, c.distance, c.tilt_deg, c.azimuth_deg)
-        camera.set_pose(**pose)
-        return (
-            f"event camera_bump: look_at {_fmt(pose['look_at'])} m, distance "
-            f"{pose['distance']:.4g} m, tilt {pose['tilt_deg']:.4g} deg, azimuth "
-            f"{pose['azimuth_deg']:.4g} deg"
-        )
+    def check(self, state: EventState, field: str) -> None:
+        """The bumped camera still looks down at the plane (distance > 0, |tilt| < 90°)."""
+        pose = self.new_pose(state.look_at, state.distance, state.tilt_deg, state.azimuth_deg)
+        if pose["distance"] <= 0:
+            raise UserError(
+                f"{field}.distance: the bumped camera distance {pose['distance']:.4g} m must be > 0"
+            )
+        if not abs(pose["tilt_deg"]) < 90:
+            raise UserError(
+                f"{field}.tilt_deg: the bumped tilt {pose['tilt_deg']:.4g} deg must be within "
+                "(-90, 90) to see the plane"
+            )
+        state.look_at, state.distance = pose["look_at"], pose["distance"]
+        state.tilt_deg, state.azimuth_deg = pose["tilt_deg"], pose["azimuth_deg"]
 
 
-class OccluderChange(_Event):
+@EVENTS.register(CameraBump)
+def _apply_camera_bump(event: CameraBump, sim: RodSim, camera: Camera) -> str:
+    """The camera's extrinsics change (`Camera.set_pose`)."""
+    c = camera.cfg
+    pose = event.new_pose(c.look_at, c.distance, c.tilt_deg, c.azimuth_deg)
+    camera.set_pose(**pose)
+    return (
+        f"event camera_bump: look_at {_fmt(pose['look_at'])} m, distance "
+        f"{pose['distance']:.4g} m, tilt {pose['tilt_deg']:.4g} deg, azimuth "
+        f"{pose['azimuth_deg']:.4g} deg"
+    )
+
+
+class OccluderChange(EventConfig):
     """An occluder (a grey box in pixel coordinates) appears or disappears."""
 
     type: Literal["occluder"] = "occluder"
+    example: ClassVar[dict[str, Any] | None] = {
+        "type": "occluder",
+        "at_step": 1,
+        "action": "add",
+        "box": (0, 0, 10, 10),
+    }
     action: Literal["add", "remove"] = Field(description="add: appears; remove: disappears.")
     box: tuple[_Px, _Px, _Px, _Px] = Field(
         description="[u0, v0, u1, v1] (px), as camera.render.occlusions."
@@ -226,53 +423,59 @@ class OccluderChange(_Event):
             raise ValueError(f"box must be [u0, v0, u1, v1] with u0 < u1, v0 < v1, got {self.box}")
         return self
 
-    def apply(self, sim: RodSim, camera: Camera) -> str:
+    def check(self, state: EventState, field: str) -> None:
+        """An occluder is removed only if present (configured or added by an earlier event)."""
+        box = tuple(float(v) for v in self.box)
         if self.action == "add":
-            camera.add_occlusion(self.box)
-            return f"event occluder: appears at {list(self.box)} px"
-        camera.remove_occlusion(self.box)
-        return f"event occluder: {list(self.box)} px disappears"
+            state.boxes.append(box)
+        elif box in state.boxes:
+            state.boxes.remove(box)
+        else:
+            raise UserError(
+                f"{field}.box: no occluder {list(box)} is present at step {self.at_step} "
+                "(neither in camera.render.occlusions nor added by an earlier event)"
+            )
 
 
-class NoiseChange(_Event):
+@EVENTS.register(OccluderChange)
+def _apply_occluder(event: OccluderChange, sim: RodSim, camera: Camera) -> str:
+    """The box is added to or removed from the camera's occlusions."""
+    if event.action == "add":
+        camera.add_occlusion(event.box)
+        return f"event occluder: appears at {list(event.box)} px"
+    camera.remove_occlusion(event.box)
+    return f"event occluder: {list(event.box)} px disappears"
+
+
+class NoiseChange(EventConfig):
     """The image gets noisier or cleaner (lighting, gain): pixel noise σ and optionally blur."""
 
     type: Literal["noise"] = "noise"
+    example: ClassVar[dict[str, Any] | None] = {"type": "noise", "at_step": 1, "noise_std": 3.0}
     noise_std: NonNegativeFloat = Field(le=100.0, description="New pixel noise σ (grey levels).")
     blur_sigma: NonNegativeFloat | None = Field(
         None, le=10.0, description="New blur σ (px); None: keep."
     )
 
-    def apply(self, sim: RodSim, camera: Camera) -> str:
-        camera.set_noise(self.noise_std, self.blur_sigma)
-        blur = "" if self.blur_sigma is None else f", blur sigma {self.blur_sigma:.3g} px"
-        return f"event noise: pixel noise sigma {self.noise_std:.3g}{blur}"
 
-
-#: One mid-run event, chosen by `type` (a pydantic discriminated union). Use it in a config as
-#: `events: list[Event] = Field(default_factory=list, description=...)`.
-Event = Annotated[
-    StiffnessChange
-    | WeightChange
-    | ClampMove
-    | GraspSlip
-    | CameraBump
-    | OccluderChange
-    | NoiseChange,
-    Field(discriminator="type"),
-]
+@EVENTS.register(NoiseChange)
+def _apply_noise(event: NoiseChange, sim: RodSim, camera: Camera) -> str:
+    """The camera's render noise changes (`Camera.set_noise`)."""
+    camera.set_noise(event.noise_std, event.blur_sigma)
+    blur = "" if event.blur_sigma is None else f", blur sigma {event.blur_sigma:.3g} px"
+    return f"event noise: pixel noise sigma {event.noise_std:.3g}{blur}"
 
 
 def _fmt(pose: np.ndarray) -> str:
     return "[" + ", ".join(f"{v:.4f}" for v in np.asarray(pose, dtype=float)) + "]"
 
 
-def due(events: list[Event], step: int) -> list[Event]:
+def due(events: list[Any], step: int) -> list[Any]:
     """The events that apply at control step `step`, in the order they were listed."""
     return [e for e in events if e.at_step == step]
 
 
-def apply_due(events: list[Event], step: int, sim: RodSim, camera: Camera) -> list[str]:
+def apply_due(events: list[Any], step: int, sim: RodSim, camera: Camera) -> list[str]:
     """Apply every event of `step` in list order; return their log lines (one each).
 
     Intended call: in the control loop, after the observation of step k-1 was used and before
@@ -281,92 +484,31 @@ def apply_due(events: list[Event], step: int, sim: RodSim, camera: Camera) -> li
     return [event.apply(sim, camera) for event in due(events, step)]
 
 
-def validate_events(events: list[Event], cfg: ExperimentConfig, field: str = "run.events") -> None:
+def validate_events(events: list[Any], cfg: Any, field: str = "run.events") -> None:
     """Refuse, before the run, events that cannot apply. Raises `UserError` naming the field.
 
-    Checks: `at_step` below `run.max_steps`; the held length after every grasp slip (in step
-    order) stays within [2 segments, rod.length]; a moved clamp leaves the fixed target pose
-    (if `run.target.pose` is set) within `max_reach` of the held length; the bumped camera still
-    looks down at the plane (distance > 0, |tilt| < 90°); an occluder is removed only if present
-    (in camera.render.occlusions or added by an earlier event).
+    Checks `at_step` below `run.max_steps` for every event, then each event's own `check` in
+    step order (list order within a step) on the `EventState` the earlier events left: for the
+    built-in types, the held length after every grasp slip stays within [2 segments,
+    rod.length]; a moved clamp leaves the fixed target pose (if `run.target.pose` is set) within
+    `max_reach` of the held length; the bumped camera still looks down at the plane (distance >
+    0, |tilt| < 90°); an occluder is removed only if present.
 
     Args:
         events: the events, as in the config.
         cfg: the whole experiment config (rod, camera and run sections are read).
         field: dotted name of the list, for messages.
     """
-    rod, cam = cfg.rod, cfg.camera
-    seg = rod.length / rod.segments
-    held = rod.segments
-    clamp = np.asarray(rod.clamp_pose, dtype=float)
-    target = cfg.run.target.pose
-    look_at, distance = tuple(cam.look_at), cam.distance
-    tilt, azimuth = cam.tilt_deg, cam.azimuth_deg
-    boxes = [tuple(float(v) for v in b) for b in cam.render.occlusions]
+    state = EventState.from_config(cfg)
     order = sorted(range(len(events)), key=lambda i: events[i].at_step)  # stable: list order
     for i in order:
         event = events[i]
         name = f"{field}[{i}]"
-        if event.at_step >= cfg.run.max_steps:
+        if event.at_step >= state.max_steps:
             raise UserError(
                 f"{name}.at_step: {event.at_step} is not below run.max_steps = "
-                f"{cfg.run.max_steps}; the event would never happen"
+                f"{state.max_steps}; the event would never happen"
             )
-        if isinstance(event, GraspSlip):
-            k = round(event.ds / seg)
-            if k == 0:
-                raise UserError(
-                    f"{name}.ds: {event.ds} m is less than half a segment ({seg:.4g} m); "
-                    "the slip is rounded to whole segments"
-                )
-            if held - k < 2:
-                raise UserError(
-                    f"{name}.ds: a slip of {event.ds} m is longer than the held rod "
-                    f"({held * seg:.4g} m at that step; at least 2 segments must stay held)"
-                )
-            if held - k > rod.segments:
-                raise UserError(
-                    f"{name}.ds: a slip of {event.ds} m makes the held length "
-                    f"{(held - k) * seg:.4g} m, longer than rod.length = {rod.length} m"
-                )
-            held -= k
-        if isinstance(event, ClampMove):
-            clamp = np.asarray(event.pose, dtype=float)
-        if isinstance(event, (GraspSlip, ClampMove)) and target is not None:
-            reach = rod.workspace.max_reach * held * seg
-            dist = math.hypot(target[0] - clamp[0], target[1] - clamp[1])
-            if dist > reach:
-                if isinstance(event, ClampMove):
-                    what, why = "pose", "the clamp pose is out of reach"
-                else:
-                    what, why = "ds", "the held rod is too short to reach the target"
-                raise UserError(
-                    f"{name}.{what}: after this event the target pose run.target.pose is "
-                    f"{dist:.4g} m from the clamp, beyond max_reach * held length = {reach:.4g} m"
-                    f" ({why})"
-                )
-        if isinstance(event, CameraBump):
-            pose = event.new_pose(look_at, distance, tilt, azimuth)
-            if pose["distance"] <= 0:
-                raise UserError(
-                    f"{name}.distance: the bumped camera distance {pose['distance']:.4g} m must be"
-                    " > 0"
-                )
-            if not abs(pose["tilt_deg"]) < 90:
-                raise UserError(
-                    f"{name}.tilt_deg: the bumped tilt {pose['tilt_deg']:.4g} deg must be within "
-                    "(-90, 90) to see the plane"
-                )
-            look_at, distance = pose["look_at"], pose["distance"]
-            tilt, azimuth = pose["tilt_deg"], pose["azimuth_deg"]
-        if isinstance(event, OccluderChange):
-            box = tuple(float(v) for v in event.box)
-            if event.action == "add":
-                boxes.append(box)
-            elif box in boxes:
-                boxes.remove(box)
-            else:
-                raise UserError(
-                    f"{name}.box: no occluder {list(box)} is present at step {event.at_step} "
-                    "(neither in camera.render.occlusions nor added by an earlier event)"
-                )
+        check = getattr(event, "check", None)
+        if check is not None:
+            check(state, name)

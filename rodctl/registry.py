@@ -1,12 +1,13 @@
-"""Open registries of the pluggable stages, and plug-in loading.
+"""Open registries of every extension kind, and plug-in loading.
 
 Why: a method is three stages (feature map, Jacobian estimator, controller) and every one of them
-is chosen in a config by its `type`. Each type registers itself *beside its implementation*,
-together with its config model and a factory, so that adding a type touches one module: the
-config unions, the JSON schema (`rodctl config schema`), `rodctl plugins` and the method builder
-all read these registries. Packages outside rodctl add types the same way from a module named
-by an entry point in the group `rodctl.plugins` (Gymnasium's `register` + entry points and
-LeRobot's `register_third_party_plugins` are the models).
+is chosen in a config by its `type`; so are a mid-run event (`run.events`), an output sink
+(`logging.sinks`) and an executor (`--executor`). Each type registers itself *beside its
+implementation*, together with its config model and a factory, so that adding a type touches
+one module: the config unions, the JSON schema (`rodctl config schema`), `rodctl plugins` and
+the method builder all read these registries. Packages outside rodctl add types the same way
+from a module named by an entry point in the group `rodctl.plugins` (Gymnasium's `register` +
+entry points and LeRobot's `register_third_party_plugins` are the models).
 
 Usage, next to an implementation::
 
@@ -17,6 +18,16 @@ Usage, next to an implementation::
     @CONTROLLERS.register(MyControllerConfig)
     def _build(cfg: MyControllerConfig, ctx: BuildContext) -> Controller:
         return MyController(cfg.gain)
+
+The six kinds and what their registered function is called with:
+
+* feature, estimator, controller: `factory(cfg, ctx: BuildContext)` -> the stage object;
+* event: `apply(event, sim, camera)` -> one log line (the event mutates the simulator and/or
+  the camera; `rodctl.events`);
+* sink: `factory(cfg, ctx: rodctl.logs.sinks.SinkContext)` -> a `rodctl.logs.base.Sink`;
+* executor: `factory(cfg, ctx: rodctl.executors.base.ExecutorContext)` -> an `Executor`.
+
+`Registry.build(cfg, *args)` looks the type up (refusing a tampered built-in) and calls it.
 """
 
 from __future__ import annotations
@@ -108,10 +119,12 @@ class Registration(Generic[C]):
 
 @dataclass
 class Registry(Generic[T]):
-    """The types of one stage kind ("feature", "estimator", "controller"), by `type` name."""
+    """The types of one extension kind ("feature", "estimator", "controller", "event", "sink",
+    "executor"), by `type` name. `default`: the type a section without `type` means (None: the
+    kind has no default, e.g. events)."""
 
     kind: str
-    default: str
+    default: str | None
     _entries: dict[str, Registration] = field(default_factory=dict)
 
     def register(
@@ -191,8 +204,9 @@ class Registry(Generic[T]):
         """Every registered config model (the members of the config union)."""
         return [e.config for e in self._entries.values()]
 
-    def build(self, cfg: BaseModel, ctx: BuildContext) -> T:
-        """The object `cfg` describes, made by its registered factory.
+    def build(self, cfg: BaseModel, *args: Any) -> T:
+        """The object `cfg` describes, made by its registered factory: `factory(cfg, *args)`
+        (a stage's `ctx`; an event's `sim, camera`, which returns the event's log line).
 
         Raises:
             UserError: the registration of a built-in type was changed outside `register`
@@ -200,7 +214,7 @@ class Registry(Generic[T]):
         """
         name = cfg.type  # type: ignore[attr-defined]
         _check_builtin(self, name, culprit=None)
-        return self.get(name).factory(cfg, ctx)
+        return self.get(name).factory(cfg, *args)
 
     def provenance(self, name: str) -> dict[str, Any]:
         """Which factory builds type `name`: `module:attr`, its file and its origin (built-in,
@@ -298,7 +312,7 @@ def _restore(registry: Registry, name: str, trusted: tuple[Any, ...]) -> None:
 def _record_override(kind: str, name: str, how: str) -> None:
     """An allowed override: warned about on stderr (once, by the main process) and recorded
     for meta.json and the MCAP provenance."""
-    reg = STAGES[kind]._entries.get(name)
+    reg = KINDS[kind]._entries.get(name)
     fn = reg.factory if reg is not None else None
     entry = {
         "kind": kind,
@@ -371,11 +385,23 @@ FEATURES: Registry = Registry("feature", default="autoencoder")
 ESTIMATORS: Registry = Registry("estimator", default="akf")
 CONTROLLERS: Registry = Registry("controller", default="mfac")
 
-#: The registries by the config section they fill.
+EVENTS: Registry = Registry("event", default=None)
+SINKS: Registry = Registry("sink", default=None)
+EXECUTORS: Registry = Registry("executor", default="local")
+
+#: The registries of a method's stages, by the config section they fill.
 STAGES: dict[str, Registry] = {
     "feature": FEATURES,
     "estimator": ESTIMATORS,
     "controller": CONTROLLERS,
+}
+
+#: Every registry, by kind: the three stages, then mid-run events, output sinks, executors.
+KINDS: dict[str, Registry] = {
+    **STAGES,
+    "event": EVENTS,
+    "sink": SINKS,
+    "executor": EXECUTORS,
 }
 
 #: Config models whose schema embeds the stage unions; rebuilt when a type is registered.
@@ -393,7 +419,9 @@ _BUILTINS_LOADED = False
 _PLUGINS_LOADED = False
 _QUIET = False  # registering built-ins: the models are built once, afterwards
 
-#: The modules that register the built-in types (imported on first use of a registry).
+#: The modules that register the built-in types (imported on first use of a registry). The one
+#: list of them: tests/test_registry.py checks that every module of rodctl that registers a
+#: type is here, and that each one here registers one, so a built-in cannot be silently absent.
 _BUILTIN_MODULES = (
     "rodctl.features.autoencoder_config",
     "rodctl.features.bezier",
@@ -410,11 +438,17 @@ _BUILTIN_MODULES = (
     "rodctl.control.qp",
     "rodctl.control.scripted",
     "rodctl.control.convex",
+    "rodctl.events",
+    "rodctl.logs.sinks",
+    "rodctl.executors.local",
+    "rodctl.executors.ray",
 )
 
 
 def depends_on_stages(model: type[BaseModel]) -> type[BaseModel]:
-    """Class decorator: rebuild `model`'s schema whenever the set of stage types changes."""
+    """Class decorator: rebuild `model`'s schema whenever the set of registered types changes
+    (of any kind; a model embedding another dependent model is decorated after it, and so
+    rebuilt after it)."""
     _DEPENDENT_MODELS.append(model)
     return model
 
@@ -439,7 +473,7 @@ def load_builtins() -> None:
             importlib.import_module(name)
     finally:
         _QUIET = False
-    for kind, registry in STAGES.items():
+    for kind, registry in KINDS.items():
         for reg in registry:
             if _is_builtin_code(reg.factory):
                 _ORIGINAL[(kind, reg.type)] = _TRUSTED[(kind, reg.type)] = _fingerprint(reg)
@@ -494,7 +528,7 @@ def load_plugins(*, strict: bool = True) -> list[PluginError]:
         else:
             LOADED.append(_loaded_record(ep, dist))
         finally:
-            for kind, registry in STAGES.items():
+            for kind, registry in KINDS.items():
                 for name in sorted(t for k, t in _ORIGINAL if k == kind):
                     refused = _check_builtin(registry, name, culprit=_LOADING)
                     if refused:

@@ -25,6 +25,7 @@ from rodctl.episode import EpisodeFailed, Outcome, run_episode
 from rodctl.errors import UserError, describe_os_error
 from rodctl.figure_worker import FiguresFailed, FigureWorker, save_figures
 from rodctl.logs.base import Sink
+from rodctl.logs.sinks import FiguresSinkConfig, SinkContext, make_sink, selected_sinks
 from rodctl.method import Method
 from rodctl.records import RunSummary, StepRecord
 from rodctl.runs import RunDir, write_json_best_effort
@@ -44,17 +45,10 @@ class SimulateResult:
 
 
 def make_sinks(cfg: ExperimentConfig, run_dir: Path) -> list[Sink]:
-    """The sinks the config asks for, writing into `run_dir`."""
-    sinks: list[Sink] = []
-    if cfg.logging.mcap:
-        from rodctl.logs.mcap import McapSink
-
-        sinks.append(McapSink(run_dir / "run.mcap", cfg.logging))
-    if cfg.logging.rerun:
-        from rodctl.logs.rerun import RerunSink
-
-        sinks.append(RerunSink(run_dir / "run.rrd", cfg.logging))
-    return sinks
+    """The sinks the config asks for, writing into `run_dir` (`rodctl.logs.sinks`: MCAP and
+    Rerun when switched on, then every `logging.sinks` entry, by its registered type)."""
+    ctx = SinkContext(run_dir=run_dir, logging=cfg.logging, experiment=cfg)
+    return [make_sink(sink, ctx) for sink in selected_sinks(cfg.logging)]
 
 
 class StopRequests:
@@ -105,7 +99,9 @@ def simulate(
     `RerunSink` streaming to a viewer.
     """
     stops = StopRequests()
-    figures = FigureWorker.start() if cfg.logging.figures else None
+    figures: Any = None
+    if cfg.logging.figures:  # the figure sink, through its registration
+        figures = make_sink(FiguresSinkConfig(), SinkContext(None, cfg.logging, cfg))
     with stops.installed(), figures or nullcontext():
         env = ShapeServoEnv(cfg)
         method = Method.from_config(cfg)

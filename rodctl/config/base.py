@@ -76,7 +76,8 @@ def bounded(lo: float, hi: float, *, strict_lo: bool = False) -> Any:
 
 
 class StageSlot:
-    """The config of one pluggable stage: a union of every registered type, keyed by `type`.
+    """The config of one pluggable stage (or event, sink, executor): a union of every registered
+    type of that kind, keyed by `type`.
 
     Used as ``feature: Annotated[BaseModel, StageSlot("feature")]``. The union is built from the
     registry (`rodctl.registry`) when the model's schema is built, and rebuilt when a plug-in
@@ -87,10 +88,10 @@ class StageSlot:
         self.kind = kind
 
     def __get_pydantic_core_schema__(self, source: Any, handler: GetCoreSchemaHandler) -> Any:
-        from rodctl.registry import STAGES, load_builtins
+        from rodctl.registry import KINDS, load_builtins
 
         load_builtins()
-        models = STAGES[self.kind].config_models()
+        models = KINDS[self.kind].config_models()
         if len(models) == 1:
             return handler.generate_schema(models[0])
         union = Annotated[Union[tuple(models)], Field(discriminator="type")]  # noqa: UP007

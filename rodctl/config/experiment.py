@@ -12,6 +12,8 @@ from rodctl.config.camera import CameraConfig
 from rodctl.config.logging import LoggingConfig
 from rodctl.config.rod import RodConfig
 from rodctl.config.run import RunConfig
+from rodctl.errors import UserError
+from rodctl.events import validate_events
 from rodctl.registry import depends_on_stages
 
 #: The config of each pluggable stage: every type registered in `rodctl.registry`, by `type`.
@@ -45,8 +47,8 @@ class ExperimentConfig(StrictModel):
     feature: FeatureConfig = stage_field("feature", "The shape feature s = f_s(c), by `type`.")
     estimator: EstimatorConfig = stage_field("estimator", "How the Jacobian J is obtained.")
     controller: ControllerConfig = stage_field("controller", "The control law, by `type`.")
-    run: RunConfig = RunConfig()
-    logging: LoggingConfig = LoggingConfig()
+    run: RunConfig = Field(default_factory=RunConfig)
+    logging: LoggingConfig = Field(default_factory=LoggingConfig)
 
     @model_validator(mode="before")
     @classmethod
@@ -73,9 +75,6 @@ class ExperimentConfig(StrictModel):
         """Events that cannot apply (a slip longer than the rod, a clamp out of reach) are
         refused before the run, naming the field (`rodctl.events.validate_events`)."""
         if self.run.events:
-            from rodctl.errors import UserError
-            from rodctl.events import validate_events
-
             try:
                 validate_events(list(self.run.events), self)
             except UserError as exc:

@@ -1,21 +1,30 @@
-"""Config of what a run writes: MCAP log, Rerun recording, figures.
+"""Config of what a run writes: MCAP log, Rerun recording, figures, and any other sink.
 
-Owned by `rodctl/logs/`. The MCAP knobs trade crash safety against file size: a chunk is closed
-and the file flushed every `flush_every_steps` steps (or earlier when a chunk reaches
-`mcap_chunk_size`), so a run killed without warning loses at most that many steps.
+Owned by `rodctl/logs/` (the sink types: `rodctl/logs/sinks.py`). The MCAP knobs trade crash
+safety against file size: a chunk is closed and the file flushed every `flush_every_steps`
+steps (or earlier when a chunk reaches `mcap_chunk_size`), so a run killed without warning
+loses at most that many steps.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from rodctl.config.base import StrictModel
+from rodctl.config.base import StageSlot, StrictModel
+from rodctl.registry import depends_on_stages
+
+#: One output sink, chosen by `type` among every type registered in `rodctl.registry.SINKS`.
+SinkSlot = Annotated[BaseModel, StageSlot("sink")]
 
 
+@depends_on_stages
 class LoggingConfig(StrictModel):
     """Which outputs a run writes next to its summary, and how."""
+
+    # The sinks' union is built from the registry when first needed (after the plug-ins).
+    model_config = ConfigDict(defer_build=True)
 
     mcap: bool = Field(True, description="Write run.mcap (Foxglove-compatible log).")
     rerun: bool = Field(True, description="Write run.rrd (Rerun recording).")
@@ -47,3 +56,22 @@ class LoggingConfig(StrictModel):
         description="Every this many steps, close the MCAP chunk and flush it to the OS, and send "
         "the buffered Rerun rows; a run killed without warning loses at most these steps.",
     )
+    sinks: list[SinkSlot] = Field(
+        default_factory=list,
+        description="More sinks, each by `type` with its options (a plug-in's, e.g. a CSV table; "
+        "`rodctl plugins` lists the types). MCAP, Rerun and figures are switched by the keys "
+        "above (docs/plugins.md).",
+    )
+
+    @model_validator(mode="after")
+    def _switched_sinks_not_listed(self) -> LoggingConfig:
+        """A built-in sink with its own switch (`mcap: true`) is not listed in `sinks` too."""
+        for i, sink in enumerate(self.sinks):
+            switch: Any = getattr(sink, "switch", None)
+            name = sink.type  # type: ignore[attr-defined]
+            if switch:
+                raise ValueError(
+                    f"sinks[{i}]: the {name!r} sink is switched by logging.{switch}: true, not "
+                    "listed in logging.sinks"
+                )
+        return self

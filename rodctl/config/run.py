@@ -8,7 +8,9 @@ from __future__ import annotations
 from typing import Annotated
 
 from pydantic import (
+    BaseModel,
     BeforeValidator,
+    ConfigDict,
     Field,
     PositiveFloat,
     PositiveInt,
@@ -16,9 +18,13 @@ from pydantic import (
     model_validator,
 )
 
-from rodctl.config.base import Pose, StrictModel, bounded
-from rodctl.events import Event
+from rodctl.config.base import Pose, StageSlot, StrictModel, bounded
 from rodctl.outcome import EXPECTABLE, Outcome
+from rodctl.registry import depends_on_stages
+
+#: One mid-run event, chosen by `type` among every type registered in `rodctl.registry.EVENTS`
+#: (the built-ins are in rodctl/events.py; a plug-in adds more). An unknown `type` is refused.
+Event = Annotated[BaseModel, StageSlot("event")]
 
 
 def _expectable(value: object) -> object:
@@ -64,8 +70,13 @@ class TargetConfig(StrictModel):
         return self
 
 
+@depends_on_stages
 class RunConfig(StrictModel):
     """How long a run lasts and when it stops."""
+
+    # The events' union is built from the registry when the schema is first needed (after the
+    # built-in types and plug-ins have registered), and rebuilt when a type is added.
+    model_config = ConfigDict(defer_build=True)
 
     max_steps: PositiveInt = Field(
         200, le=1_000_000, description="Step limit, probing steps included."

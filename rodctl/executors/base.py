@@ -11,6 +11,12 @@ SIGTERM then set a process-wide flag instead of raising, and an episode polls `s
 between two steps (`run_episode(stop_requested=...)`), so it ends as `interrupted` with its
 logs closed whole. The executor's `cancel()` makes that happen in every worker (a signal to a
 pool process, `ray.cancel` on Ray), whichever process the user's signal reached first.
+
+Executors are registered like stages (`rodctl.registry.EXECUTORS`): a config model derived from
+`ExecutorConfig` (a `type` literal; the command line selects it by name, `--executor NAME`, and
+builds it from its defaults) and a factory `factory(cfg, ctx: ExecutorContext) -> Executor`.
+`local` is in rodctl/executors/local.py, `ray` in rodctl/executors/ray.py; a plug-in adds one
+(a Dask or a batch-queue executor) the same way, without editing rodctl.
 """
 
 from __future__ import annotations
@@ -23,7 +29,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
-from rodctl import signals
+from rodctl import registry, signals
+from rodctl.config.base import StrictModel
+from rodctl.errors import UserError
 
 #: How many times a task whose worker (or node) was lost is run again before it is recorded
 #: as an error. Exceptions raised *inside* a task are never retried: they are the result.
@@ -32,6 +40,9 @@ MAX_RETRIES = 2
 #: Environment variables that cap BLAS/OpenMP threads: one thread per worker process, so N
 #: workers use N cores and not N x cores.
 THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+#: `Done.error` of a task dropped by `cancel()` (queued, or handed over after the stop flag).
+CANCELLED = "cancelled"
 
 _stop_reason: str | None = None
 
@@ -85,8 +96,6 @@ def prepare_worker() -> None:
     registered as in the parent, and one torch thread if a plug-in already imported torch.
     torch itself is not imported (1.2 s a worker, and most tasks never use it): the executors
     start workers with `THREAD_ENV` set to 1, which torch reads when a task imports it."""
-    from rodctl import registry
-
     registry._IN_WORKER = True  # the parent has warned of any allowed override
     registry.load_plugins()
     torch = sys.modules.get("torch")
@@ -184,22 +193,38 @@ class Executor(ABC):
         return [d if d is not None else Done(i, error="not run") for i, d in enumerate(out)]
 
 
+class ExecutorConfig(StrictModel):
+    """Base of every executor config model (its `type` is the `--executor` name)."""
+
+
+@dataclass(frozen=True)
+class ExecutorContext:
+    """What an executor factory is given besides its config: the command line's choices.
+
+    Attributes:
+        workers: how many tasks run at once (`--workers`).
+        address: where to connect (`--address`), or None; a factory of an executor without
+            addresses refuses one with a `UserError`.
+    """
+
+    workers: int
+    address: str | None = None
+
+
 def make_executor(kind: str, workers: int, address: str | None = None) -> Executor:
-    """The executor named on the command line (`--executor local|ray`, `--address`).
+    """The executor named on the command line (`--executor NAME`, `--address`), built by its
+    registered factory (`rodctl.registry.EXECUTORS`, plug-ins included).
 
     Raises:
-        UserError: an unknown kind, `--address` without Ray, or Ray not installed.
+        UserError: an unknown kind, `--address` for an executor without one, or Ray not
+            installed.
     """
-    from rodctl.errors import UserError
-
-    if kind == "local":
-        if address is not None:
-            raise UserError("--address needs --executor ray (the local pool has no address)")
-        from rodctl.executors.local import LocalExecutor
-
-        return LocalExecutor(workers)
-    if kind == "ray":
-        from rodctl.executors.ray import RayExecutor
-
-        return RayExecutor(workers, address=address)
-    raise UserError(f"--executor {kind!r}: expected 'local' or 'ray'")
+    registry.load_plugins()
+    if kind not in registry.EXECUTORS:
+        raise UserError(
+            f"--executor {kind!r}: expected one of "
+            f"{', '.join(repr(n) for n in registry.EXECUTORS.names())} "
+            "(`rodctl plugins` lists them with their sources)"
+        )
+    cfg = registry.EXECUTORS.get(kind).config()
+    return registry.EXECUTORS.build(cfg, ExecutorContext(workers=workers, address=address))

@@ -21,23 +21,25 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
-from typing import Any
+from typing import Any, Literal
 
+from rodctl.errors import UserError
 from rodctl.executors.base import (
+    CANCELLED,
     MAX_RETRIES,
     THREAD_ENV,
     Done,
     Executor,
+    ExecutorConfig,
+    ExecutorContext,
     init_worker,
     request_stop,
     stop_reason,
 )
+from rodctl.registry import EXECUTORS
 
 #: Seconds a stopped pool's processes get to exit on their own before they are killed.
 STOP_GRACE = 2.0
-
-#: What a task returns when it was handed to a worker after the stop flag was set.
-CANCELLED = "cancelled"
 
 
 class _NotStarted:
@@ -232,3 +234,17 @@ class LocalExecutor(Executor):
                 yield Done(key, error=CANCELLED, attempts=0)
                 return
             yield Done(key, value=fn(task), attempts=attempt)
+
+
+class LocalExecutorConfig(ExecutorConfig):
+    """This machine: in-process for one worker, else a local 'spawn' process pool."""
+
+    type: Literal["local"] = "local"
+
+
+@EXECUTORS.register(LocalExecutorConfig)
+def _build(cfg: LocalExecutorConfig, ctx: ExecutorContext) -> LocalExecutor:
+    """A `LocalExecutor` of `ctx.workers`; it has no address."""
+    if ctx.address is not None:
+        raise UserError("--address needs --executor ray (the local pool has no address)")
+    return LocalExecutor(ctx.workers)

@@ -23,22 +23,24 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import Any, Literal
 
 from rodctl.errors import UserError
 from rodctl.executors.base import (
+    CANCELLED,
     MAX_RETRIES,
     THREAD_ENV,
     Done,
     Executor,
+    ExecutorConfig,
+    ExecutorContext,
     clear_stop,
     prepare_worker,
     request_stop,
     stop_handlers,
     stop_reason,
 )
-from rodctl.executors.local import CANCELLED
-from rodctl.registry import ALLOW_OVERRIDE_ENV, override_allowed
+from rodctl.registry import ALLOW_OVERRIDE_ENV, EXECUTORS, override_allowed
 
 #: Object store of a Ray started for the run: results are small rows, not arrays.
 _OBJECT_STORE_BYTES = 128 * 2**20
@@ -232,3 +234,16 @@ class RayExecutor(Executor):
         if self._temp_dir is not None:
             shutil.rmtree(self._temp_dir, ignore_errors=True)
             self._temp_dir = None
+
+
+class RayExecutorConfig(ExecutorConfig):
+    """Ray: a local Ray started for the run (loopback only), or the cluster at `--address`
+    (`pip install 'rodctl[ray]'`)."""
+
+    type: Literal["ray"] = "ray"
+
+
+@EXECUTORS.register(RayExecutorConfig)
+def _build(cfg: RayExecutorConfig, ctx: ExecutorContext) -> RayExecutor:
+    """A `RayExecutor` of `ctx.workers` on `ctx.address` (None: a Ray of its own)."""
+    return RayExecutor(ctx.workers, address=ctx.address)

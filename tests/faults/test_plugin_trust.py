@@ -225,3 +225,34 @@ def test_the_builtin_factory_with_another_config_model_is_an_override_too(monkey
         CONTROLLERS.register(OtherDefaults, replace=True)(_build)
     assert CONTROLLERS.get("mfac") is before
     assert CONTROLLERS.provenance("mfac")["overrides_builtin"] is False
+
+
+@pytest.mark.parametrize(
+    ("kind", "name", "model"),
+    [
+        ("event", "stiffness", "rodctl.events:StiffnessChange"),
+        ("sink", "mcap", "rodctl.logs.sinks:McapSinkConfig"),
+        ("executor", "local", "rodctl.executors.local:LocalExecutorConfig"),
+    ],
+)
+def test_a_builtin_event_sink_or_executor_is_guarded_like_a_stage(kind, name, model, monkeypatch):
+    """The other three kinds have the stages' trust: re-registering a built-in is refused
+    without --allow-override, and a registry patched afterwards is refused where it is used."""
+    import dataclasses
+    import importlib
+
+    from rodctl import registry
+
+    registry.load_plugins()
+    monkeypatch.delenv(registry.ALLOW_OVERRIDE_ENV, raising=False)
+    reg = registry.KINDS[kind]
+    module, attr = model.split(":")
+    config = getattr(importlib.import_module(module), attr)
+    before = reg.get(name)
+    with pytest.raises(registry.OverrideRefused, match=f"built-in {kind} type '{name}'"):
+        reg.register(config, replace=True)(lambda *args: None)
+    assert reg.get(name) is before
+    cfg = config.model_validate(config.example) if kind == "event" else config()
+    monkeypatch.setitem(reg._entries, name, dataclasses.replace(before, factory=lambda *a: None))
+    with pytest.raises(UserError, match=f"built-in {kind} type '{name}' was replaced"):
+        reg.build(cfg)

@@ -87,6 +87,53 @@ def test_a_live_run_reaches_a_foxglove_websocket_client(tmp_path):
         assert mine == [m for m in logged if m[0] == topic], topic
 
 
+def test_the_live_sink_of_the_registry_serves_a_run_chosen_by_config(tmp_path):
+    """`logging.sinks: [{type: "live", port: P, wait_s: ...}]`: the same view selected by the
+    config (rodctl/logs/sinks.py); it waits for the viewer before the first step, the client
+    gets every step as run.mcap has it, and the server is stopped when the run ends."""
+    import time
+
+    port = _free_port()
+    cfg = _small_config()
+    cfg.logging.sinks = [{"type": "live", "port": port, "wait_s": TIMEOUT_S}]
+    received: list[tuple[str, bytes]] = []
+
+    def client() -> None:
+        deadline = time.monotonic() + TIMEOUT_S
+        while True:  # the server starts with the run
+            try:
+                ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], open_timeout=5)
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "the live sink never listened"
+                time.sleep(0.1)
+        with ws:
+            channels = _advertised(ws)
+            subs = [{"id": i, "channelId": c} for i, c in enumerate(channels)]
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            topic_of = {s["id"]: channels[s["channelId"]] for s in subs}
+            while True:
+                data = ws.recv(timeout=TIMEOUT_S)
+                if isinstance(data, str):
+                    continue
+                sub, _ = struct.unpack_from("<IQ", data, 1)
+                received.append((topic_of[sub], bytes(data[13:])))
+                if topic_of[sub] == "/run/summary":
+                    return
+
+    listener = threading.Thread(target=client, daemon=True)
+    listener.start()
+    result = simulate(cfg, tmp_path)
+    listener.join(TIMEOUT_S)
+    assert not listener.is_alive(), "the summary never arrived"
+    with open(result.run.path / "run.mcap", "rb") as fh:
+        logged = [(c.topic, m.data) for _, c, m in make_reader(fh).iter_messages()]
+    for topic in ("/rod/state", "/control"):
+        assert [m for m in received if m[0] == topic] == [m for m in logged if m[0] == topic]
+    with pytest.raises(OSError):  # stopped with the run
+        connect(f"ws://127.0.0.1:{port}", open_timeout=5).close()
+
+
 def test_a_taken_port_is_one_clear_error():
     from rodctl.errors import UserError
 

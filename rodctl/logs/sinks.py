@@ -1,0 +1,200 @@
+"""The output sinks a run writes to, registered like stages (`rodctl.registry.SINKS`).
+
+A sink type is a config model derived from `SinkConfig` (a `type` literal and its own options)
+and a factory `factory(cfg, ctx: SinkContext) -> Sink` (`rodctl.logs.base.Sink`: `open`,
+`write`, `close`). A run writes to the built-in sinks its logging booleans switch on
+(`logging.mcap`: run.mcap, `logging.rerun`: run.rrd, `logging.figures`: figures/*.png) and to
+every entry of `logging.sinks`, each chosen by its `type`, so a plug-in adds one (a CSV table, a
+ROS 2 bag) without editing rodctl::
+
+    class CsvSinkConfig(SinkConfig):
+        # (a docstring: what the sink writes, and where)
+        type: Literal["csv"] = "csv"
+        name: str = Field("steps.csv", description="File name inside the run directory.")
+
+    @SINKS.register(CsvSinkConfig)
+    def _build(cfg: CsvSinkConfig, ctx: SinkContext) -> Sink:
+        return CsvSink(ctx.run_dir / cfg.name)
+
+The factories here import their writers when called (rerun, mcap and the figure process are
+imported only by a run that writes them), so registering them costs nothing at start-up.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
+
+from pydantic import Field
+
+from rodctl.config.base import StrictModel
+from rodctl.config.logging import LoggingConfig
+from rodctl.registry import SINKS
+
+if TYPE_CHECKING:
+    from rodctl.logs.base import Sink
+
+__all__ = [
+    "FiguresSinkConfig",
+    "LiveSinkConfig",
+    "McapSinkConfig",
+    "RerunSinkConfig",
+    "SinkConfig",
+    "SinkContext",
+    "make_sink",
+    "selected_sinks",
+]
+
+
+@dataclass(frozen=True)
+class SinkContext:
+    """What a sink factory may need besides its own config.
+
+    Attributes:
+        run_dir: the run directory the sink writes into (None for a sink that writes no file,
+            e.g. the figure process, which is started before the run directory exists).
+        logging: the run's logging config (frame rate, PNG level, flush interval).
+        experiment: the whole experiment config, for a sink that records more of it.
+    """
+
+    run_dir: Path | None
+    logging: LoggingConfig
+    experiment: Any = None
+
+
+class SinkConfig(StrictModel):
+    """Base of every sink config model."""
+
+    #: The `logging` boolean that selects this built-in sink (None: it is listed in
+    #: `logging.sinks`); a sink with a switch is not listed there too.
+    switch: ClassVar[str | None] = None
+
+
+class McapSinkConfig(SinkConfig):
+    """run.mcap: the Foxglove-compatible log of every step (the contract topics), its options
+    in `logging` (compression, chunk size, flush interval)."""
+
+    type: Literal["mcap"] = "mcap"
+    switch: ClassVar[str | None] = "mcap"
+
+
+class RerunSinkConfig(SinkConfig):
+    """run.rrd: the Rerun recording of the run with its blueprint (`logging.flush_every_steps`,
+    `logging.image_rate_hz`)."""
+
+    type: Literal["rerun"] = "rerun"
+    switch: ClassVar[str | None] = "rerun"
+
+
+class FiguresSinkConfig(SinkConfig):
+    """figures/*.png: the paper's figures, drawn by a helper process started with the run (the
+    command waits for them before it returns)."""
+
+    type: Literal["figures"] = "figures"
+    switch: ClassVar[str | None] = "figures"
+
+
+@SINKS.register(McapSinkConfig)
+def _mcap(cfg: McapSinkConfig, ctx: SinkContext) -> Sink:
+    """`McapSink` writing run_dir/run.mcap."""
+    from rodctl.logs.mcap import McapSink
+
+    return McapSink(_folder(ctx, "mcap") / "run.mcap", ctx.logging)
+
+
+@SINKS.register(RerunSinkConfig)
+def _rerun(cfg: RerunSinkConfig, ctx: SinkContext) -> Sink:
+    """`RerunSink` writing run_dir/run.rrd."""
+    from rodctl.logs.rerun import RerunSink
+
+    return RerunSink(_folder(ctx, "rerun") / "run.rrd", ctx.logging)
+
+
+@SINKS.register(FiguresSinkConfig)
+def _figures(cfg: FiguresSinkConfig, ctx: SinkContext) -> Sink:
+    """A started `FigureWorker` (it gets the records as a sink; `rodctl.simulate` saves the
+    figures it draws and stops it)."""
+    from rodctl.figure_worker import FigureWorker
+
+    return FigureWorker.start()
+
+
+class LiveSinkConfig(SinkConfig):
+    """The run streamed to the Foxglove app as it runs (the Foxglove WebSocket protocol on
+    loopback; `pip install 'rodctl[live]'`): the messages of run.mcap, step by step. The server
+    stops when the run ends. `simulate --live` is this sink with a wait for the viewer."""
+
+    type: Literal["live"] = "live"
+    port: int = Field(
+        8765, ge=0, le=65535, description="Loopback port (0: any free one; the URL goes to stderr)."
+    )
+    wait_s: float = Field(
+        0.0,
+        ge=0.0,
+        le=3600.0,
+        description="Seconds to wait for a viewer to subscribe before the first step (0: none).",
+    )
+    grace_s: float = Field(
+        0.5, ge=0.0, le=60.0, description="Seconds the last messages get before the server stops."
+    )
+
+
+class _ServedView:
+    """A started `LiveView` as a sink that waits for a viewer at `open` (up to `wait_s`) and
+    stops its server at `close` (the `LiveView` itself leaves that to its owner)."""
+
+    def __init__(self, view: Any, wait_s: float) -> None:
+        self.view, self.wait_s = view, wait_s
+
+    def open(self, header: Any) -> None:
+        if self.wait_s > 0:
+            self.view.wait_for_client(timeout=self.wait_s)
+        self.view.open(header)
+
+    def write(self, record: Any) -> None:
+        self.view.write(record)
+
+    def close(self, summary: Any, status: str) -> None:
+        try:
+            self.view.close(summary, status)
+        finally:
+            self.view.stop(self.view.grace_s)
+
+
+@SINKS.register(LiveSinkConfig)
+def _live(cfg: LiveSinkConfig, ctx: SinkContext) -> Sink:
+    """A started `LiveView` on 127.0.0.1:`port`, stopped when the run closes its sinks."""
+    from rodctl.logs.live import LiveView
+
+    view = LiveView(ctx.logging, port=cfg.port, grace_s=cfg.grace_s).start()
+    print(
+        f"live view on {view.url} (Foxglove: Open connection > Foxglove WebSocket)", file=sys.stderr
+    )
+    return _ServedView(view, cfg.wait_s)
+
+
+def _folder(ctx: SinkContext, name: str) -> Path:
+    if ctx.run_dir is None:
+        raise ValueError(f"the {name} sink writes a file: it needs a run directory")
+    return Path(ctx.run_dir)
+
+
+def selected_sinks(logging: LoggingConfig, *, figures: bool = False) -> list[Any]:
+    """The config of every sink a run with `logging` writes to, in order: MCAP and Rerun when
+    their booleans are on, then `logging.sinks`. `figures`: the figure process too (first),
+    when `logging.figures` (`rodctl simulate` starts it before the others)."""
+    out: list[Any] = []
+    if figures and logging.figures:
+        out.append(FiguresSinkConfig())
+    if logging.mcap:
+        out.append(McapSinkConfig())
+    if logging.rerun:
+        out.append(RerunSinkConfig())
+    return out + list(logging.sinks)
+
+
+def make_sink(cfg: Any, ctx: SinkContext) -> Sink:
+    """The sink `cfg` describes, built by its registered factory."""
+    return SINKS.build(cfg, ctx)
