@@ -313,6 +313,7 @@ FIELD_UNITS = {
     "J": "feature units per (m, m, rad)",
     "J_singular_values": "feature units per (m, m, rad)",
     "pixel_error": "px",
+    "jacobian_error": "1",
     "max_joint_gap": "m",
     "kinetic_energy": "J",
     "estimator_info": "estimator units",

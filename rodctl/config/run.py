@@ -94,6 +94,13 @@ class RunConfig(StrictModel):
         description="Mid-run events: at a control step (probing included), before its move, the "
         "rod, the clamp, the grasp or the camera changes (rodctl/events.py, docs/simulation.md).",
     )
+    jacobian_error: Literal["auto", "always", "never"] = Field(
+        "auto",
+        description="Score each step's Jacobian estimate against the simulator's true Jacobian "
+        "(||J_est - J||_F / ||J||_F, docs/engines.md): auto = where it costs no settle (the "
+        "quasi-static engine, or the oracle's own J); always = with pymunk too, by six extra "
+        "settles a step that perturb the run within the settle tolerance; never.",
+    )
     expect: Outcome | None = Field(
         None,
         description="Outcome this config is expected to reach (checked by the config test suite).",

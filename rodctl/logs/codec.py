@@ -77,6 +77,7 @@ UNITS: dict[str, dict[str, str]] = {
         "T1": "feature units",
         "J": "feature units per (m, m, rad); row-major p x q",
         "pixel_error": "px",
+        "jacobian_error": "1 (||J - J_true||_F / ||J_true||_F)",
     },
 }
 
@@ -508,7 +509,7 @@ def control_message(r: StepRecord) -> dict[str, Any]:
     if J.ndim != 2:
         raise ValueError(f"step {r.step}: J must be (p, q), got shape {J.shape}")
     e = Encoder()
-    return {
+    msg = {
         "step": int(r.step),
         "u": e.vec("u", r.u),
         "s": e.vec("s", r.s),
@@ -527,6 +528,9 @@ def control_message(r: StepRecord) -> dict[str, Any]:
         ],
         "nonfinite": e.nonfinite,
     }
+    if not math.isnan(r.jacobian_error):  # absent where the step has none (NaN)
+        msg["jacobian_error"] = e.real("jacobian_error", r.jacobian_error)
+    return msg
 
 
 def record_from_messages(
@@ -563,6 +567,7 @@ def record_from_messages(
         extraction_note=str(cam["extraction_note"]),
         estimator_info={str(kv["name"]): decode_real(kv["value"]) for kv in ctl["estimator_info"]},
         events=[str(line) for line in rod.get("events", [])],
+        jacobian_error=decode_real(ctl["jacobian_error"]) if "jacobian_error" in ctl else math.nan,
         image=image,
     )
 
