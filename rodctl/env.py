@@ -150,11 +150,11 @@ class StageTimes:
 
 
 def _home_sim(rod: Any) -> RodSim:
-    """A fresh rod at home. The quasi-static engine restores its home state, computed once per
-    rod config (`RodSim.at_home`); pymunk still drives every new rod home, because its restored
-    state (no solver warm start) shifts later steps within the settle tolerance, and that flips
-    the borderline declared outcome of configs/event-camera-bump.yaml (stalled -> converged)."""
-    return RodSim.at_home(rod) if rod.engine == "quasistatic" else RodSim(rod)
+    """A fresh rod at home: its settled home state, computed once per rod config and restored
+    for every episode, the first included (`RodSim.at_home`), with either engine. For pymunk the
+    restored state has no solver warm start, so its steps differ from those of a rod driven home
+    within the settle tolerance (docs/engines.md, "Reset without re-driving")."""
+    return RodSim.at_home(rod)
 
 
 def _as_config(config: ExperimentConfig | dict | str | None) -> ExperimentConfig:

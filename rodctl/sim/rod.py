@@ -177,10 +177,12 @@ class RodSim:
         return sim
 
     def _home_state(self) -> dict:
-        """What `at_home` stores: the settled chain's segment poses, the gripper, the clock."""
+        """What `at_home` stores: the settled chain's segment poses and velocities (the residual
+        motion the settle left, below `settle_speed_tol`), the gripper, the clock."""
         return {
             "home": self._home.copy(),
             "states": self.chain.segment_states(),
+            "velocities": self.chain.segment_velocities(),
             "gripper": self.chain.gripper_pose(),
             "steps": self.chain.steps,
         }
@@ -188,6 +190,9 @@ class RodSim:
     def _put_home_state(self, state: dict) -> None:
         self._home = state["home"].copy()
         self.chain.place(state["states"], state["gripper"])
+        for body, (vx, vy, omega) in zip(self.chain.bodies, state["velocities"], strict=True):
+            body.velocity = (float(vx), float(vy))
+            body.angular_velocity = float(omega)
         self.chain.steps = state["steps"]
 
     def _build_chain(self, cfg: RodConfig) -> None:
