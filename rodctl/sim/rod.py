@@ -161,9 +161,9 @@ class RodSim:
         The home state is computed once per rod configuration (per process, by the driven
         build above) and stored; every call, the first included, builds a fresh chain and puts
         that state in (`_home_state` / `_put_home_state`), so every episode starts from the
-        same state whichever came first. For pymunk the restored state has the bodies' poses at
-        rest and no solver warm-start impulses (a pymunk space cannot copy them), so its next
-        steps differ from those of the driven build by far less than the settle tolerance.
+        same state whichever came first. For pymunk the restored state has the bodies' poses and
+        velocities and no solver warm-start impulses (a pymunk space cannot copy them), so its
+        next steps differ from those of the driven build by far less than the settle tolerance.
         """
         key = cfg.model_dump_json()
         state = _HOME_STATES.get(key)
