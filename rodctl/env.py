@@ -349,7 +349,7 @@ class ShapeServoEnv(gym.Env):
         """
         # One evaluation per state and feature map: the oracle's J and the step's Jacobian
         # error (`jacobian_error_reference`) share it, and pymunk pays its settles once.
-        key = (self._resets, self.steps, id(self.sim), self.sim.chain.steps, tuple(steps))
+        key = (*self._state_key(), tuple(steps))
         cached = self._true_jacobian_cache
         if cached is not None and cached[0] == key and cached[1] == encode:
             return cached[2].copy()
@@ -373,10 +373,18 @@ class ShapeServoEnv(gym.Env):
         if mode == "auto":
             cheap = hasattr(self.sim, "centerline_jacobian") and self.sim.chain.converged
             cached = self._true_jacobian_cache
-            key = (self._resets, self.steps, id(self.sim), self.sim.chain.steps)
-            if not cheap and not (cached and cached[0][:4] == key and cached[1] == encode):
+            key = self._state_key()
+            if not cheap and not (cached and cached[0][:-1] == key and cached[1] == encode):
                 return None
         return self.true_jacobian(encode)
+
+    def _state_key(self) -> tuple:
+        """What identifies the state a true Jacobian was evaluated at: the episode, the step,
+        the rod and its exact shape and gripper pose (a snapshot restored and moved again, as
+        the diagnosis does, reaches other states at the same step counts)."""
+        sim = self.sim
+        shape = sim.centerline().tobytes() + sim.gripper_pose.tobytes()
+        return (self._resets, self.steps, id(sim), sim.chain.steps, shape)
 
     def _true_jacobian(self, encode: Any, steps: tuple[float, float, float]) -> np.ndarray:
         n = self.cfg.camera.points
