@@ -98,6 +98,8 @@ CSV_COLUMNS = (
     "event_peak_error",
     "event_steps_to_converge",
     "finished_before_event",
+    "jacobian_error_median",
+    "jacobian_error_final",
     "diagnosis",
     "wall_time_s",
     "error",
@@ -412,6 +414,8 @@ def _episode(task: dict[str, Any]) -> dict[str, Any]:
             clipped_steps=extra.get("clipped_steps"),
             probe_steps=extra.get("probe_steps"),
             **{k: extra.get(k) for k in METRIC_COLUMNS},
+            jacobian_error_median=extra.get("jacobian_error_median"),
+            jacobian_error_final=extra.get("jacobian_error_final"),
             diagnosis=extra.get("diagnosis"),
             wall_time_s=summary.wall_time_s,
             error=f"interrupted by {stop_reason() or 'SIGINT'}"

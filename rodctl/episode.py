@@ -305,6 +305,18 @@ def divergence(rec: StepRecord, simulator: bool) -> str:
     return f"{where}: the method reported that it diverged"
 
 
+def _jacobian_error_summary(recs: Sequence[StepRecord]) -> dict[str, float | None]:
+    """The episode's Jacobian errors in brief: the median over the steps that have one, and the
+    last step's (None where there is none)."""
+    errors = np.array([r.jacobian_error for r in recs], dtype=float)
+    finite = errors[np.isfinite(errors)]
+    last = float(errors[-1]) if errors.size and np.isfinite(errors[-1]) else None
+    return {
+        "jacobian_error_median": float(np.median(finite)) if finite.size else None,
+        "jacobian_error_final": last,
+    }
+
+
 class _Loop:
     """The bookkeeping of one episode: records, image rate, timing, sinks, the summary."""
 
@@ -404,7 +416,24 @@ class _Loop:
             extraction_note=info["extraction_note"],
             estimator_info=m.estimator_info(),
             events=list(info.get("events", [])) if moved else [],
+            jacobian_error=self._jacobian_error(J),
         )
+
+    def _jacobian_error(self, J: np.ndarray) -> float:
+        """||Ĵ - J||_F / ||J||_F of the method's estimate Ĵ against the simulator's true
+        Jacobian J of the method's own feature at this step's shape
+        (`ShapeServoEnv.jacobian_error_reference`, as `run.jacobian_error` asks); NaN where the
+        method has no estimate (before probing fits J_0, an open-loop path) or the run does not
+        compute J (docs/engines.md)."""
+        m = self.method
+        reference = getattr(self.env, "jacobian_error_reference", None)
+        if reference is None or m.open_loop or not np.any(J) or not np.all(np.isfinite(J)):
+            return float("nan")
+        true = reference(m.feature.encode)
+        if true is None or true.shape != J.shape:
+            return float("nan")
+        scale = fla.norm(true)
+        return fla.norm(J - true) / scale if scale > 0 else float("nan")
 
     def emit(self, rec: StepRecord) -> None:
         # Every record carries its frame; the sinks pick frames by simulated time
@@ -506,6 +535,7 @@ class _Loop:
                 clipped_steps=int(sum(r.clipped for r in recs)),
                 unsettled_steps=int(sum(not r.settled for r in recs)),
                 lost_frames=int(sum(not r.extraction_ok for r in recs)),
+                **_jacobian_error_summary(recs),
                 time_per_step_ms=times.per_step_ms(len(recs)),
             )
         run_time = wall - self.setup_time

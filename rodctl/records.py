@@ -94,6 +94,9 @@ class StepRecord:
         extraction_note: the extractor's message when `extraction_ok` is False, else "".
         estimator_info: scalar diagnostics of the estimator (e.g. AKF alpha, innovation).
         events: one line per mid-run event applied before this step's move (`run.events`).
+        jacobian_error: ||J - J_true||_F / ||J_true||_F, the estimate against the simulator's
+            true Jacobian of the same feature at this step's shape (`run.jacobian_error`);
+            NaN where the method has no estimate or the run did not compute the true one.
         image: (H, W, 3) uint8 RGB camera frame, or None. The sinks choose which frames to log
             by `sim_time` (`rodctl.logs.codec.FrameSchedule`), so the loop may attach one to
             every record; records read back from a log carry one only where it was logged.
@@ -123,6 +126,7 @@ class StepRecord:
     extraction_note: str = ""
     estimator_info: dict[str, float] = field(default_factory=dict)
     events: list[str] = field(default_factory=list)
+    jacobian_error: float = float("nan")
     image: np.ndarray | None = None
 
 
@@ -166,6 +170,7 @@ FIELD_UNITS: dict[str, Unit] = {
     "J": Unit(_JACOBIAN, "; row-major p x q"),
     "J_singular_values": Unit(_JACOBIAN),
     "pixel_error": Unit(_PIXELS),
+    "jacobian_error": Unit("1", " (||J - J_true||_F / ||J_true||_F)"),
     "max_joint_gap": Unit("m"),
     "kinetic_energy": Unit("J"),
     "estimator_info": Unit("estimator units"),

@@ -5,7 +5,7 @@ Owned by `rodctl/episode.py` (stop rules) and `rodctl/env.py` (targets).
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import (
     BaseModel,
@@ -124,6 +124,13 @@ class RunConfig(StrictModel):
         default_factory=list,
         description="Mid-run events: at a control step (probing included), before its move, the "
         "rod, the clamp, the grasp or the camera changes (rodctl/events.py, docs/simulation.md).",
+    )
+    jacobian_error: Literal["auto", "always", "never"] = Field(
+        "auto",
+        description="Score each step's Jacobian estimate against the simulator's true Jacobian "
+        "(||J_est - J||_F / ||J||_F, docs/engines.md): auto = where it costs no settle (the "
+        "quasi-static engine, or the oracle's own J); always = with pymunk too, by six extra "
+        "settles a step that perturb the run within the settle tolerance; never.",
     )
     expect: ExpectedOutcome | None = Field(
         None,

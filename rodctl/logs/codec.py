@@ -60,7 +60,7 @@ TOPIC_SUMMARY = "/run/summary"
 _UNIT_FIELDS = {
     TOPIC_ROD_STATE: ("step", "sim_time", "gripper", "centerline"),
     TOPIC_CAMERA_CENTERLINE: ("step", "extracted", "projected_truth"),
-    TOPIC_CONTROL: ("step", "u", "s", "s_target", "T1", "J", "pixel_error"),
+    TOPIC_CONTROL: ("step", "u", "s", "s_target", "T1", "J", "pixel_error", "jacobian_error"),
 }
 #: Units of every contract field, also written as MCAP channel metadata.
 UNITS: dict[str, dict[str, str]] = {
@@ -496,7 +496,7 @@ def control_message(r: StepRecord) -> dict[str, Any]:
     if J.ndim != 2:
         raise ValueError(f"step {r.step}: J must be (p, q), got shape {J.shape}")
     e = Encoder()
-    return {
+    msg = {
         "step": int(r.step),
         "u": e.vec("u", r.u),
         "s": e.vec("s", r.s),
@@ -515,6 +515,9 @@ def control_message(r: StepRecord) -> dict[str, Any]:
         ],
         "nonfinite": e.nonfinite,
     }
+    if not math.isnan(r.jacobian_error):  # absent where the step has none (NaN)
+        msg["jacobian_error"] = e.real("jacobian_error", r.jacobian_error)
+    return msg
 
 
 def record_from_messages(
@@ -551,6 +554,7 @@ def record_from_messages(
         extraction_note=str(cam["extraction_note"]),
         estimator_info={str(kv["name"]): decode_real(kv["value"]) for kv in ctl["estimator_info"]},
         events=[str(line) for line in rod.get("events", [])],
+        jacobian_error=decode_real(ctl["jacobian_error"]) if "jacobian_error" in ctl else math.nan,
         image=image,
     )
 

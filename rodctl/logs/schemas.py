@@ -163,6 +163,10 @@ CONTROL: dict[str, Any] = {
         "T1": _num("||s* - s_k||, the paper's deformation metric."),
         "J": _vec(None, "Jacobian estimate, row-major p x q (p*q,); shape in J_shape."),
         "pixel_error": _num("Mean centerline distance to target (px)."),
+        "jacobian_error": _num(
+            "||J - J_true||_F / ||J_true||_F: the estimate against the simulator's true "
+            "Jacobian of the same feature (absent where the step has none)."
+        ),
         "J_shape": {
             "type": "array",
             "items": {"type": "integer"},

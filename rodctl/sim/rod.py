@@ -181,9 +181,9 @@ class RodSim:
         The home state is computed once per rod configuration (per process, by the driven
         build above) and stored; every call, the first included, builds a fresh chain and puts
         that state in (`_home_state` / `_put_home_state`), so every episode starts from the
-        same state whichever came first. For pymunk the restored state has the bodies' poses at
-        rest and no solver warm-start impulses (a pymunk space cannot copy them), so its next
-        steps differ from those of the driven build by far less than the settle tolerance.
+        same state whichever came first. For pymunk the restored state has the bodies' poses and
+        velocities and no solver warm-start impulses (a pymunk space cannot copy them), so its
+        next steps differ from those of the driven build by far less than the settle tolerance.
         """
         key = cfg.model_dump_json()
         state = _HOME_STATES.get(key)
@@ -197,10 +197,12 @@ class RodSim:
         return sim
 
     def _home_state(self) -> dict:
-        """What `at_home` stores: the settled chain's segment poses, the gripper, the clock."""
+        """What `at_home` stores: the settled chain's segment poses and velocities (the residual
+        motion the settle left, below `settle_speed_tol`), the gripper, the clock."""
         return {
             "home": self._home.copy(),
             "states": self.chain.segment_states(),
+            "velocities": self.chain.segment_velocities(),
             "gripper": self.chain.gripper_pose(),
             "steps": self.chain.steps,
         }
@@ -208,6 +210,9 @@ class RodSim:
     def _put_home_state(self, state: dict) -> None:
         self._home = state["home"].copy()
         self.chain.place(state["states"], state["gripper"])
+        for body, (vx, vy, omega) in zip(self.chain.bodies, state["velocities"], strict=True):
+            body.velocity = (float(vx), float(vy))
+            body.angular_velocity = float(omega)
         self.chain.steps = state["steps"]
 
     def _build_chain(self, cfg: RodConfig) -> None:

@@ -1,0 +1,207 @@
+"""Agreement study (issue 24): do the pymunk and the quasi-static engine give the same episodes?
+
+The suite's methods (configs/benchmarks/suite.yaml) on the same targets of a few of its
+scenarios, run once with `rod.engine: pymunk` and once with `rod.engine: quasistatic` (each a
+`rodctl compare` suite of its own), paired by scenario, method and target. Goals: the same
+outcome on >= 95 % of the episodes and the step count within +-1 on >= 90 %.
+
+    .venv/bin/python benchmarks/bench_agreement.py                     # 20 targets x 4 scenarios
+    .venv/bin/python benchmarks/bench_agreement.py --targets 5 --workers 2
+    .venv/bin/python benchmarks/bench_agreement.py --from SUITE_PYMUNK SUITE_QUASISTATIC
+
+The targets are the suite's own sampling (seed 0) with the scenario's offsets; a scenario's
+target poses are the same for both engines (sampled from the seed; each engine settles the rod
+there itself). Only `rod.engine` differs between the two runs. The table scenario cannot take
+part: the quasi-static engine refuses table friction (docs/engines.md).
+
+Printed: each figure beside its goal, per scenario and per method, the episodes that disagree
+(outcome or steps), and both runs' wall time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+SUITE = REPO / "configs" / "benchmarks" / "suite.yaml"
+SCENARIOS = ("nominal", "heavy-soft", "event-stiffness", "transfer")
+ENGINES = ("pymunk", "quasistatic")
+#: The goals of issue 24.
+SAME_OUTCOME_GOAL = 0.95
+STEPS_WITHIN_ONE_GOAL = 0.90
+
+
+def study_config(
+    suite: dict[str, Any],
+    scenarios: Sequence[str],
+    targets: int,
+    methods: Sequence[str] | None = None,
+    workers: int | None = None,
+) -> dict[str, Any]:
+    """The study as one suite config: the suite's base, the chosen scenarios (their target
+    offsets, `targets` targets each) and methods, one seed, no logs."""
+    data = json.loads(json.dumps(suite))
+    missing = [s for s in scenarios if s not in data["scenarios"]]
+    if missing:
+        raise SystemExit(f"{SUITE}: no scenario {missing}")
+    data["name"] = "agreement"
+    data.pop("seeds", None)
+    data["seed"] = int(suite.get("seed", 0))
+    data["scenarios"] = {s: data["scenarios"][s] for s in scenarios}
+    for sc in data["scenarios"].values():
+        if "targets" in sc:
+            sc["targets"] = {**sc["targets"], "count": targets}
+    data["targets"] = {**data["targets"], "count": targets}
+    if methods:
+        data["methods"] = {m: data["methods"][m] for m in methods}
+        if data.get("reference") not in data["methods"]:
+            data["reference"] = next(iter(data["methods"]))
+    data.setdefault("base", {})["logging"] = {"mcap": False, "rerun": False, "figures": False}
+    data["workers"] = workers
+    return data
+
+
+def run_engine(config: dict[str, Any], engine: str, out: Path, workers: int | None) -> Path:
+    """Run the study's suite with one engine; its folder."""
+    from rodctl.suite import run_suite
+
+    data = json.loads(json.dumps(config))
+    data["name"] = f"{config['name']}-{engine}"
+    data["base"].setdefault("rod", {})["engine"] = engine
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{data['name']}.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    return run_suite(str(path), [], str(out), progress=False, workers=workers)
+
+
+def suite_rows(folder: Path) -> list[dict[str, Any]]:
+    """Every episode row of a suite folder, tagged with its scenario."""
+    from rodctl.suite import read_rows
+
+    meta = json.loads((Path(folder) / "meta.json").read_text(encoding="utf-8"))
+    return read_rows(meta["scenarios"])
+
+
+def _key(row: dict[str, Any]) -> tuple:
+    """Scenario, method, target index and pose (rounded to a micrometre: each engine settles
+    the rod at the sampled pose itself, so a target one engine could not use shifts the rest)."""
+    pose = tuple(round(float(row[f"target_{a}"]), 6) for a in ("x", "y", "theta"))
+    return (row["scenario"], row["method"], int(row["target"]), pose)
+
+
+def agreement(a: Sequence[dict[str, Any]], b: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Pair two runs' episodes by (scenario, method, target) and count the agreement.
+
+    Returns:
+        {"pairs", "same_outcome", "steps_within_one" (fractions of the pairs), "unpaired",
+        "by_scenario", "by_method" ({name: (pairs, same outcome, steps within one)}),
+        "disagreements": [(key, outcome a, steps a, outcome b, steps b), ...]}.
+    """
+    rows_b = {_key(r): r for r in b}
+    pairs = [(r, rows_b[_key(r)]) for r in a if _key(r) in rows_b]
+    unpaired = len(a) + len(b) - 2 * len(pairs)
+    groups: dict[str, dict[str, list[int]]] = {"scenario": defaultdict(list), "method": {}}
+    groups["method"] = defaultdict(list)
+    same = within = 0
+    disagreements = []
+    for ra, rb in pairs:
+        o = ra["outcome"] == rb["outcome"]
+        w = abs(int(ra["steps"] or 0) - int(rb["steps"] or 0)) <= 1
+        same += o
+        within += w
+        for kind, name in (("scenario", ra["scenario"]), ("method", ra["method"])):
+            g = groups[kind][name] or [0, 0, 0]
+            groups[kind][name] = [g[0] + 1, g[1] + o, g[2] + w]
+        if not (o and w):
+            disagreements.append((_key(ra), ra["outcome"], ra["steps"], rb["outcome"], rb["steps"]))
+    n = max(len(pairs), 1)
+    return {
+        "pairs": len(pairs),
+        "same_outcome": same / n,
+        "steps_within_one": within / n,
+        "unpaired": unpaired,
+        "by_scenario": {k: tuple(v) for k, v in groups["scenario"].items()},
+        "by_method": {k: tuple(v) for k, v in groups["method"].items()},
+        "disagreements": disagreements,
+    }
+
+
+def passes(result: dict[str, Any]) -> bool:
+    """Both goals met (and every episode paired)."""
+    return (
+        result["pairs"] > 0
+        and result["unpaired"] == 0
+        and result["same_outcome"] >= SAME_OUTCOME_GOAL
+        and result["steps_within_one"] >= STEPS_WITHIN_ONE_GOAL
+    )
+
+
+def report(result: dict[str, Any], walls: dict[str, float] | None = None) -> str:
+    lines = [
+        f"episodes paired: {result['pairs']} (unpaired: {result['unpaired']})",
+        f"same outcome:       {100 * result['same_outcome']:6.1f} %   goal >= "
+        f"{100 * SAME_OUTCOME_GOAL:.0f} %   "
+        f"{'met' if result['same_outcome'] >= SAME_OUTCOME_GOAL else 'NOT MET'}",
+        f"steps within +-1:   {100 * result['steps_within_one']:6.1f} %   goal >= "
+        f"{100 * STEPS_WITHIN_ONE_GOAL:.0f} %   "
+        f"{'met' if result['steps_within_one'] >= STEPS_WITHIN_ONE_GOAL else 'NOT MET'}",
+    ]
+    for kind in ("scenario", "method"):
+        lines.append(f"by {kind} (episodes, same outcome %, steps within +-1 %):")
+        for name, (n, o, w) in sorted(result[f"by_{kind}"].items()):
+            lines.append(f"  {name:<20} {n:4d} {100 * o / n:6.1f} {100 * w / n:6.1f}")
+    lines.append(f"disagreements ({len(result['disagreements'])}), pymunk vs quasistatic:")
+    for key, oa, sa, ob, sb in result["disagreements"]:
+        lines.append(f"  {key[0]:<16} {key[1]:<18} target {key[2]:>3}: {oa} {sa} / {ob} {sb}")
+    if walls:
+        lines.append(
+            "wall time: " + ", ".join(f"{engine} {w:.0f} s" for engine, w in walls.items())
+        )
+    lines.append("verdict: " + ("PASS" if passes(result) else "FAIL"))
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--targets", type=int, default=20, help="targets per scenario")
+    parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
+    parser.add_argument("--methods", nargs="+", default=None, help="default: every suite method")
+    parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--out", default="runs/agreement")
+    parser.add_argument(
+        "--from",
+        dest="folders",
+        nargs=2,
+        metavar=("PYMUNK", "QUASISTATIC"),
+        help="pair two finished suite folders instead of running",
+    )
+    args = parser.parse_args()
+    walls: dict[str, float] = {}
+    if args.folders:
+        folders = dict(zip(ENGINES, map(Path, args.folders), strict=True))
+    else:
+        suite = yaml.safe_load(SUITE.read_text(encoding="utf-8"))
+        config = study_config(suite, args.scenarios, args.targets, args.methods, args.workers)
+        folders = {}
+        for engine in ENGINES:
+            t = time.perf_counter()
+            folders[engine] = run_engine(config, engine, Path(args.out), args.workers)
+            walls[engine] = time.perf_counter() - t
+            print(f"{engine}: {folders[engine]} ({walls[engine]:.0f} s)", flush=True)
+    result = agreement(*(suite_rows(folders[e]) for e in ENGINES))
+    print(report(result, walls))
+
+
+if __name__ == "__main__":
+    main()
