@@ -163,11 +163,8 @@ def import_bag_images(
             "--clamp-pose: with two end effectors the rod's walk starts at end effector 0's "
             "pose in each frame; leave --clamp-pose out"
         )
-    if len(ends) == 1 and clamp_pose is None:
-        raise UserError(
-            f"{src}: camera frames with one end effector need --clamp-pose X,Y,THETA (the "
-            "fixed end)"
-        )
+    if len(ends) == 1:
+        _need_clamp(src, clamp_pose)
     rec, world, used, notes = read_bag_images(
         src, image_topic, info_topic, ends, cam_cfg, clamp_pose,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
@@ -197,7 +194,7 @@ def import_image_folder(
     *,
     poses: str | Path,
     camera: str | Path,
-    clamp_pose: list[float],
+    clamp_pose: list[float] | None,
     hsv_low: list[int],
     hsv_high: list[int],
     tolerance: float = 0.2,
@@ -210,6 +207,7 @@ def import_image_folder(
     from rodctl.recordings.ros2 import RowSeries, camera_config, extract_frames
 
     src = Path(folder)
+    _need_clamp(src, clamp_pose)
     cam_cfg = camera_config(camera)
     frames, pose_rows = read_folder(src, poses)
     rec, world, used, notes = extract_frames(
@@ -232,7 +230,7 @@ def import_video(
     *,
     poses: str | Path,
     camera: str | Path,
-    clamp_pose: list[float],
+    clamp_pose: list[float] | None,
     hsv_low: list[int],
     hsv_high: list[int],
     tolerance: float = 0.2,
@@ -247,6 +245,7 @@ def import_video(
     from rodctl.recordings.video import read_video
 
     src = Path(video)
+    _need_clamp(src, clamp_pose)
     cam_cfg = camera_config(camera)
     frames, pose_rows, used_times = read_video(src, poses, fps=fps, frame_times=frame_times)
     rec, world, used, notes = extract_frames(
@@ -261,6 +260,15 @@ def import_video(
     return _write_frames_run(
         frames, src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
     )
+
+
+def _need_clamp(src: Path, clamp_pose: list[float] | None) -> None:
+    """Camera frames with one end effector start the rod's walk at the fixed end."""
+    if clamp_pose is None:
+        raise UserError(
+            f"{src}: camera frames with one end effector need --clamp-pose X,Y,THETA (the "
+            "fixed end)"
+        )
 
 
 def _write_frames_run(

@@ -323,7 +323,22 @@ def _xy(msg: Any, msgtype: str, where: str = "") -> np.ndarray:
 
 
 def _yaw(o: Any) -> float:
-    return math.atan2(2.0 * (o.w * o.z + o.x * o.y), 1.0 - 2.0 * (o.y * o.y + o.z * o.z))
+    """The yaw of a quaternion, scale-free: atan2(2(wz + xy), w^2 + x^2 - y^2 - z^2)."""
+    w, x, y, z = float(o.w), float(o.x), float(o.y), float(o.z)
+    return math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
+
+
+def check_pose(position: Any, o: Any, where: str) -> None:
+    """Refuse a pose with a non-finite position or quaternion, or a zero quaternion."""
+    q = [float(o.x), float(o.y), float(o.z), float(o.w)]
+    p = [float(position.x), float(position.y), float(position.z)]
+    if not all(math.isfinite(v) for v in p + q):
+        raise UserError(
+            f"{where}: the pose has non-finite values (position {_plain(np.array(p))}, "
+            f"orientation {_plain(np.array(q))})"
+        )
+    if math.sqrt(sum(v * v for v in q)) < 1e-9:
+        raise UserError(f"{where}: the orientation quaternion is zero (no rotation is defined)")
 
 
 def _bracket(
@@ -472,6 +487,7 @@ class _Poses:
         if topic in self.series:
             p = msg.pose
             t = _stamp_ns(msg, log_ns)
+            check_pose(p.position, p.orientation, f"{topic} at t = {t / 1e9:.6f} s")
             self.series[topic].append((t, [p.position.x, p.position.y, _yaw(p.orientation)]))
 
     def get(self, path: Path, src: PoseSource) -> RowSeries | TfSeries:
@@ -599,7 +615,12 @@ def _rgb(msg: Any, msgtype: str, where: str) -> np.ndarray:
     ch = {"rgb8": 3, "bgr8": 3, "mono8": 1}.get(enc)
     if ch is None:
         raise UserError(f"{where}: image encoding {enc!r}; rgb8, bgr8 or mono8 are read")
-    rows = data.reshape(h, int(msg.step))[:, : w * ch]
+    step = int(msg.step)
+    if step < w * ch or data.size < h * step:
+        raise UserError(
+            f"{where}: {enc} image data has {data.size} bytes for {w}x{h} pixels, step {step}"
+        )
+    rows = data[: h * step].reshape(h, step)[:, : w * ch]
     img = rows.reshape(h, w, ch)
     if enc == "bgr8":
         return np.ascontiguousarray(img[..., ::-1])
@@ -714,7 +735,7 @@ def read_bag_images(
     frames.sort(key=lambda f: f[0])
     KD = None
     if info is not None:
-        KD = (np.asarray(info.k, dtype=float).reshape(3, 3), np.asarray(info.d, dtype=float))
+        KD = camera_intrinsics(info, f"{path}: {info_topic}")
         camera = camera.model_copy(
             update={"width": int(info.width) or camera.width,
                     "height": int(info.height) or camera.height}
@@ -724,6 +745,74 @@ def read_bag_images(
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
         masks=(mask_topic, sorted(masks, key=lambda m: m[0])) if mask_topic else None,
     )  # fmt: skip
+
+
+#: CameraInfo distortion models read, with the number of D coefficients each has.
+DISTORTION_MODELS = {"plumb_bob": (5,), "rational_polynomial": (8,), "equidistant": (4,)}
+
+
+def camera_intrinsics(info: Any, where: str) -> tuple[np.ndarray, np.ndarray, str]:
+    """(K (3, 3), D, distortion model) of a CameraInfo, checked.
+
+    Raises:
+        UserError: an all-zero K (an uncalibrated driver), a K that is not finite or has no
+            positive focal lengths, a D that is not finite or whose length does not match the
+            distortion model, or a model other than plumb_bob, rational_polynomial and
+            equidistant (`where` names the topic).
+    """
+    k = np.asarray(info.k, dtype=float).ravel()
+    d = np.asarray(info.d, dtype=float).ravel()
+    model = str(info.distortion_model or "") or "plumb_bob"
+    if k.size != 9:
+        raise UserError(f"{where}: CameraInfo K has {k.size} values, not 9")
+    if not np.all(np.isfinite(k)):
+        raise UserError(f"{where}: CameraInfo K has non-finite values: {_plain(k)}")
+    if not np.any(k):
+        raise UserError(
+            f"{where}: CameraInfo K is all zeros: the camera is uncalibrated; pass the "
+            "intrinsics in --camera (fx, fy, cx, cy) and leave --camera-info-topic out, and "
+            "the pose with --calibration or --extrinsic"
+        )
+    K = k.reshape(3, 3)
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise UserError(f"{where}: CameraInfo K has focal lengths fx = {K[0, 0]:g}, "
+                        f"fy = {K[1, 1]:g}; both must be > 0")  # fmt: skip
+    if model not in DISTORTION_MODELS:
+        raise UserError(
+            f"{where}: CameraInfo distortion_model {model!r} is not read; "
+            f"{', '.join(DISTORTION_MODELS)} are"
+        )
+    if not np.all(np.isfinite(d)):
+        raise UserError(f"{where}: CameraInfo D has non-finite values: {_plain(d)}")
+    if d.size and d.size not in DISTORTION_MODELS[model]:
+        raise UserError(
+            f"{where}: CameraInfo D has {d.size} coefficients; the {model} model has "
+            f"{DISTORTION_MODELS[model][0]}"
+        )
+    if not d.size:
+        d = np.zeros(DISTORTION_MODELS[model][0])
+    return K, d, model
+
+
+def _plain(v: np.ndarray) -> str:
+    """A vector as plain numbers (no numpy repr): [1, nan, 0.5]."""
+    return "[" + ", ".join(f"{float(x):g}" for x in v) + "]"
+
+
+def undistorter(K: np.ndarray, D: np.ndarray, model: str, size: tuple[int, int]) -> Any:
+    """img -> the image undistorted onto K (plumb_bob and rational_polynomial by
+    cv2.initUndistortRectifyMap, equidistant by cv2.fisheye's), or None when D is zero."""
+    import cv2
+
+    if not np.any(D != 0.0):
+        return None
+    if model == "equidistant":
+        m1, m2 = cv2.fisheye.initUndistortRectifyMap(
+            K, D.reshape(4, 1), np.eye(3), K, size, cv2.CV_16SC2
+        )
+    else:
+        m1, m2 = cv2.initUndistortRectifyMap(K, D, np.eye(3), K, size, cv2.CV_16SC2)
+    return lambda img: cv2.remap(img, m1, m2, cv2.INTER_LINEAR)
 
 
 def _match_masks(
@@ -765,7 +854,7 @@ def extract_frames(
     poses: Sequence[Any],
     camera: Any,
     clamp_pose: Sequence[float] | None,
-    KD: tuple[np.ndarray, np.ndarray] | None,
+    KD: tuple[np.ndarray, np.ndarray, str] | None,
     *,
     hsv_low: Sequence[int],
     hsv_high: Sequence[int],
@@ -780,8 +869,6 @@ def extract_frames(
     `masks` = (topic, [(t_ns, (H, W) bool)]) replaces the HSV threshold. The body of
     `read_bag_images`, of the image-folder and of the video import; see `read_bag_images` for
     the walk's start, the result and the errors."""
-    import cv2
-
     from rodctl.recordings.segment import hsv_mask, mask_image
     from rodctl.recordings.synthetic import PointsRecording
     from rodctl.vision.camera import Camera
@@ -795,8 +882,9 @@ def extract_frames(
     first = load(frames[0][1])
     h, w = first.shape[:2]
     K = D = None
+    model = "plumb_bob"
     if KD is not None:
-        K, D = KD
+        K, D, model = KD
         camera = camera.model_copy(
             update={"fx": float(K[0, 0]), "fy": float(K[1, 1]),
                     "cx": float(K[0, 2]), "cy": float(K[1, 2])}
@@ -810,7 +898,7 @@ def extract_frames(
     notes = []
     if calibration is not None:
         dist = D if D is not None else np.zeros(5)
-        cam, note = calibration.camera(camera, cam.camera_matrix, dist)
+        cam, note = calibration.camera(camera, cam.camera_matrix, dist, model)
         notes.append(note)
     t0 = frames[0][0]
     frame_ns = np.array([f[0] for f in frames], dtype=np.int64)
@@ -833,7 +921,7 @@ def extract_frames(
     fixed = None if two else CenterlineExtractor(camera, cam, np.asarray(clamp_pose, float))
     rod, bg = camera.render.rod_color, camera.render.background_color
     pts = []
-    undistort = D is not None and np.any(D != 0.0)
+    undistort = None if D is None else undistorter(K, D, model, (w, h))
     chosen = np.flatnonzero(inside)
     given = None
     if masks is not None:
@@ -844,13 +932,13 @@ def extract_frames(
             where = f"{image_topic}: frame {int(k)} (t = {(t_ns - t0) / 1e9:.6f} s)"
             if given is not None:
                 mask = given[i].astype(np.uint8) * 255
-                if undistort:
-                    mask = np.where(cv2.undistort(mask, K, D) >= 128, 255, 0).astype(np.uint8)
+                if undistort is not None:
+                    mask = np.where(undistort(mask) >= 128, 255, 0).astype(np.uint8)
                 if not mask.any():
                     raise UserError(f"{where}: its mask ({masks[0]}) has no rod pixel")
             else:
-                if undistort:
-                    img = cv2.undistort(img, K, D)
+                if undistort is not None:
+                    img = undistort(img)
                 mask = hsv_mask(img, hsv_low, hsv_high)
                 if not mask.any():
                     raise UserError(
