@@ -349,7 +349,10 @@ def write_run(
         "q": rec.q,
         **view,
     }
-    config_yaml = yaml.safe_dump({"name": stem, "seed": 0, "source": source}, sort_keys=False)
+    config = {"name": stem, "seed": 0, "source": source}
+    if "camera" in view:  # camera frames: the camera the logs' /camera/calibration describes
+        config["camera"] = view["camera"]
+    config_yaml = yaml.safe_dump(config, sort_keys=False)
     (run_dir / "config.yaml").write_text(config_yaml, encoding="utf-8")
     meta = {
         "run_id": run_dir.name,
@@ -406,6 +409,7 @@ def write_run(
                 J=np.zeros((p, q)),
                 J_singular_values=np.zeros(min(p, q)),
                 pixel_error=err,
+                image=None if rec.images is None else rec.images[k],
             )
             sink.write(last)
             written = k + 1

@@ -869,6 +869,10 @@ def extract_frames(
     `masks` = (topic, [(t_ns, (H, W) bool)]) replaces the HSV threshold. The body of
     `read_bag_images`, of the image-folder and of the video import; see `read_bag_images` for
     the walk's start, the result and the errors."""
+    from types import SimpleNamespace
+
+    from rodctl.config.logging import LoggingConfig
+    from rodctl.logs.codec import FrameSchedule
     from rodctl.recordings.segment import hsv_mask, mask_image
     from rodctl.recordings.synthetic import PointsRecording
     from rodctl.vision.camera import Camera
@@ -926,10 +930,20 @@ def extract_frames(
     given = None
     if masks is not None:
         given = _match_masks(masks[0], masks[1], frame_ns, t0, chosen, (w, h), tolerance)
+    # the frames the run logs on /camera/image: the simulated runs' schedule (at most
+    # logging.image_rate_hz per second of the run's time), each frame as it was segmented
+    schedule = FrameSchedule(LoggingConfig().image_rate_hz)
+    t_first = ft[chosen[0]] if len(chosen) else 0.0
+    logged: list[np.ndarray | None] = []
     try:
         for i, (k, g) in enumerate(zip(chosen, ends, strict=True)):
             t_ns, img = frames[k][0], load(frames[k][1])
             where = f"{image_topic}: frame {int(k)} (t = {(t_ns - t0) / 1e9:.6f} s)"
+            slot = SimpleNamespace(image=img, sim_time=float(ft[k] - t_first))
+            take = schedule.take(slot)
+            if undistort is not None and (given is None or take):
+                img = undistort(img)
+            keep = img if take else None
             if given is not None:
                 mask = given[i].astype(np.uint8) * 255
                 if undistort is not None:
@@ -937,8 +951,6 @@ def extract_frames(
                 if not mask.any():
                     raise UserError(f"{where}: its mask ({masks[0]}) has no rod pixel")
             else:
-                if undistort is not None:
-                    img = undistort(img)
                 mask = hsv_mask(img, hsv_low, hsv_high)
                 if not mask.any():
                     raise UserError(
@@ -950,6 +962,7 @@ def extract_frames(
             if not ex.ok:
                 raise UserError(f"{where}: the centerline was not extracted: {ex.note}")
             pts.append(ex.points)
+            logged.append(keep)
     except KeyboardInterrupt:
         notes.append(f"{INTERRUPTED}: {len(pts)} of {len(chosen)} frames converted")
         if len(pts) < 3:
@@ -957,7 +970,9 @@ def extract_frames(
     n = len(pts)
     px = np.stack(pts)
     world = np.stack([cam.unproject(p) for p in px])
-    rec = PointsRecording(t=ft[chosen[:n]], points=px, poses=ends[:n], units="px")
+    rec = PointsRecording(
+        t=ft[chosen[:n]], points=px, poses=ends[:n], units="px", images=logged[:n]
+    )
     return rec, world, camera, notes
 
 
