@@ -402,3 +402,33 @@ def test_an_imported_camera_run_logs_its_frames_and_exports_them(scene, tmp_path
     out = CliRunner().invoke(app, ["export", str(run_dir), "--ros2", str(tmp_path / "ros")])
     assert out.exit_code == 0, out.output
     assert "/camera/image_raw: 2 messages" in out.output
+
+
+def test_an_import_cut_short_keeps_its_frames_as_an_interrupted_run(scene, tmp_path, monkeypatch):
+    import json
+
+    from rodctl.errors import RunFailed
+    from rodctl.recordings.importer import import_bag_images
+    from rodctl.vision.centerline import CenterlineExtractor
+
+    cfg, _, shots, _ = scene
+    _frames_bag(tmp_path / "bag", shots, [s[2] for s in shots])
+    real, calls = CenterlineExtractor.extract, []
+
+    def extract(self, *a, **kw):  # Ctrl-C while the 4th frame is extracted
+        calls.append(1)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return real(self, *a, **kw)
+
+    monkeypatch.setattr(CenterlineExtractor, "extract", extract)
+    with pytest.raises(RunFailed, match="cut short"):
+        import_bag_images(
+            tmp_path / "bag", tmp_path / "r", image_topic="/cam/image", info_topic=None,
+            pose_topic="/arm/pose", camera=_camera_file(tmp_path, cfg), clamp_pose=[0, 0, 0],
+            hsv_low=[170, 120, 50], hsv_high=[10, 255, 255],
+        )  # fmt: skip
+    (run_dir,) = (tmp_path / "r").iterdir()
+    assert json.loads((run_dir / "meta.json").read_text())["status"] == "interrupted"
+    assert json.loads((run_dir / "summary.json").read_text())["status"] == "interrupted"
+    assert len(read_run(run_dir, images=False).records) == 3

@@ -299,10 +299,10 @@ def _write_frames_run(
     }
     views = (world, rec.points, (used.width, used.height), {"camera": used.model_dump(mode="json")})
     clamp = None if clamp_pose is None else np.asarray(clamp_pose, dtype=float)
-    run_dir = write_run(rec, src, out, name, source, views=views, clamp=clamp)
     cut = [n for n in notes if n.startswith(INTERRUPTED)]
-    if cut:
-        raise RunFailed(f"import of {src} cut short ({cut[0]}); {run_dir} keeps them")
+    run_dir = write_run(
+        rec, src, out, name, source, views=views, clamp=clamp, cut=cut[0] if cut else None
+    )
     return run_dir, notes
 
 
@@ -314,12 +314,15 @@ def write_run(
     source: dict,
     views: tuple | None = None,
     clamp: np.ndarray | None = None,
+    cut: str | None = None,
 ) -> Path:
     """Write a checked points recording as a run folder under `out` (the module docstring).
 
     `views` = (world (T, N, 2), pixels (T, N, 2), image size, description) replaces the nominal
     views of `_views` when a calibrated camera gave both; `clamp` is the fixed end's pose
-    (default: end effector 1's first pose for two ends, else zeros).
+    (default: end effector 1's first pose for two ends, else zeros); `cut` is the note of an
+    extraction cut short (Ctrl-C): the frames done are written, the run's status is
+    `interrupted` and `RunFailed` is raised naming the folder.
     """
     from rodctl.logs.mcap import McapSink
     from rodctl.records import RunHeader, RunSummary, StepRecord
@@ -387,7 +390,7 @@ def write_run(
     sink.open(header)
     p, q = s_all.shape[1], rec.q
     last = None
-    status, written = "completed", 0
+    status, written = ("interrupted" if cut else "completed"), 0
     t0 = time.perf_counter()
     try:
         for k in range(T):
@@ -433,6 +436,8 @@ def write_run(
     write_json_atomic(run_dir / "summary.json", jsonable(summary.to_json()))
     meta.update(status=status, ended_at=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
     write_json_atomic(run_dir / "meta.json", meta)
+    if cut and written == T:
+        raise RunFailed(f"import of {src} cut short ({cut}); {run_dir} keeps them")
     if status != "completed":
         raise RunFailed(
             f"import of {src} cut short after {written} of {T} frames; {run_dir} keeps them"
