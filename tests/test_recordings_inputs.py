@@ -692,7 +692,10 @@ def _tiny_bag(path: Path, case: str) -> None:
         ("d_len", ["/cam/info", "D has 5 coefficients", "equidistant model has 4"]),
         ("d_nan", ["/cam/info", "D has non-finite values"]),
         ("model", ["/cam/info", "distortion_model 'kannala' is not read", "equidistant"]),
-        ("short", ["/cam/image at t = ", "rgb8 image data has 2208 bytes for 32x24"]),
+        (
+            "short",
+            ["/cam/image: frame 2 (t = 0.200000 s)", "rgb8 image data has 2208 bytes for 32x24"],
+        ),
         ("pose_nan", ["/arm/pose at t = ", "non-finite", "nan"]),
         ("pose_zero", ["/arm/pose at t = ", "quaternion is zero"]),
         ("tf_zero", ["/tf: child frame 'tool0' at t = ", "quaternion is zero"]),
@@ -776,3 +779,14 @@ def test_misplaced_or_missing_flags_exit_2_naming_them(tmp_path, args, needles):
     assert "Traceback" not in res.output
     for n in needles:
         assert n in res.output, res.output
+
+
+def test_a_time_that_does_not_increase_is_named_as_a_plain_number(tmp_path):
+    rows = ["t,x0,y0,x1,y1,x2,y2,e0_x,e0_y,e0_theta"] + [
+        f"{t},0,0,0.1,0,0.2,0,0.2,0,0" for t in (0.0, 0.4, 0.4, 0.6)
+    ]
+    (tmp_path / "rec.csv").write_text("\n".join(rows) + "\n")
+    res = CliRunner().invoke(app, ["import", str(tmp_path / "rec.csv"), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 2, res.output
+    assert "frame 2: t = 0.4 does not increase (previous 0.4)" in res.output, res.output
+    assert "np." not in res.output

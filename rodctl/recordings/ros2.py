@@ -706,8 +706,8 @@ def read_bag_images(
         pose_topic = [pose_topic]
     srcs = [p if isinstance(p, PoseSource) else PoseSource(p) for p in pose_topic]
     poses = _Poses(srcs)
-    frames: list[tuple[int, np.ndarray]] = []
-    masks: list[tuple[int, np.ndarray]] = []
+    frames: list[tuple[int, Any]] = []
+    masks: list[tuple[int, Any]] = []
     info = None
     need = [(image_topic, IMAGE_TYPES), *poses.need()]
     if info_topic:
@@ -715,12 +715,10 @@ def read_bag_images(
     if mask_topic:
         need.append((mask_topic, ("sensor_msgs/msg/Image",)))
     for topic, msgtype, log_ns, msg in _bag_messages(path, need, poses.optional()):
-        if topic == image_topic:
-            t = _stamp_ns(msg, log_ns)
-            frames.append((t, _rgb(msg, msgtype, f"{image_topic} at t = {t / 1e9:.6f} s")))
+        if topic == image_topic:  # decoded once sorted: errors name the time from frame 0
+            frames.append((_stamp_ns(msg, log_ns), (msg, msgtype)))
         elif topic == mask_topic:
-            t = _stamp_ns(msg, log_ns)
-            masks.append((t, _mask(msg, f"{mask_topic}: mask {len(masks)} (t = {t / 1e9:.6f} s)")))
+            masks.append((_stamp_ns(msg, log_ns), msg))
         elif topic in poses.topics():
             poses.add(topic, msgtype, log_ns, msg)
         elif info is None:
@@ -733,6 +731,16 @@ def read_bag_images(
     if info_topic and info is None:
         raise UserError(f"{path}: topic {info_topic} has no messages")
     frames.sort(key=lambda f: f[0])
+    t0 = frames[0][0]
+    frames = [
+        (t, _rgb(m, mt, f"{image_topic}: frame {i} (t = {(t - t0) / 1e9:.6f} s)"))
+        for i, (t, (m, mt)) in enumerate(frames)
+    ]
+    masks.sort(key=lambda m: m[0])
+    masks = [
+        (t, _mask(m, f"{mask_topic}: mask {i} (t = {(t - t0) / 1e9:.6f} s)"))
+        for i, (t, m) in enumerate(masks)
+    ]
     KD = None
     if info is not None:
         KD = camera_intrinsics(info, f"{path}: {info_topic}")
@@ -743,7 +751,7 @@ def read_bag_images(
     return extract_frames(
         str(path), image_topic, frames, series, camera, clamp_pose, KD,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
-        masks=(mask_topic, sorted(masks, key=lambda m: m[0])) if mask_topic else None,
+        masks=(mask_topic, masks) if mask_topic else None,
     )  # fmt: skip
 
 
