@@ -790,3 +790,30 @@ def test_a_time_that_does_not_increase_is_named_as_a_plain_number(tmp_path):
     assert res.exit_code == 2, res.output
     assert "frame 2: t = 0.4 does not increase (previous 0.4)" in res.output, res.output
     assert "np." not in res.output
+
+
+def test_export_of_a_two_end_recording_writes_both_ends_poses(tmp_path):
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from rodctl.recordings.points import write_points_csv
+    from rodctl.recordings.synthetic import dual_arm_recording
+
+    rec = dual_arm_recording(8, seed=3)
+    csv_path = write_points_csv(rec, tmp_path / "rec.csv")
+    res = CliRunner().invoke(app, ["import", str(csv_path), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 0, res.output
+    bag = tmp_path / "bag"
+    res = CliRunner().invoke(app, ["export", _last_line(res).as_posix(), "--ros2", str(bag)])
+    assert res.exit_code == 0, res.output
+    got: dict[str, list] = {}
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        for conn, _, raw in reader.messages():
+            got.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
+    for topic, end in (("/gripper/pose", 0), ("/end_effector_1/pose", 1)):
+        poses = got[topic]
+        assert len(poses) == len(rec.t)
+        for want, msg in zip(rec.poses[:, end], poses, strict=True):
+            o, p = msg.pose.orientation, msg.pose.position
+            assert np.allclose([p.x, p.y], want[:2], atol=1e-12)
+            assert abs(np.angle(np.exp(1j * (2 * np.arctan2(o.z, o.w) - want[2])))) < 1e-9

@@ -8,6 +8,9 @@ MCAP). Topics (docs/recordings.md, "Export to a ROS 2 bag"):
   config, no distortion (plumb_bob, D = 0; rodctl's camera is a pinhole);
 - `/gripper/pose` geometry_msgs/msg/PoseStamped, the gripper pose of every step (x, y, z = 0,
   theta as a rotation about z), frame `world`;
+- `/end_effector_1/pose` geometry_msgs/msg/PoseStamped, for a run with two end effectors
+  (q = 6) only: end effector 1's pose, the run's clamp pose plus the sum of `/control.u[3:6]`
+  (exact for an imported recording, whose u is the change of the poses);
 - `/rod/centerline` visualization_msgs/msg/MarkerArray, one LINE_STRIP of the rod's centerline
   (`/rod/state.centerline`, world metres) per step.
 Message times are the MCAP log times (2000-01-01 + simulated time), so a bag of a run is the
@@ -31,6 +34,7 @@ STORAGES = ("sqlite3", "mcap")
 TOPIC_IMAGE = "/camera/image_raw"
 TOPIC_INFO = "/camera/camera_info"
 TOPIC_POSE = "/gripper/pose"
+TOPIC_POSE_1 = "/end_effector_1/pose"
 TOPIC_CENTERLINE = "/rod/centerline"
 
 
@@ -144,6 +148,14 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
             ),
         }
 
+        two = bool(run.records) and all(np.size(r.u) == 6 for r in run.records)
+        if two:
+            conns[TOPIC_POSE_1] = writer.add_connection(
+                TOPIC_POSE_1, "geometry_msgs/msg/PoseStamped", typestore=ts
+            )
+            counts[TOPIC_POSE_1] = 0
+        end1 = np.asarray(run.header.clamp_pose, dtype=float)[:3].copy()
+
         def put(topic: str, t_ns: int, msg: Any) -> None:
             writer.write(conns[topic], t_ns, ts.serialize_cdr(msg, conns[topic].msgtype))
             counts[topic] += 1
@@ -151,6 +163,9 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
         for r in run.records:
             t_ns = int(log_time_ns(r.sim_time))
             put(TOPIC_POSE, t_ns, pose_stamped(ts, t_ns, np.asarray(r.gripper)[:3]))
+            if two:  # end effector 1: its first pose plus the logged changes (u[3:6])
+                end1 = end1 + np.asarray(r.u, dtype=float)[3:6]
+                put(TOPIC_POSE_1, t_ns, pose_stamped(ts, t_ns, end1))
             marker = line_marker(ts, t_ns, np.asarray(r.centerline, dtype=float))
             put(TOPIC_CENTERLINE, t_ns, T["visualization_msgs/msg/MarkerArray"](markers=[marker]))
             if r.image is None:
