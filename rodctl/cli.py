@@ -1005,6 +1005,18 @@ def import_recording(
     no_mask = "--mask-topic: masks are read from a ROS 2 bag beside its --image-topic"
     if mask_topic and (Path(path).suffix.lower() in VIDEO_SUFFIXES or poses):
         raise UserError(no_mask)
+    bag_only = {
+        "--points-topic": points_topic, "--pose-topic": pose_topic,
+        "--image-topic": image_topic, "--camera-info-topic": camera_info_topic,
+        "--topics": topics, "--tf-frame": tf_frame, "--tf-topic": tf_topic,
+        "--tf-world": tf_world,
+    }  # fmt: skip
+    misplaced = [flag for flag, v in bag_only.items() if v]
+    if misplaced and not (Path(path).is_dir() and not poses):
+        kind = "an image folder with --poses" if Path(path).is_dir() else "not a ROS 2 bag"
+        raise UserError(
+            f"{', '.join(misplaced)}: topics are read from a ROS 2 bag; {path} is {kind}"
+        )
     if Path(path).suffix.lower() in VIDEO_SUFFIXES:
         from rodctl.recordings.importer import import_video
 
@@ -1037,6 +1049,11 @@ def import_recording(
             tf_topic = tf_topic or mapping.tf.topic
             tf_world = tf_world or mapping.tf.world
     tf_topic = tf_topic or "/tf"
+    if image_topic and points_topic:
+        raise UserError(
+            "--image-topic and --points-topic (or the --topics keys image and points): a bag "
+            "import reads camera frames or tracked points, not both"
+        )
     if mask_topic and not image_topic:
         raise UserError(no_mask)
     if tf_world and not tf_frame:

@@ -375,3 +375,60 @@ def test_camera_frames_with_both_ends_moving_extract_from_end_0_each_frame(scene
     assert one.exit_code == 2 and "frame 0" in one.output, one.output
     both = _import(tmp_path / "bag", tmp_path / "r", *args, "--clamp-pose", "0,0,0")
     assert both.exit_code == 2 and "leave --clamp-pose out" in both.output, both.output
+
+
+def test_an_imported_camera_run_logs_its_frames_and_exports_them(scene, tmp_path):
+    import json
+
+    from mcap.reader import make_reader
+
+    cfg, _, shots, _ = scene
+    images = [s[2] for s in shots]
+    _frames_bag(tmp_path / "bag", shots, images)
+    res = _import(tmp_path / "bag", tmp_path / "r", "--image-topic", "/cam/image",
+                  "--pose-topic", "/arm/pose", "--camera", str(_camera_file(tmp_path, cfg)),
+                  "--clamp-pose", "0,0,0")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    run_dir = _last_line(res)
+    back = read_run(run_dir, images=True).records
+    # 4 frames 0.1 s apart at the logging image rate (5 Hz): frames 0 and 2, as recorded
+    logged = [r.step for r in back if r.image is not None]
+    assert logged == [0, 2]
+    assert np.array_equal(back[2].image, images[2])
+    with (run_dir / "run.mcap").open("rb") as f:
+        calib = [json.loads(m.data) for _, ch, m in make_reader(f).iter_messages()
+                 if ch.topic == "/camera/calibration"]  # fmt: skip
+    assert calib and calib[0]["K"][0] == pytest.approx(cfg.camera.fx)
+    out = CliRunner().invoke(app, ["export", str(run_dir), "--ros2", str(tmp_path / "ros")])
+    assert out.exit_code == 0, out.output
+    assert "/camera/image_raw: 2 messages" in out.output
+
+
+def test_an_import_cut_short_keeps_its_frames_as_an_interrupted_run(scene, tmp_path, monkeypatch):
+    import json
+
+    from rodctl.errors import RunFailed
+    from rodctl.recordings.importer import import_bag_images
+    from rodctl.vision.centerline import CenterlineExtractor
+
+    cfg, _, shots, _ = scene
+    _frames_bag(tmp_path / "bag", shots, [s[2] for s in shots])
+    real, calls = CenterlineExtractor.extract, []
+
+    def extract(self, *a, **kw):  # Ctrl-C while the 4th frame is extracted
+        calls.append(1)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return real(self, *a, **kw)
+
+    monkeypatch.setattr(CenterlineExtractor, "extract", extract)
+    with pytest.raises(RunFailed, match="cut short"):
+        import_bag_images(
+            tmp_path / "bag", tmp_path / "r", image_topic="/cam/image", info_topic=None,
+            pose_topic="/arm/pose", camera=_camera_file(tmp_path, cfg), clamp_pose=[0, 0, 0],
+            hsv_low=[170, 120, 50], hsv_high=[10, 255, 255],
+        )  # fmt: skip
+    (run_dir,) = (tmp_path / "r").iterdir()
+    assert json.loads((run_dir / "meta.json").read_text())["status"] == "interrupted"
+    assert json.loads((run_dir / "summary.json").read_text())["status"] == "interrupted"
+    assert len(read_run(run_dir, images=False).records) == 3

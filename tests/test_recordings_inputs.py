@@ -628,3 +628,192 @@ def test_camera_frames_with_a_tf_gripper_chosen_by_a_topic_mapping(sim_frames, t
     for r, b in zip(framed, back.records, strict=True):
         assert np.sqrt(((b.extracted - r.projected_truth) ** 2).sum(axis=1)).max() <= 1.0
         assert np.allclose(b.gripper, r.gripper, atol=1e-9)
+
+
+# --- refused camera info, images, poses and flags (review of issue #26) ----------------------
+
+
+def _tiny_bag(path: Path, case: str) -> None:
+    """Three 32x24 frames on /cam/image, the gripper on /arm/pose (or tool0 on /tf) and a
+    CameraInfo on /cam/info, spoilt as `case` says."""
+    from rosbags.rosbag2 import Writer
+
+    from rodctl.recordings.ros2 import _header, pose_stamped
+
+    ts = _ts()
+    T = ts.types
+    w_, h_ = 32, 24
+    K = np.array([[30.0, 0, 16], [0, 30.0, 12], [0, 0, 1]])
+    k = {"k_zero": np.zeros(9), "k_nan": np.r_[K.ravel()[:8], np.nan]}.get(case, K.ravel())
+    model = "equidistant" if case == "d_len" else ("kannala" if case == "model" else "plumb_bob")
+    d = {"d_len": np.zeros(5), "d_nan": np.array([0.1, np.nan, 0, 0, 0])}.get(case, np.zeros(5))
+    with Writer(path, version=8) as w:
+        c_img = w.add_connection("/cam/image", "sensor_msgs/msg/Image", typestore=ts)
+        c_info = w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+        c_arm = w.add_connection("/arm/pose", "geometry_msgs/msg/PoseStamped", typestore=ts)
+        c_tf = w.add_connection("/tf", "tf2_msgs/msg/TFMessage", typestore=ts)
+        for i in range(3):
+            ns = _ns(0.1 * i)
+            hd = _header(ts, ns, "camera")
+            pose = pose_stamped(ts, ns, np.array([0.1, 0.0, 0.0]))
+            if case == "pose_nan" and i == 1:
+                pose.pose.orientation.w = float("nan")
+            if case == "pose_zero" and i == 1:
+                pose.pose.orientation.z = pose.pose.orientation.w = 0.0
+            w.write(c_arm, ns, ts.serialize_cdr(pose, c_arm.msgtype))
+            tf = _tf_msg(ts, 0.1 * i, {"tool0": [0.1, 0.0, 0.0]})
+            if case == "tf_zero" and i == 2:
+                o = tf.transforms[0].transform.rotation
+                o.x = o.y = o.z = o.w = 0.0
+            w.write(c_tf, ns, ts.serialize_cdr(tf, c_tf.msgtype))
+            data = np.zeros(h_ * w_ * 3, dtype=np.uint8)
+            if case == "short" and i == 2:
+                data = data[: -w_ * 3]
+            img = T["sensor_msgs/msg/Image"](
+                header=hd, height=h_, width=w_, encoding="rgb8", is_bigendian=0, step=3 * w_,
+                data=data,
+            )  # fmt: skip
+            w.write(c_img, ns, ts.serialize_cdr(img, c_img.msgtype))
+            info = T["sensor_msgs/msg/CameraInfo"](
+                header=hd, height=h_, width=w_, distortion_model=model, d=d, k=k,
+                r=np.eye(3).reshape(-1), p=np.zeros(12), binning_x=0, binning_y=0,
+                roi=T["sensor_msgs/msg/RegionOfInterest"](
+                    x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+                ),
+            )  # fmt: skip
+            w.write(c_info, ns, ts.serialize_cdr(info, c_info.msgtype))
+
+
+@pytest.mark.parametrize(
+    ("case", "needles"),
+    [
+        ("k_zero", ["/cam/info", "K is all zeros", "uncalibrated", "--camera"]),
+        ("k_nan", ["/cam/info", "K has non-finite values", "nan"]),
+        ("d_len", ["/cam/info", "D has 5 coefficients", "equidistant model has 4"]),
+        ("d_nan", ["/cam/info", "D has non-finite values"]),
+        ("model", ["/cam/info", "distortion_model 'kannala' is not read", "equidistant"]),
+        (
+            "short",
+            ["/cam/image: frame 2 (t = 0.200000 s)", "rgb8 image data has 2208 bytes for 32x24"],
+        ),
+        ("pose_nan", ["/arm/pose at t = ", "non-finite", "nan"]),
+        ("pose_zero", ["/arm/pose at t = ", "quaternion is zero"]),
+        ("tf_zero", ["/tf: child frame 'tool0' at t = ", "quaternion is zero"]),
+    ],
+)
+def test_bad_camera_info_image_or_pose_exits_2_naming_the_topic(tmp_path, case, needles):
+    _tiny_bag(tmp_path / "bag", case)
+    cam = tmp_path / "cam.yaml"
+    cam.write_text("camera: {}\n")
+    ends = ["--tf-frame", "tool0"] if case.startswith("tf") else ["--pose-topic", "/arm/pose"]
+    res = CliRunner().invoke(
+        app,
+        ["import", str(tmp_path / "bag"), "--image-topic", "/cam/image", *ends,
+         "--camera-info-topic", "/cam/info", "--camera", str(cam), "--clamp-pose", "0,0,0",
+         "-o", str(tmp_path / "r")],
+    )  # fmt: skip
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    for n in needles:
+        assert n in res.output, res.output
+
+
+def test_the_distortion_model_chooses_the_undistortion():
+    import cv2
+
+    from rodctl.recordings.ros2 import undistorter
+
+    K = np.array([[60.0, 0, 40], [0, 60.0, 30], [0, 0, 1]])
+    rng = np.random.default_rng(0)
+    img = cv2.GaussianBlur(rng.integers(0, 255, (60, 80, 3), dtype=np.uint8), (5, 5), 0)
+    D4 = np.array([0.2, -0.05, 0.01, 0.0])
+    fish = undistorter(K, D4, "equidistant", (80, 60))(img)
+    ref = cv2.fisheye.undistortImage(img, K, D4.reshape(4, 1), Knew=K)
+    assert np.abs(fish[10:50, 10:70].astype(int) - ref[10:50, 10:70]).mean() < 1.0
+    D5 = np.array([0.2, -0.05, 0.0, 0.0, 0.01])
+    pinhole = undistorter(K, D5, "plumb_bob", (80, 60))(img)
+    ref = cv2.undistort(img, K, D5)
+    assert np.abs(pinhole[10:50, 10:70].astype(int) - ref[10:50, 10:70]).mean() < 1.0
+    assert np.abs(fish.astype(int) - pinhole).mean() > 5.0
+    assert undistorter(K, np.zeros(8), "rational_polynomial", (80, 60)) is None
+
+
+def test_yaw_is_scale_free():
+    from types import SimpleNamespace
+
+    from rodctl.recordings.ros2 import _yaw
+    from rodctl.recordings.tf import yaw
+
+    q = np.array([0.0, 0.0, math.sin(0.35), math.cos(0.35)]) * 3.0  # 0.7 rad, norm 3
+    assert math.isclose(_yaw(SimpleNamespace(x=q[0], y=q[1], z=q[2], w=q[3])), 0.7)
+    assert math.isclose(float(yaw(q)), 0.7)
+
+
+@pytest.mark.parametrize(
+    ("args", "needles"),
+    [
+        (["rec.csv", "--pose-topic", "/x"], ["--pose-topic", "not a ROS 2 bag"]),
+        (["rod.avi", "--pose-topic", "/x", "--poses", "p.csv"], ["--pose-topic"]),
+        (["bag", "--image-topic", "/i", "--points-topic", "/p", "--pose-topic", "/x"],
+         ["--image-topic and --points-topic", "not both"]),
+        (["bag", "--topics", "map.yaml", "--points-topic", "/p"], ["not both"]),
+        (["rod.avi", "--poses", "p.csv"], ["--clamp-pose"]),
+        (["frames", "--poses", "p.csv"], ["--clamp-pose"]),
+        (["frames", "--poses", "p.csv", "--clamp-pose", "0,0,0", "--extrinsic",
+          "nan,0,0,0,0,1"], ["--extrinsic", "finite", "nan"]),
+    ],
+)  # fmt: skip
+def test_misplaced_or_missing_flags_exit_2_naming_them(tmp_path, args, needles):
+    (tmp_path / "bag").mkdir()
+    (tmp_path / "frames").mkdir()
+    (tmp_path / "rec.csv").write_text("t,x0,y0\n")
+    (tmp_path / "rod.avi").write_bytes(b"")
+    (tmp_path / "p.csv").write_text("t,x,y,theta\n")
+    (tmp_path / "map.yaml").write_text("image: /cam/image\nposes: [/arm/pose]\n")
+    (tmp_path / "cam.yaml").write_text("camera: {}\n")
+    args = [str(tmp_path / a) if (tmp_path / a).exists() else a for a in args]
+    res = CliRunner().invoke(
+        app, ["import", *args, "--camera", str(tmp_path / "cam.yaml"), "-o", str(tmp_path / "r")]
+    )
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    for n in needles:
+        assert n in res.output, res.output
+
+
+def test_a_time_that_does_not_increase_is_named_as_a_plain_number(tmp_path):
+    rows = ["t,x0,y0,x1,y1,x2,y2,e0_x,e0_y,e0_theta"] + [
+        f"{t},0,0,0.1,0,0.2,0,0.2,0,0" for t in (0.0, 0.4, 0.4, 0.6)
+    ]
+    (tmp_path / "rec.csv").write_text("\n".join(rows) + "\n")
+    res = CliRunner().invoke(app, ["import", str(tmp_path / "rec.csv"), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 2, res.output
+    assert "frame 2: t = 0.4 does not increase (previous 0.4)" in res.output, res.output
+    assert "np." not in res.output
+
+
+def test_export_of_a_two_end_recording_writes_both_ends_poses(tmp_path):
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from rodctl.recordings.points import write_points_csv
+    from rodctl.recordings.synthetic import dual_arm_recording
+
+    rec = dual_arm_recording(8, seed=3)
+    csv_path = write_points_csv(rec, tmp_path / "rec.csv")
+    res = CliRunner().invoke(app, ["import", str(csv_path), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 0, res.output
+    bag = tmp_path / "bag"
+    res = CliRunner().invoke(app, ["export", _last_line(res).as_posix(), "--ros2", str(bag)])
+    assert res.exit_code == 0, res.output
+    got: dict[str, list] = {}
+    with AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        for conn, _, raw in reader.messages():
+            got.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
+    for topic, end in (("/gripper/pose", 0), ("/end_effector_1/pose", 1)):
+        poses = got[topic]
+        assert len(poses) == len(rec.t)
+        for want, msg in zip(rec.poses[:, end], poses, strict=True):
+            o, p = msg.pose.orientation, msg.pose.position
+            assert np.allclose([p.x, p.y], want[:2], atol=1e-12)
+            assert abs(np.angle(np.exp(1j * (2 * np.arctan2(o.z, o.w) - want[2])))) < 1e-9

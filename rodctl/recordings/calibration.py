@@ -125,7 +125,9 @@ class Calibration:
     plane: np.ndarray | None = None
     source: str = "flags"
 
-    def homography(self, K: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, float | None]:
+    def homography(
+        self, K: np.ndarray, D: np.ndarray, model: str = "plumb_bob"
+    ) -> tuple[np.ndarray, float | None]:
         """(H plane -> undistorted pixel, normalised to H[2, 2] = 1; the RMS reprojection error
         of the marked points in px, None for an extrinsic).
 
@@ -142,7 +144,12 @@ class Calibration:
             return H / H[2, 2], None
         px = np.asarray(self.pixels, dtype=float)
         if np.any(np.asarray(D, float) != 0.0):
-            px = cv2.undistortPoints(px.reshape(-1, 1, 2), K, D, P=K).reshape(-1, 2)
+            if model == "equidistant":  # fisheye: cv2.fisheye's model
+                px = cv2.fisheye.undistortPoints(
+                    px.reshape(-1, 1, 2), K, np.asarray(D, float).reshape(4, 1), P=K
+                ).reshape(-1, 2)
+            else:
+                px = cv2.undistortPoints(px.reshape(-1, 1, 2), K, D, P=K).reshape(-1, 2)
         H, _ = cv2.findHomography(np.asarray(self.plane, float), px, 0)
         if H is None or not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
             raise UserError(
@@ -154,9 +161,12 @@ class Calibration:
         rms = float(np.sqrt(np.mean(np.sum((w[:, :2] / w[:, 2:] - px) ** 2, axis=1))))
         return H, rms
 
-    def camera(self, cfg: Any, K: np.ndarray, D: np.ndarray) -> tuple[PlaneCamera, str]:
-        """The calibrated camera for `cfg` (size, intrinsics, rendering, extraction) and a note."""
-        H, rms = self.homography(K, D)
+    def camera(
+        self, cfg: Any, K: np.ndarray, D: np.ndarray, model: str = "plumb_bob"
+    ) -> tuple[PlaneCamera, str]:
+        """The calibrated camera for `cfg` (size, intrinsics, rendering, extraction) and a note
+        (`model`: the CameraInfo distortion model of D)."""
+        H, rms = self.homography(K, D, model)
         cam = PlaneCamera(cfg, H, self.rotation, self.translation)
         if rms is None:
             return cam, f"camera pose from the extrinsic of {self.source}"
@@ -222,7 +232,15 @@ def load_calibration(path: str | Path) -> Calibration:
 
 
 def extrinsic_from_flag(values: list[float]) -> Calibration:
-    """`--extrinsic RX,RY,RZ,TX,TY,TZ`: a Rodrigues vector and a translation (world -> camera)."""
+    """`--extrinsic RX,RY,RZ,TX,TY,TZ`: a Rodrigues vector and a translation (world -> camera).
+
+    Raises:
+        UserError: a value that is not finite.
+    """
+    v = np.asarray(values, dtype=float)
+    if not np.all(np.isfinite(v)):
+        bad = ", ".join(f"{float(x):g}" for x in v)
+        raise UserError(f"--extrinsic: the values must be finite numbers, got {bad}")
     return Calibration(
         rotation=_rotation(values[:3]),
         translation=np.asarray(values[3:], dtype=float),

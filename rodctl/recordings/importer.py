@@ -163,11 +163,8 @@ def import_bag_images(
             "--clamp-pose: with two end effectors the rod's walk starts at end effector 0's "
             "pose in each frame; leave --clamp-pose out"
         )
-    if len(ends) == 1 and clamp_pose is None:
-        raise UserError(
-            f"{src}: camera frames with one end effector need --clamp-pose X,Y,THETA (the "
-            "fixed end)"
-        )
+    if len(ends) == 1:
+        _need_clamp(src, clamp_pose)
     rec, world, used, notes = read_bag_images(
         src, image_topic, info_topic, ends, cam_cfg, clamp_pose,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
@@ -197,7 +194,7 @@ def import_image_folder(
     *,
     poses: str | Path,
     camera: str | Path,
-    clamp_pose: list[float],
+    clamp_pose: list[float] | None,
     hsv_low: list[int],
     hsv_high: list[int],
     tolerance: float = 0.2,
@@ -210,6 +207,7 @@ def import_image_folder(
     from rodctl.recordings.ros2 import RowSeries, camera_config, extract_frames
 
     src = Path(folder)
+    _need_clamp(src, clamp_pose)
     cam_cfg = camera_config(camera)
     frames, pose_rows = read_folder(src, poses)
     rec, world, used, notes = extract_frames(
@@ -232,7 +230,7 @@ def import_video(
     *,
     poses: str | Path,
     camera: str | Path,
-    clamp_pose: list[float],
+    clamp_pose: list[float] | None,
     hsv_low: list[int],
     hsv_high: list[int],
     tolerance: float = 0.2,
@@ -247,6 +245,7 @@ def import_video(
     from rodctl.recordings.video import read_video
 
     src = Path(video)
+    _need_clamp(src, clamp_pose)
     cam_cfg = camera_config(camera)
     frames, pose_rows, used_times = read_video(src, poses, fps=fps, frame_times=frame_times)
     rec, world, used, notes = extract_frames(
@@ -261,6 +260,15 @@ def import_video(
     return _write_frames_run(
         frames, src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
     )
+
+
+def _need_clamp(src: Path, clamp_pose: list[float] | None) -> None:
+    """Camera frames with one end effector start the rod's walk at the fixed end."""
+    if clamp_pose is None:
+        raise UserError(
+            f"{src}: camera frames with one end effector need --clamp-pose X,Y,THETA (the "
+            "fixed end)"
+        )
 
 
 def _write_frames_run(
@@ -291,10 +299,10 @@ def _write_frames_run(
     }
     views = (world, rec.points, (used.width, used.height), {"camera": used.model_dump(mode="json")})
     clamp = None if clamp_pose is None else np.asarray(clamp_pose, dtype=float)
-    run_dir = write_run(rec, src, out, name, source, views=views, clamp=clamp)
     cut = [n for n in notes if n.startswith(INTERRUPTED)]
-    if cut:
-        raise RunFailed(f"import of {src} cut short ({cut[0]}); {run_dir} keeps them")
+    run_dir = write_run(
+        rec, src, out, name, source, views=views, clamp=clamp, cut=cut[0] if cut else None
+    )
     return run_dir, notes
 
 
@@ -306,12 +314,15 @@ def write_run(
     source: dict,
     views: tuple | None = None,
     clamp: np.ndarray | None = None,
+    cut: str | None = None,
 ) -> Path:
     """Write a checked points recording as a run folder under `out` (the module docstring).
 
     `views` = (world (T, N, 2), pixels (T, N, 2), image size, description) replaces the nominal
     views of `_views` when a calibrated camera gave both; `clamp` is the fixed end's pose
-    (default: end effector 1's first pose for two ends, else zeros).
+    (default: end effector 1's first pose for two ends, else zeros); `cut` is the note of an
+    extraction cut short (Ctrl-C): the frames done are written, the run's status is
+    `interrupted` and `RunFailed` is raised naming the folder.
     """
     from rodctl.logs.mcap import McapSink
     from rodctl.records import RunHeader, RunSummary, StepRecord
@@ -341,7 +352,10 @@ def write_run(
         "q": rec.q,
         **view,
     }
-    config_yaml = yaml.safe_dump({"name": stem, "seed": 0, "source": source}, sort_keys=False)
+    config = {"name": stem, "seed": 0, "source": source}
+    if "camera" in view:  # camera frames: the camera the logs' /camera/calibration describes
+        config["camera"] = view["camera"]
+    config_yaml = yaml.safe_dump(config, sort_keys=False)
     (run_dir / "config.yaml").write_text(config_yaml, encoding="utf-8")
     meta = {
         "run_id": run_dir.name,
@@ -376,7 +390,7 @@ def write_run(
     sink.open(header)
     p, q = s_all.shape[1], rec.q
     last = None
-    status, written = "completed", 0
+    status, written = ("interrupted" if cut else "completed"), 0
     t0 = time.perf_counter()
     try:
         for k in range(T):
@@ -398,6 +412,7 @@ def write_run(
                 J=np.zeros((p, q)),
                 J_singular_values=np.zeros(min(p, q)),
                 pixel_error=err,
+                image=None if rec.images is None else rec.images[k],
             )
             sink.write(last)
             written = k + 1
@@ -421,6 +436,8 @@ def write_run(
     write_json_atomic(run_dir / "summary.json", jsonable(summary.to_json()))
     meta.update(status=status, ended_at=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
     write_json_atomic(run_dir / "meta.json", meta)
+    if cut and written == T:
+        raise RunFailed(f"import of {src} cut short ({cut}); {run_dir} keeps them")
     if status != "completed":
         raise RunFailed(
             f"import of {src} cut short after {written} of {T} frames; {run_dir} keeps them"

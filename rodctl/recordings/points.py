@@ -54,7 +54,8 @@ def _check(path: Path, rec: PointsRecording) -> PointsRecording:
     if (steps <= 0).any():
         k = int(np.argmax(steps <= 0)) + 1
         raise UserError(
-            f"{path}: frame {k}: t = {t[k]!r} does not increase (previous {t[k - 1]!r})"
+            f"{path}: frame {k}: t = {float(t[k])!r} does not increase "
+            f"(previous {float(t[k - 1])!r})"
         )
     if rec.units not in ("m", "px"):
         raise UserError(f"{path}: units {rec.units!r}: must be m or px")

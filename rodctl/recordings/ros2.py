@@ -8,6 +8,9 @@ MCAP). Topics (docs/recordings.md, "Export to a ROS 2 bag"):
   config, no distortion (plumb_bob, D = 0; rodctl's camera is a pinhole);
 - `/gripper/pose` geometry_msgs/msg/PoseStamped, the gripper pose of every step (x, y, z = 0,
   theta as a rotation about z), frame `world`;
+- `/end_effector_1/pose` geometry_msgs/msg/PoseStamped, for a run with two end effectors
+  (q = 6) only: end effector 1's pose, the run's clamp pose plus the sum of `/control.u[3:6]`
+  (exact for an imported recording, whose u is the change of the poses);
 - `/rod/centerline` visualization_msgs/msg/MarkerArray, one LINE_STRIP of the rod's centerline
   (`/rod/state.centerline`, world metres) per step.
 Message times are the MCAP log times (2000-01-01 + simulated time), so a bag of a run is the
@@ -31,6 +34,7 @@ STORAGES = ("sqlite3", "mcap")
 TOPIC_IMAGE = "/camera/image_raw"
 TOPIC_INFO = "/camera/camera_info"
 TOPIC_POSE = "/gripper/pose"
+TOPIC_POSE_1 = "/end_effector_1/pose"
 TOPIC_CENTERLINE = "/rod/centerline"
 
 
@@ -144,6 +148,14 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
             ),
         }
 
+        two = bool(run.records) and all(np.size(r.u) == 6 for r in run.records)
+        if two:
+            conns[TOPIC_POSE_1] = writer.add_connection(
+                TOPIC_POSE_1, "geometry_msgs/msg/PoseStamped", typestore=ts
+            )
+            counts[TOPIC_POSE_1] = 0
+        end1 = np.asarray(run.header.clamp_pose, dtype=float)[:3].copy()
+
         def put(topic: str, t_ns: int, msg: Any) -> None:
             writer.write(conns[topic], t_ns, ts.serialize_cdr(msg, conns[topic].msgtype))
             counts[topic] += 1
@@ -151,6 +163,9 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
         for r in run.records:
             t_ns = int(log_time_ns(r.sim_time))
             put(TOPIC_POSE, t_ns, pose_stamped(ts, t_ns, np.asarray(r.gripper)[:3]))
+            if two:  # end effector 1: its first pose plus the logged changes (u[3:6])
+                end1 = end1 + np.asarray(r.u, dtype=float)[3:6]
+                put(TOPIC_POSE_1, t_ns, pose_stamped(ts, t_ns, end1))
             marker = line_marker(ts, t_ns, np.asarray(r.centerline, dtype=float))
             put(TOPIC_CENTERLINE, t_ns, T["visualization_msgs/msg/MarkerArray"](markers=[marker]))
             if r.image is None:
@@ -323,7 +338,22 @@ def _xy(msg: Any, msgtype: str, where: str = "") -> np.ndarray:
 
 
 def _yaw(o: Any) -> float:
-    return math.atan2(2.0 * (o.w * o.z + o.x * o.y), 1.0 - 2.0 * (o.y * o.y + o.z * o.z))
+    """The yaw of a quaternion, scale-free: atan2(2(wz + xy), w^2 + x^2 - y^2 - z^2)."""
+    w, x, y, z = float(o.w), float(o.x), float(o.y), float(o.z)
+    return math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
+
+
+def check_pose(position: Any, o: Any, where: str) -> None:
+    """Refuse a pose with a non-finite position or quaternion, or a zero quaternion."""
+    q = [float(o.x), float(o.y), float(o.z), float(o.w)]
+    p = [float(position.x), float(position.y), float(position.z)]
+    if not all(math.isfinite(v) for v in p + q):
+        raise UserError(
+            f"{where}: the pose has non-finite values (position {_plain(np.array(p))}, "
+            f"orientation {_plain(np.array(q))})"
+        )
+    if math.sqrt(sum(v * v for v in q)) < 1e-9:
+        raise UserError(f"{where}: the orientation quaternion is zero (no rotation is defined)")
 
 
 def _bracket(
@@ -472,6 +502,7 @@ class _Poses:
         if topic in self.series:
             p = msg.pose
             t = _stamp_ns(msg, log_ns)
+            check_pose(p.position, p.orientation, f"{topic} at t = {t / 1e9:.6f} s")
             self.series[topic].append((t, [p.position.x, p.position.y, _yaw(p.orientation)]))
 
     def get(self, path: Path, src: PoseSource) -> RowSeries | TfSeries:
@@ -599,7 +630,12 @@ def _rgb(msg: Any, msgtype: str, where: str) -> np.ndarray:
     ch = {"rgb8": 3, "bgr8": 3, "mono8": 1}.get(enc)
     if ch is None:
         raise UserError(f"{where}: image encoding {enc!r}; rgb8, bgr8 or mono8 are read")
-    rows = data.reshape(h, int(msg.step))[:, : w * ch]
+    step = int(msg.step)
+    if step < w * ch or data.size < h * step:
+        raise UserError(
+            f"{where}: {enc} image data has {data.size} bytes for {w}x{h} pixels, step {step}"
+        )
+    rows = data[: h * step].reshape(h, step)[:, : w * ch]
     img = rows.reshape(h, w, ch)
     if enc == "bgr8":
         return np.ascontiguousarray(img[..., ::-1])
@@ -685,8 +721,8 @@ def read_bag_images(
         pose_topic = [pose_topic]
     srcs = [p if isinstance(p, PoseSource) else PoseSource(p) for p in pose_topic]
     poses = _Poses(srcs)
-    frames: list[tuple[int, np.ndarray]] = []
-    masks: list[tuple[int, np.ndarray]] = []
+    frames: list[tuple[int, Any]] = []
+    masks: list[tuple[int, Any]] = []
     info = None
     need = [(image_topic, IMAGE_TYPES), *poses.need()]
     if info_topic:
@@ -694,12 +730,10 @@ def read_bag_images(
     if mask_topic:
         need.append((mask_topic, ("sensor_msgs/msg/Image",)))
     for topic, msgtype, log_ns, msg in _bag_messages(path, need, poses.optional()):
-        if topic == image_topic:
-            t = _stamp_ns(msg, log_ns)
-            frames.append((t, _rgb(msg, msgtype, f"{image_topic} at t = {t / 1e9:.6f} s")))
+        if topic == image_topic:  # decoded once sorted: errors name the time from frame 0
+            frames.append((_stamp_ns(msg, log_ns), (msg, msgtype)))
         elif topic == mask_topic:
-            t = _stamp_ns(msg, log_ns)
-            masks.append((t, _mask(msg, f"{mask_topic}: mask {len(masks)} (t = {t / 1e9:.6f} s)")))
+            masks.append((_stamp_ns(msg, log_ns), msg))
         elif topic in poses.topics():
             poses.add(topic, msgtype, log_ns, msg)
         elif info is None:
@@ -712,9 +746,19 @@ def read_bag_images(
     if info_topic and info is None:
         raise UserError(f"{path}: topic {info_topic} has no messages")
     frames.sort(key=lambda f: f[0])
+    t0 = frames[0][0]
+    frames = [
+        (t, _rgb(m, mt, f"{image_topic}: frame {i} (t = {(t - t0) / 1e9:.6f} s)"))
+        for i, (t, (m, mt)) in enumerate(frames)
+    ]
+    masks.sort(key=lambda m: m[0])
+    masks = [
+        (t, _mask(m, f"{mask_topic}: mask {i} (t = {(t - t0) / 1e9:.6f} s)"))
+        for i, (t, m) in enumerate(masks)
+    ]
     KD = None
     if info is not None:
-        KD = (np.asarray(info.k, dtype=float).reshape(3, 3), np.asarray(info.d, dtype=float))
+        KD = camera_intrinsics(info, f"{path}: {info_topic}")
         camera = camera.model_copy(
             update={"width": int(info.width) or camera.width,
                     "height": int(info.height) or camera.height}
@@ -722,8 +766,76 @@ def read_bag_images(
     return extract_frames(
         str(path), image_topic, frames, series, camera, clamp_pose, KD,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
-        masks=(mask_topic, sorted(masks, key=lambda m: m[0])) if mask_topic else None,
+        masks=(mask_topic, masks) if mask_topic else None,
     )  # fmt: skip
+
+
+#: CameraInfo distortion models read, with the number of D coefficients each has.
+DISTORTION_MODELS = {"plumb_bob": (5,), "rational_polynomial": (8,), "equidistant": (4,)}
+
+
+def camera_intrinsics(info: Any, where: str) -> tuple[np.ndarray, np.ndarray, str]:
+    """(K (3, 3), D, distortion model) of a CameraInfo, checked.
+
+    Raises:
+        UserError: an all-zero K (an uncalibrated driver), a K that is not finite or has no
+            positive focal lengths, a D that is not finite or whose length does not match the
+            distortion model, or a model other than plumb_bob, rational_polynomial and
+            equidistant (`where` names the topic).
+    """
+    k = np.asarray(info.k, dtype=float).ravel()
+    d = np.asarray(info.d, dtype=float).ravel()
+    model = str(info.distortion_model or "") or "plumb_bob"
+    if k.size != 9:
+        raise UserError(f"{where}: CameraInfo K has {k.size} values, not 9")
+    if not np.all(np.isfinite(k)):
+        raise UserError(f"{where}: CameraInfo K has non-finite values: {_plain(k)}")
+    if not np.any(k):
+        raise UserError(
+            f"{where}: CameraInfo K is all zeros: the camera is uncalibrated; pass the "
+            "intrinsics in --camera (fx, fy, cx, cy) and leave --camera-info-topic out, and "
+            "the pose with --calibration or --extrinsic"
+        )
+    K = k.reshape(3, 3)
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise UserError(f"{where}: CameraInfo K has focal lengths fx = {K[0, 0]:g}, "
+                        f"fy = {K[1, 1]:g}; both must be > 0")  # fmt: skip
+    if model not in DISTORTION_MODELS:
+        raise UserError(
+            f"{where}: CameraInfo distortion_model {model!r} is not read; "
+            f"{', '.join(DISTORTION_MODELS)} are"
+        )
+    if not np.all(np.isfinite(d)):
+        raise UserError(f"{where}: CameraInfo D has non-finite values: {_plain(d)}")
+    if d.size and d.size not in DISTORTION_MODELS[model]:
+        raise UserError(
+            f"{where}: CameraInfo D has {d.size} coefficients; the {model} model has "
+            f"{DISTORTION_MODELS[model][0]}"
+        )
+    if not d.size:
+        d = np.zeros(DISTORTION_MODELS[model][0])
+    return K, d, model
+
+
+def _plain(v: np.ndarray) -> str:
+    """A vector as plain numbers (no numpy repr): [1, nan, 0.5]."""
+    return "[" + ", ".join(f"{float(x):g}" for x in v) + "]"
+
+
+def undistorter(K: np.ndarray, D: np.ndarray, model: str, size: tuple[int, int]) -> Any:
+    """img -> the image undistorted onto K (plumb_bob and rational_polynomial by
+    cv2.initUndistortRectifyMap, equidistant by cv2.fisheye's), or None when D is zero."""
+    import cv2
+
+    if not np.any(D != 0.0):
+        return None
+    if model == "equidistant":
+        m1, m2 = cv2.fisheye.initUndistortRectifyMap(
+            K, D.reshape(4, 1), np.eye(3), K, size, cv2.CV_16SC2
+        )
+    else:
+        m1, m2 = cv2.initUndistortRectifyMap(K, D, np.eye(3), K, size, cv2.CV_16SC2)
+    return lambda img: cv2.remap(img, m1, m2, cv2.INTER_LINEAR)
 
 
 def _match_masks(
@@ -765,7 +877,7 @@ def extract_frames(
     poses: Sequence[Any],
     camera: Any,
     clamp_pose: Sequence[float] | None,
-    KD: tuple[np.ndarray, np.ndarray] | None,
+    KD: tuple[np.ndarray, np.ndarray, str] | None,
     *,
     hsv_low: Sequence[int],
     hsv_high: Sequence[int],
@@ -780,8 +892,10 @@ def extract_frames(
     `masks` = (topic, [(t_ns, (H, W) bool)]) replaces the HSV threshold. The body of
     `read_bag_images`, of the image-folder and of the video import; see `read_bag_images` for
     the walk's start, the result and the errors."""
-    import cv2
+    from types import SimpleNamespace
 
+    from rodctl.config.logging import LoggingConfig
+    from rodctl.logs.codec import FrameSchedule
     from rodctl.recordings.segment import hsv_mask, mask_image
     from rodctl.recordings.synthetic import PointsRecording
     from rodctl.vision.camera import Camera
@@ -795,8 +909,9 @@ def extract_frames(
     first = load(frames[0][1])
     h, w = first.shape[:2]
     K = D = None
+    model = "plumb_bob"
     if KD is not None:
-        K, D = KD
+        K, D, model = KD
         camera = camera.model_copy(
             update={"fx": float(K[0, 0]), "fy": float(K[1, 1]),
                     "cx": float(K[0, 2]), "cy": float(K[1, 2])}
@@ -810,7 +925,7 @@ def extract_frames(
     notes = []
     if calibration is not None:
         dist = D if D is not None else np.zeros(5)
-        cam, note = calibration.camera(camera, cam.camera_matrix, dist)
+        cam, note = calibration.camera(camera, cam.camera_matrix, dist, model)
         notes.append(note)
     t0 = frames[0][0]
     frame_ns = np.array([f[0] for f in frames], dtype=np.int64)
@@ -833,24 +948,32 @@ def extract_frames(
     fixed = None if two else CenterlineExtractor(camera, cam, np.asarray(clamp_pose, float))
     rod, bg = camera.render.rod_color, camera.render.background_color
     pts = []
-    undistort = D is not None and np.any(D != 0.0)
+    undistort = None if D is None else undistorter(K, D, model, (w, h))
     chosen = np.flatnonzero(inside)
     given = None
     if masks is not None:
         given = _match_masks(masks[0], masks[1], frame_ns, t0, chosen, (w, h), tolerance)
+    # the frames the run logs on /camera/image: the simulated runs' schedule (at most
+    # logging.image_rate_hz per second of the run's time), each frame as it was segmented
+    schedule = FrameSchedule(LoggingConfig().image_rate_hz)
+    t_first = ft[chosen[0]] if len(chosen) else 0.0
+    logged: list[np.ndarray | None] = []
     try:
         for i, (k, g) in enumerate(zip(chosen, ends, strict=True)):
             t_ns, img = frames[k][0], load(frames[k][1])
             where = f"{image_topic}: frame {int(k)} (t = {(t_ns - t0) / 1e9:.6f} s)"
+            slot = SimpleNamespace(image=img, sim_time=float(ft[k] - t_first))
+            take = schedule.take(slot)
+            if undistort is not None and (given is None or take):
+                img = undistort(img)
+            keep = img if take else None
             if given is not None:
                 mask = given[i].astype(np.uint8) * 255
-                if undistort:
-                    mask = np.where(cv2.undistort(mask, K, D) >= 128, 255, 0).astype(np.uint8)
+                if undistort is not None:
+                    mask = np.where(undistort(mask) >= 128, 255, 0).astype(np.uint8)
                 if not mask.any():
                     raise UserError(f"{where}: its mask ({masks[0]}) has no rod pixel")
             else:
-                if undistort:
-                    img = cv2.undistort(img, K, D)
                 mask = hsv_mask(img, hsv_low, hsv_high)
                 if not mask.any():
                     raise UserError(
@@ -862,6 +985,7 @@ def extract_frames(
             if not ex.ok:
                 raise UserError(f"{where}: the centerline was not extracted: {ex.note}")
             pts.append(ex.points)
+            logged.append(keep)
     except KeyboardInterrupt:
         notes.append(f"{INTERRUPTED}: {len(pts)} of {len(chosen)} frames converted")
         if len(pts) < 3:
@@ -869,7 +993,9 @@ def extract_frames(
     n = len(pts)
     px = np.stack(pts)
     world = np.stack([cam.unproject(p) for p in px])
-    rec = PointsRecording(t=ft[chosen[:n]], points=px, poses=ends[:n], units="px")
+    rec = PointsRecording(
+        t=ft[chosen[:n]], points=px, poses=ends[:n], units="px", images=logged[:n]
+    )
     return rec, world, camera, notes
 
 

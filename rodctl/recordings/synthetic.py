@@ -26,12 +26,16 @@ class PointsRecording:
         points: (T, N, 2) tracked points, x, y (metres or pixels: the file says which).
         poses: (T, E, 3) end-effector poses [x, y, theta] (metres, radians), E = 1 or 2.
         units: "m" or "px", the unit of `points`.
+        images: per frame, the camera frame (H, W, 3) uint8 RGB the run logs on
+            /camera/image, or None (camera-frame imports keep those at the logging image
+            rate; None for recordings without frames).
     """
 
     t: np.ndarray
     points: np.ndarray
     poses: np.ndarray
     units: str = "m"
+    images: list[np.ndarray | None] | None = None
 
     @property
     def q(self) -> int:

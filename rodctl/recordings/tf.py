@@ -81,7 +81,7 @@ def slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
 def yaw(q: np.ndarray) -> np.ndarray:
     """The rotation about z of (..., 4) quaternions [x, y, z, w] (ZYX Euler yaw)."""
     x, y, z, w = np.moveaxis(q, -1, 0)
-    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return np.arctan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)  # scale-free
 
 
 class TfTree:
@@ -108,8 +108,18 @@ class TfTree:
             s = tr.header.stamp
             t = int(s.sec) * 1_000_000_000 + int(s.nanosec)
             v, o = tr.transform.translation, tr.transform.rotation
-            link.times.append(t if t > 0 else int(log_ns))
-            link.values.append([v.x, v.y, v.z, o.x, o.y, o.z, o.w])
+            t = t if t > 0 else int(log_ns)
+            vals = np.array([v.x, v.y, v.z, o.x, o.y, o.z, o.w], dtype=float)
+            where = f"{topic}: child frame {child!r} at t = {t / 1e9:.6f} s"
+            if not np.all(np.isfinite(vals)):
+                shown = ", ".join(f"{float(x):g}" for x in vals)
+                raise UserError(f"{where}: the transform has non-finite values ({shown})")
+            norm = float(np.linalg.norm(vals[3:]))
+            if norm < 1e-9:
+                raise UserError(f"{where}: the rotation quaternion is zero (no rotation defined)")
+            vals[3:] /= norm  # unit quaternions, so that static links compose exactly
+            link.times.append(t)
+            link.values.append(vals.tolist())
 
     def frames(self) -> set[str]:
         return set(self.links) | {link.parent for link in self.links.values()}

@@ -118,7 +118,7 @@ def read_video(
     steps = np.diff(t)
     if (steps <= 0).any():
         k = int(np.argmax(steps <= 0)) + 1
-        raise UserError(f"{frame_times}: row {k + 1}: t = {t[k]!r} does not increase")
+        raise UserError(f"{frame_times}: row {k + 1}: t = {float(t[k])!r} does not increase")
     p = Path(poses_csv)
     poses = []
     for i, row in enumerate(_table(p, ["t", "x", "y", "theta"])):
