@@ -1,0 +1,109 @@
+"""Dual-arm (`rod.arms: 2`): the x0 end held by a second arm, both ends moved, q = 6.
+
+Small rods (N = 20) and the quasi-static engine where the engine does not matter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rodctl.config import ExperimentConfig, validate_config
+from rodctl.config.rod import RodConfig
+from rodctl.errors import UserError
+from rodctl.sim import RodSim
+
+N = 20
+
+
+def rod(**kw) -> RodConfig:
+    return RodConfig(segments=N, arms=2, **kw)
+
+
+def test_one_arm_dump_is_unchanged_and_clamp_arm_needs_two():
+    assert "arms" not in RodConfig().model_dump()
+    assert "clamp_arm" not in RodConfig().model_dump()
+    two = rod().model_dump()
+    assert two["arms"] == 2 and two["clamp_arm"]["max_step"] == (0.01, 0.01, 0.05)
+    assert RodConfig.model_validate(two) == rod()  # a resolved dual-arm config loads again
+    with pytest.raises(UserError, match="clamp_arm"):
+        validate_config({"rod": {"clamp_arm": {"max_step": [0.02, 0.02, 0.1]}}}, "test")
+    with pytest.raises(UserError, match="clamp_pose"):
+        validate_config({"rod": {"arms": 2, "clamp_pose": [0.3, 0.0, 0.0]}}, "test")
+
+
+@pytest.mark.parametrize("engine", ["pymunk", "quasistatic"])
+def test_both_ends_move_each_with_its_own_speed_limit(engine):
+    sim = RodSim(rod(engine=engine, clamp_arm={"max_step": [0.004, 0.004, 0.02]}))
+    g0, c0 = sim.gripper_pose, sim.clamp_pose
+    res = sim.apply(np.array([0.02, 0.0, 0.0, 0.02, -0.003, 0.05]))
+    assert res.settled and not res.diverged
+    np.testing.assert_array_equal(res.saturated, [True, False, False, True, False, True])
+    np.testing.assert_allclose(res.u_applied, [0.01, 0.0, 0.0, 0.004, -0.003, 0.02], atol=1e-9)
+    np.testing.assert_allclose(sim.gripper_pose - g0, [0.01, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(sim.clamp_pose - c0, [0.004, -0.003, 0.02], atol=1e-9)
+    # The rod is held by both ends: its first joint is where the second arm put the x0 end.
+    np.testing.assert_allclose(sim.centerline()[0], sim.clamp_pose[:2], atol=2e-4)
+    np.testing.assert_allclose(sim.end_poses, np.r_[sim.gripper_pose, sim.clamp_pose])
+
+
+def test_the_x0_end_stays_in_its_workspace_and_refuses_when_told():
+    ws = {"x_limits": [-0.005, 0.25], "y_limits": [-0.35, 0.35]}
+    sim = RodSim(rod(engine="quasistatic", clamp_arm={"workspace": ws}))
+    res = sim.apply(np.array([0.0, 0.0, 0.0, -0.01, 0.0, 0.0]))
+    assert res.clipped and not res.refused
+    assert sim.clamp_pose[0] == pytest.approx(-0.005)
+    refuse = {"workspace": {**ws, "on_violation": "refuse"}}
+    strict = RodSim(rod(engine="quasistatic", clamp_arm=refuse))
+    before = strict.end_poses
+    res = strict.apply(np.array([0.005, 0.0, 0.0, -0.01, 0.0, 0.0]))
+    assert res.refused
+    np.testing.assert_array_equal(strict.end_poses, before)
+
+
+def test_the_engines_agree_on_a_dual_arm_move():
+    """pymunk's settled rod and the quasi-static equilibrium after the same both-ends move."""
+    shapes = []
+    for engine in ("pymunk", "quasistatic"):
+        sim = RodSim(rod(engine=engine))
+        for _ in range(3):
+            res = sim.apply(np.array([-0.01, 0.01, 0.05, 0.01, 0.005, -0.05]))
+            assert res.settled
+        shapes.append(sim.centerline())
+    assert np.max(np.linalg.norm(shapes[0] - shapes[1], axis=1)) < 2e-3 * 0.5  # 0.2 % of L
+
+
+def _env_config(**run) -> ExperimentConfig:
+    return validate_config(
+        {
+            "rod": {"arms": 2, "engine": "quasistatic", "segments": 30},
+            "camera": {"points": 40},
+            "run": {"max_steps": 5, **run},
+        },
+        "test",
+    )
+
+
+def test_env_spaces_are_q6_and_pass_check_env():
+    from gymnasium.utils.env_checker import check_env
+
+    from rodctl.env import ShapeServoEnv
+
+    env = ShapeServoEnv(_env_config())
+    assert env.action_space.shape == (6,)
+    obs, info = env.reset(seed=3)
+    assert obs["gripper"].shape == (6,) and obs["applied"].shape == (6,)
+    assert env.task.home_pose.shape == (6,) and env.target.pose.shape == (6,)
+    obs, *_ = env.step(np.array([0.0, 0.0, 0.0, 0.005, 0.0, 0.0]))
+    np.testing.assert_allclose(obs["applied"], [0, 0, 0, 0.005, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(obs["gripper"][3:], env.sim.clamp_pose)
+    check_env(env, skip_render_check=True)
+    try:
+        from stable_baselines3.common.env_checker import check_env as sb3_check
+    except ImportError:
+        return
+    from rodctl.rl import ShapeServoRLEnv
+
+    rl = ShapeServoRLEnv(_env_config())
+    assert rl.action_space.shape == (6,)
+    sb3_check(rl, warn=False)
