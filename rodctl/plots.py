@@ -295,9 +295,9 @@ def _commands(runs: Mapping[str, Sequence[StepRecord]], limits: np.ndarray | Non
     for i, (name, recs) in enumerate(runs.items()):
         steps, _, _, u = _series(recs)
         st = style(0 if single else i)
-        for j, ax in enumerate(axes):
-            ax.plot(steps, u[:, j], label=name, **st)
         other = _second_end(recs) if single else None
+        for j, ax in enumerate(axes):
+            ax.plot(steps, u[:, j], label=name if other is None else "gripper", **st)
         if other is not None:  # dual-arm: the x0 end's increments beside the gripper's
             for j, ax in enumerate(axes):
                 ax.plot(steps, other[:, j], label="x0 end (second arm)", **style(1))

@@ -83,6 +83,18 @@ class ExperimentConfig(StrictModel):
         return self
 
     @model_validator(mode="after")
+    def _dual_arm_supported(self) -> ExperimentConfig:
+        """Dual-arm (rod.arms: 2): an encoder trained on the fly ('auto') is refused, its data
+        collection walks the gripper alone (docs/simulation.md, "Dual-arm")."""
+        if self.rod.arms == 2 and getattr(self.feature, "checkpoint", None) == "auto":
+            raise ValueError(
+                "feature.checkpoint: auto is not supported with rod.arms: 2 (the encoder's data "
+                "collection moves the gripper only); use a trained checkpoint, e.g. the packaged "
+                "one (the default)"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _stages_fit_together(self) -> ExperimentConfig:
         """A stage config may check the rest of the experiment (`check_experiment(cfg)`), e.g.
         the offline model's servoed nodes must be the feature's."""

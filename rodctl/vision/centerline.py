@@ -204,6 +204,11 @@ def _locate_row(
     return offset, width, _OK
 
 
+#: cv2.remap refuses maps of SHRT_MAX (32767) columns or more; longer samplings go in rows.
+_REMAP_MAX = 32767
+_REMAP_ROW = 4096
+
+
 class CenterlineExtractor:
     """Finds the rod in a camera image and returns its centerline as N ordered pixel points.
 
@@ -293,6 +298,13 @@ class CenterlineExtractor:
         """Rod coverage at (..., 2) pixel positions, bilinear; 0 outside the image (unclipped)."""
         shape = pts.shape[:-1]
         flat = pts.reshape(1, -1, 2).astype(np.float32)
+        if flat.shape[1] >= _REMAP_MAX:
+            # cv2.remap takes maps narrower than SHRT_MAX: a long trace (a rod looping across
+            # the image) is sampled in rows (each point's value does not depend on the layout)
+            n = flat.shape[1]
+            rows = np.zeros((-(-n // _REMAP_ROW), _REMAP_ROW, 2), dtype=np.float32)
+            rows.reshape(-1, 2)[:n] = flat[0]
+            flat = rows
         rgb = cv2.remap(
             image,
             flat[..., 0],
@@ -302,7 +314,8 @@ class CenterlineExtractor:
             borderValue=self._bg_value,
         )
         # not clipped to [0, 1]: only 50 % crossings are used, and clipping costs time
-        return self._affine(rgb.reshape(-1, 3).astype(np.float32)).reshape(shape)
+        rgb = rgb.reshape(-1, 3)[: int(np.prod(shape))]
+        return self._affine(rgb.astype(np.float32)).reshape(shape)
 
     # ------------------------------------------------------------------ cross-sections
     def _cross_sections(
