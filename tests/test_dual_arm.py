@@ -26,6 +26,14 @@ def test_one_arm_dump_is_unchanged_and_clamp_arm_needs_two():
     two = rod().model_dump()
     assert two["arms"] == 2 and two["clamp_arm"]["max_step"] == (0.01, 0.01, 0.05)
     assert RodConfig.model_validate(two) == rod()  # a resolved dual-arm config loads again
+    one = ExperimentConfig()
+    from rodctl.features.autoencoder import encoder_fingerprint
+
+    assert "arms" not in encoder_fingerprint(one)["rod"]  # the packaged encoder's, unchanged
+    dual = one.model_copy(update={"rod": rod()})
+    assert encoder_fingerprint(dual)["rod"]["arms"] == 2  # a one-arm encoder does not fit
+    with pytest.raises(UserError, match="arms: 2"):
+        validate_config({"run": {"target": {"pose": [0.4, 0.1, 0.5, 0, 0, 0]}}}, "test")
     with pytest.raises(UserError, match="clamp_arm"):
         validate_config({"rod": {"clamp_arm": {"max_step": [0.02, 0.02, 0.1]}}}, "test")
     with pytest.raises(UserError, match="clamp_pose"):
@@ -118,6 +126,10 @@ def test_dual_arm_scenarios_load():
 
     suite = str(REPO / "configs/benchmarks/suite-dual-arm.yaml")
     runs = scenario_configs(load_compare_config(suite), REPO / "configs/benchmarks", suite)
+    from rodctl.config import load_config
+
+    for name in ("dual-arm", "dual-arm-large", "dual-arm-yu2023"):
+        assert load_config(REPO / f"configs/scenarios/{name}.yaml").rod.arms == 2
     names = {run["scenario"] for run in runs.values()}
     assert names == {"dual-arm-nominal", "dual-arm-large-deformation"}
     for run in runs.values():
@@ -140,7 +152,9 @@ def test_a_short_dual_arm_episode_converges(name, tmp_path):
     from rodctl.replay import compare_records
 
     over = ["rod.engine=quasistatic", "rod.segments=30", "run.max_steps=40"]
-    cfg = load_config(REPO / f"configs/{name}.yaml", over)
+    if name == "dual-arm":  # the packaged one-arm encoder, not a quick one trained here
+        over += ["feature.checkpoint=null", "feature.other_setup=accept"]
+    cfg = load_config(REPO / f"configs/scenarios/{name}.yaml", over)
     sink = McapSink(tmp_path / "run.mcap", cfg.logging)
     result = run_episode(ShapeServoEnv(cfg), Method.from_config(cfg), sinks=[sink], seed=0)
     assert result.outcome.value == "converged", result.summary

@@ -84,13 +84,11 @@ class ExperimentConfig(StrictModel):
 
     @model_validator(mode="after")
     def _dual_arm_supported(self) -> ExperimentConfig:
-        """Dual-arm (rod.arms: 2): an encoder trained on the fly ('auto') is refused, its data
-        collection walks the gripper alone (docs/simulation.md, "Dual-arm")."""
-        if self.rod.arms == 2 and getattr(self.feature, "checkpoint", None) == "auto":
+        """A target pose of both ends (6 values) needs rod.arms: 2 (docs/dual-arm.md)."""
+        pose = self.run.target.pose
+        if self.rod.arms == 1 and pose is not None and len(pose) == 6:
             raise ValueError(
-                "feature.checkpoint: auto is not supported with rod.arms: 2 (the encoder's data "
-                "collection moves the gripper only); use a trained checkpoint, e.g. the packaged "
-                "one (the default)"
+                "run.target.pose has 6 values (both ends' poses): that needs rod.arms: 2"
             )
         return self
 

@@ -213,7 +213,7 @@ class RodConfig(StrictModel):
         description=(
             "1: the x0 end is clamped, the gripper moves (q = 3). 2: dual-arm, the x0 end is "
             "held by a second arm (`clamp_arm`) that moves too: a command is [dx, dy, dtheta] of "
-            "the gripper, then of the x0 end (q = 6); docs/simulation.md (Dual-arm)."
+            "the gripper, then of the x0 end (q = 6); docs/dual-arm.md."
         ),
     )
     clamp_arm: ClampArmConfig = Field(

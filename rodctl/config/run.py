@@ -9,7 +9,7 @@ from typing import Literal
 
 from pydantic import Field, PositiveFloat, PositiveInt, model_validator
 
-from rodctl.config.base import Pose, StrictModel, bounded
+from rodctl.config.base import Angle, Coordinate, Pose, StrictModel, bounded
 from rodctl.events import Event
 
 Outcome = Literal[
@@ -17,13 +17,20 @@ Outcome = Literal[
 ]
 
 
+#: Both ends' poses (rod.arms: 2): the gripper's [x, y, theta], then the x0 end's.
+EndPoses = tuple[Coordinate, Coordinate, Angle, Coordinate, Coordinate, Angle]
+
+
 class TargetConfig(StrictModel):
     """Where the target shape comes from. Targets are reachable by construction: the rod is driven
     to a gripper pose, allowed to settle, and the camera's view of it becomes the target."""
 
-    pose: Pose | None = Field(
+    pose: Pose | EndPoses | None = Field(
         None,
-        description="Gripper pose that produces the target shape (world). None: sample one.",
+        description=(
+            "Gripper pose that produces the target shape (world). None: sample one. Dual-arm "
+            "(rod.arms: 2): 6 values, the gripper's pose then the x0 end's (3: the x0 end stays)."
+        ),
     )
     min_offset: float = Field(
         0.3,

@@ -47,7 +47,7 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
         {"pixels": (F, N, 2), "poses": (F, 3), "segment": (F,) int (a new segment after the
         simulator was rebuilt: no pair spans two), "attempts": int}.
     """
-    from rodctl.features.collection import random_walk_start, sample_goal
+    from rodctl.features.collection import random_walk_start, sample_end_goals, sample_goal
     from rodctl.sim import RodSim
 
     cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
@@ -58,7 +58,7 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
     dual = cfg.rod.arms == 2  # dual-arm: both ends walk, poses and moves are (6,)
     if dual:
         max_step = sim.max_steps
-        goal = _dual_goal(gen, sim, cfg, goal)
+        goal = sample_end_goals(gen, sim, cfg, goal)
 
     def look() -> bool:
         if dual:
@@ -86,7 +86,7 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
 
     def new_goal() -> np.ndarray:
         goal = sample_goal(gen, sim, cfg)
-        return _dual_goal(gen, sim, cfg, goal) if dual else goal
+        return sample_end_goals(gen, sim, cfg, goal) if dual else goal
 
     look()
     while len(frames) < count + 1:
@@ -121,24 +121,6 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
         "segment": np.array(segments, dtype=np.int64),
         "attempts": attempts,
     }
-
-
-def _dual_goal(
-    gen: np.random.Generator, sim: Any, cfg: ExperimentConfig, grip: np.ndarray
-) -> np.ndarray:
-    """Dual-arm: a (6,) goal, the gripper's `grip` and an x0-end pose uniform over the second
-    arm's workspace box, redrawn (both) until the pair is allowed (within reach)."""
-    from rodctl.features.collection import sample_goal
-
-    ws = cfg.rod.clamp_arm.workspace
-    lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]])
-    hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]])
-    for _ in range(10_000):
-        pose = np.concatenate([grip, gen.uniform(lo, hi)])
-        if not sim.clip_pose(pose)[1]:
-            return pose
-        grip = sample_goal(gen, sim, cfg)
-    raise UserError("rod.clamp_arm.workspace: no pair of end poses is within reach")
 
 
 def _collect_task(args: tuple[str, int, np.random.SeedSequence]) -> dict[str, Any]:
