@@ -165,3 +165,13 @@ def test_a_short_dual_arm_episode_converges(name, tmp_path):
     logged = read_mcap(tmp_path / "run.mcap", images=False)
     assert logged.header.home_pose.shape == (6,)
     assert compare_records(logged.records, result.records) == []
+    import jsonschema
+
+    from rodctl.logs import codec, schemas
+
+    for message, schema in (
+        (codec.clamp_state_message(last), schemas.CLAMP_STATE),
+        (codec.control_message(last), schemas.CONTROL),
+        (codec.header_to_json(result.header), schemas.RUN_HEADER),
+    ):
+        jsonschema.validate(message, schema)  # the q = 6 messages fit their channels' schemas

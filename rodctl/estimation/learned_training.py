@@ -44,8 +44,8 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
     """One seeded random walk with `count` + 1 good frames (runs in a worker process).
 
     Returns:
-        {"pixels": (F, N, 2), "poses": (F, 3), "segment": (F,) int (a new segment after the
-        simulator was rebuilt: no pair spans two), "attempts": int}.
+        {"pixels": (F, N, 2), "poses": (F, q) (q = 6 dual-arm: both ends), "segment": (F,) int
+        (a new segment after the simulator was rebuilt: no pair spans two), "attempts": int}.
     """
     from rodctl.features.collection import random_walk_start, sample_end_goals, sample_goal
     from rodctl.sim import RodSim
