@@ -113,10 +113,11 @@ class Task:
 
     Attributes:
         target_pixels: (N, 2) the target centerline as the camera extracted it.
-        home_pose: (3,) gripper pose at the start, world frame (r is measured from it).
-        clamp_pose: (3,) pose of the clamped end, world frame.
-        max_step: (3,) the robot's per-axis speed limit per step [m, m, rad].
-        probe_size: (3,) size of the probing moves the run allows.
+        home_pose: (q,) gripper pose at the start, world frame (r is measured from it); q = 6
+            dual-arm (`rod.arms: 2`): the gripper's, then the x0 end's.
+        clamp_pose: (3,) pose of the clamped end, world frame (dual-arm: where it starts).
+        max_step: (q,) the robot's per-axis speed limit per step [m, m, rad] (per end).
+        probe_size: (q,) size of the probing moves the run allows.
         camera: the calibrated camera model (project / unproject / projection_jacobian).
         points: N, the centerline points.
         true_jacobian: the simulator's Jacobian of a feature at the current shape
@@ -295,7 +296,7 @@ class ShapeServoEnv(gym.Env):
         self.task = Task(
             target_pixels=self.target.pixels,
             home_pose=self.home_pose,
-            clamp_pose=self.clamp_pose,
+            clamp_pose=np.asarray(rod.clamp_pose, dtype=float),  # dual-arm: start_pose may move it
             max_step=self.max_step,
             probe_size=np.tile(np.asarray(cfg.run.probe_size, dtype=float), self.q // Q),
             camera=self.camera,

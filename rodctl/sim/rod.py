@@ -101,6 +101,10 @@ def register_engine(name: str, sim_type: type) -> None:
 class RodSim:
     """A clamped elastic rod held by a kinematic gripper moving in (x, y, theta).
 
+    With `rod.arms: 2` (dual-arm, docs/dual-arm.md) the clamp is a second gripper: `apply` takes
+    (6,) commands (the gripper's increment, then the x0 end's), each end saturated by its own
+    speed limit and clipped into its own workspace (`rod.clamp_arm`), and both ends move together.
+
     Building it is deterministic: the chain is built straight along the clamp direction and
     driven quasi-statically to the home pose (`move_to`), then settled. Two `RodSim`s built from
     the same config and fed the same commands give bit-identical centerlines.
