@@ -259,11 +259,12 @@ def _settle_target(task: dict[str, Any]) -> dict[str, Any]:
         gen = np.random.Generator(np.random.PCG64(task["seed_seq"]))
         sim = RodSim(cfg.rod)
         lo, hi = task["band"]
+        home = sim.home_end_poses  # the gripper's (dual-arm: both ends', sampled in 6-D)
 
         def sample() -> Iterable[np.ndarray]:
             for _ in range(_TARGET_TRIES):
                 yield sample_target_pose(
-                    gen, sim.home_pose, cfg.rod.length, lambda p: not sim.clip_pose(p)[1], lo, hi
+                    gen, home, cfg.rod.length, lambda p: not sim.clip_pose(p)[1], lo, hi
                 )
 
         candidates = sample()

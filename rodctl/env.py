@@ -15,11 +15,11 @@ Observation (a `Dict` space):
     centerline: (N, 2) float64 pixels, clamp end first, as extracted from the camera image;
         zeros when the frame failed (then `extraction_ok` is 0).
     gripper: (3,) float64 gripper pose [x, y, theta] (world frame, m, rad): the robot's own
-        proprioception.
-    applied: (3,) float64 the pose increment the robot really made in the last step (after its
-        per-axis speed limit and the workspace), zeros after `reset`. Within `rod.max_step`
-        per axis except when the workspace clipped the move (the space allows the workspace's
-        span).
+        proprioception. Dual-arm (`rod.arms: 2`): (6,), the gripper's pose then the x0 end's.
+    applied: (3,) (dual-arm (6,)) float64 the pose increment the robot really made in the last
+        step (after its per-axis speed limit and the workspace), zeros after `reset`. Within
+        `rod.max_step` per axis except when the workspace clipped the move (the space allows
+        the workspace's span).
     extraction_ok: 1 when the whole rod was seen and traced, else 0.
     target: (N, 2) float64 the target centerline in pixels (it moves only when the camera is
         bumped by a mid-run event: the same physical shape seen from the new pose).
@@ -123,10 +123,11 @@ class Task:
 
     Attributes:
         target_pixels: (N, 2) the target centerline as the camera extracted it.
-        home_pose: (3,) gripper pose at the start, world frame (r is measured from it).
-        clamp_pose: (3,) pose of the clamped end, world frame.
-        max_step: (3,) the robot's per-axis speed limit per step [m, m, rad].
-        probe_size: (3,) size of the probing moves the run allows.
+        home_pose: (q,) gripper pose at the start, world frame (r is measured from it); q = 6
+            dual-arm (`rod.arms: 2`): the gripper's, then the x0 end's.
+        clamp_pose: (3,) pose of the clamped end, world frame (dual-arm: where it starts).
+        max_step: (q,) the robot's per-axis speed limit per step [m, m, rad] (per end).
+        probe_size: (q,) size of the probing moves the run allows.
         camera: the calibrated camera model (project / unproject / projection_jacobian).
         points: N, the centerline points.
         true_jacobian: the simulator's Jacobian of a feature at the current shape
@@ -168,6 +169,9 @@ class ServoEnv(Protocol):
     def config(self) -> ExperimentConfig:
         """The experiment config the environment runs (its rod, camera and run sections)."""
         ...
+
+    #: The number of commanded pose values: 3 (one gripper) or 6 (dual-arm, `rod.arms: 2`).
+    q: int
 
     @property
     def task(self) -> Task | None:
@@ -231,6 +235,10 @@ class ShapeServoEnv(gym.Env):
         self.cfg = cfg
         self.clamp_pose = np.asarray(cfg.rod.clamp_pose, dtype=float)
         self.max_step = np.asarray(cfg.rod.max_step, dtype=float)
+        #: Both ends moved (rod.arms: 2): actions and poses are q = 6, the gripper's then the x0
+        #: end's.
+        self.dual_arm = cfg.rod.arms == 2
+        self.q = 6 if self.dual_arm else Q
         n = cfg.camera.points
         size = np.array([cfg.camera.width, cfg.camera.height], dtype=float)
         big = float(np.hypot(*size))
@@ -238,6 +246,14 @@ class ShapeServoEnv(gym.Env):
         margin = 1e-6  # poses on a workspace limit, give or take rounding
         lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]]) - margin
         hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]]) + margin
+        if self.dual_arm:
+            arm = cfg.rod.clamp_arm
+            cws = arm.workspace
+            self.max_step = np.concatenate([self.max_step, np.asarray(arm.max_step, float)])
+            lo = np.concatenate([lo, [cws.x_limits[0] - margin, cws.y_limits[0] - margin]])
+            lo = np.append(lo, cws.theta_limits[0] - margin)
+            hi = np.concatenate([hi, [cws.x_limits[1] + margin, cws.y_limits[1] + margin]])
+            hi = np.append(hi, cws.theta_limits[1] + margin)
         self.action_space = spaces.Box(-self.max_step, self.max_step, dtype=np.float64)
         # Extracted points lie in the image; the bounds leave room for sub-pixel fits. One
         # bound for both axes, so that the space prints as one line.
@@ -295,7 +311,11 @@ class ShapeServoEnv(gym.Env):
         self.episode_seed = int(seed)
         cfg = self.cfg
         if options.get("start_pose") is not None:
-            rod = cfg.rod.model_copy(update={"home_pose": tuple(map(float, options["start_pose"]))})
+            start = tuple(map(float, options["start_pose"]))
+            update: dict[str, Any] = {"home_pose": start[:3]}
+            if self.dual_arm and len(start) == 6:  # both ends' start poses
+                update["clamp_pose"] = start[3:]
+            rod = cfg.rod.model_copy(update=update)
         else:
             rod = cfg.rod
         self._rod_cfg = rod
@@ -311,7 +331,7 @@ class ShapeServoEnv(gym.Env):
         # has no noise stream, so it is the same target this episode would make.
         self.target = given or self._make_target(options.get("target_pose"), seed)
         self.sim = _home_sim(rod)
-        self.home_pose = self.sim.home_pose
+        self.home_pose = self.sim.home_end_poses
         self.steps = 0
         self._resets += 1
         self.frame = self._look()
@@ -322,20 +342,21 @@ class ShapeServoEnv(gym.Env):
         self.task = Task(
             target_pixels=self.target.pixels,
             home_pose=self.home_pose,
-            clamp_pose=self.clamp_pose,
+            clamp_pose=np.asarray(rod.clamp_pose, dtype=float),  # dual-arm: start_pose may move it
             max_step=self.max_step,
-            probe_size=np.asarray(cfg.run.probe_size, dtype=float),
+            probe_size=np.tile(np.asarray(cfg.run.probe_size, dtype=float), self.q // Q),
             camera=self.camera,
             points=cfg.camera.points,
             true_jacobian=self.true_jacobian,
         )
-        return self._observation(np.zeros(Q)), {
+        return self._observation(np.zeros(self.q)), {
             **self._info(None),
             "target": self.target,
         }
 
     def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
-        """Move the gripper by `action` = [dx, dy, dtheta], let the rod settle, look at it.
+        """Move the gripper by `action` = [dx, dy, dtheta] (dual-arm: then the x0 end's), let
+        the rod settle, look at it.
 
         The robot saturates each axis at `rod.max_step` and the workspace clips or refuses
         poses out of reach; `info["saturated"]`, `info["clipped"]` say so, and the
@@ -429,7 +450,9 @@ class ShapeServoEnv(gym.Env):
 
     def _true_jacobian(self, encode: Any, steps: tuple[float, float, float]) -> np.ndarray:
         n = self.cfg.camera.points
-        if hasattr(self.sim, "centerline_jacobian") and self.sim.chain.converged:
+        if self.dual_arm:  # the x0 end's columns by the same central differences
+            steps = (*steps, *steps)
+        elif hasattr(self.sim, "centerline_jacobian") and self.sim.chain.converged:
             # Exact only at an equilibrium; after a solve that did not converge, differences.
             return self._analytic_jacobian(encode, steps)
         snap = self.sim.snapshot()
@@ -437,7 +460,7 @@ class ShapeServoEnv(gym.Env):
         for axis, h in enumerate(steps):
             values = []
             for sign in (1.0, -1.0):
-                du = np.zeros(Q)
+                du = np.zeros(self.q)
                 du[axis] = sign * h
                 self.sim.apply(du)
                 pixels = self.camera.project(resample_polyline(self.sim.centerline(), n))
@@ -533,7 +556,8 @@ class ShapeServoEnv(gym.Env):
             if "target_pixels" in event.refresh:
                 self._clean_camera(self.camera.cfg)
                 t = self.target
-                frame = self._see(t.centerline, t.pose, self.clamp_pose, clean=True)
+                clamp = t.pose[3:] if self.dual_arm else self.clamp_pose
+                frame = self._see(t.centerline, t.pose[:3], clamp, clean=True)
                 if frame.ok:
                     self.target = Target(t.pose, t.centerline, frame.extracted, t.difficulty)
                 else:
@@ -552,6 +576,10 @@ class ShapeServoEnv(gym.Env):
         camera = self._target_camera if clean else self.camera
         extractor = self._target_extractor if clean else self.extractor
         t = time.perf_counter()
+        if self.dual_arm:  # the extractor starts at the x0 end's pixel: where that end is now
+            extractor = CenterlineExtractor(
+                camera.cfg, camera, clamp, rod_length=extractor.rod_length
+            )
         image = camera.render(truth, gripper, clamp)
         ext = extractor.extract(image, gripper)
         projected = camera.project(resample_polyline(truth, self.cfg.camera.points))
@@ -563,7 +591,7 @@ class ShapeServoEnv(gym.Env):
         pts = f.extracted if f.ok else np.zeros_like(f.extracted)
         return {
             "centerline": np.array(pts, dtype=np.float64),
-            "gripper": np.asarray(self.sim.gripper_pose, dtype=np.float64),
+            "gripper": np.asarray(self.sim.end_poses, dtype=np.float64),
             "applied": np.array(applied, dtype=np.float64),
             "extraction_ok": int(f.ok),
             "target": np.array(self.target.pixels, dtype=np.float64),
@@ -582,7 +610,9 @@ class ShapeServoEnv(gym.Env):
             "ground_truth": f.centerline,
             "projected_truth": f.projected_truth,
             "settled": True if res is None else bool(res.settled),
-            "saturated": np.zeros(Q, bool) if res is None else np.asarray(res.saturated, bool),
+            "saturated": (
+                np.zeros(self.q, bool) if res is None else np.asarray(res.saturated, bool)
+            ),
             "clipped": False if res is None else bool(res.clipped or res.refused),
             "diverged": False if res is None else bool(res.diverged),
             "max_joint_gap": float(health.max_joint_gap),
@@ -590,6 +620,8 @@ class ShapeServoEnv(gym.Env):
             "gripper": np.array(self.sim.gripper_pose, dtype=float),
             "extraction_ok": bool(f.ok),
             "image": f.image,
+            # dual-arm: the x0 end's pose (the second gripper); absent with one arm
+            **({"clamp": np.array(self.sim.clamp_pose, dtype=float)} if self.dual_arm else {}),
         }
 
     def _make_target(self, pose: Any, seed: int) -> Target:
@@ -597,7 +629,7 @@ class ShapeServoEnv(gym.Env):
         cfg = self.cfg
         given = pose if pose is not None else cfg.run.target.pose
         sim = _home_sim(self._rod_cfg)
-        home = sim.home_pose
+        home = sim.home_end_poses
         tcfg = cfg.run.target
         if given is not None:
             pose, clipped = sim.clip_pose(np.asarray(given, dtype=float))
@@ -630,10 +662,10 @@ class ShapeServoEnv(gym.Env):
                 sim = _home_sim(self._rod_cfg)
                 continue
             return Target(
-                pose=sim.gripper_pose,
+                pose=sim.end_poses,
                 centerline=frame.centerline,
                 pixels=frame.extracted,
-                difficulty=difficulty(sim.gripper_pose, home, cfg.rod.length),
+                difficulty=difficulty(sim.end_poses, home, cfg.rod.length),
             )
         raise UserError(
             f"run.target: {TARGET_TRIES} sampled targets in a row were unusable; check the config"

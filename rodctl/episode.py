@@ -37,7 +37,7 @@ import numpy as np
 from rodctl import fixedla as fla
 from rodctl import metrics
 from rodctl.config import ExperimentConfig, dump_config
-from rodctl.env import Q, ServoEnv, StageTimes, Target, Task
+from rodctl.env import ServoEnv, StageTimes, Target, Task
 from rodctl.errors import UserError, describe_os_error
 from rodctl.logs.base import Sink
 from rodctl.method import CONTROL, INITIAL, Method
@@ -223,7 +223,7 @@ def run_episode(
     outcome: Outcome | None = None
     try:
         u = method.act(obs)
-        rec = loop.record(info, u=np.zeros(Q), u_raw=np.zeros(Q), phase=INITIAL)
+        rec = loop.record(info, u=np.zeros(base.q), u_raw=np.zeros(base.q), phase=INITIAL)
         loop.emit(rec)
         k = 0
         while outcome is None and k < cfg.run.max_steps:
@@ -234,7 +234,7 @@ def run_episode(
             phase = method.phase
             if not np.all(np.isfinite(u)):
                 # A NaN estimate or feature: the method has broken down; do not move the robot.
-                rec = loop.record(loop.info, u=np.zeros(Q), u_raw=u, phase=phase, moved=False)
+                rec = loop.record(loop.info, u=np.zeros(base.q), u_raw=u, phase=phase, moved=False)
                 loop.emit(rec)
                 outcome = Outcome.DIVERGED
                 loop.reason = divergence(rec, False)
@@ -408,7 +408,7 @@ class _Loop:
             J_singular_values=fla.singular_values(J),
             pixel_error=info["pixel_error"],
             settled=info["settled"] if moved else True,
-            saturated=info["saturated"] if moved else np.zeros(Q, dtype=bool),
+            saturated=info["saturated"] if moved else np.zeros(self.env.q, dtype=bool),
             clipped=info["clipped"] if moved else False,
             max_joint_gap=info["max_joint_gap"],
             kinetic_energy=info["kinetic_energy"],
@@ -417,6 +417,7 @@ class _Loop:
             estimator_info=m.estimator_info(),
             events=list(info.get("events", [])) if moved else [],
             jacobian_error=self._jacobian_error(J),
+            clamp=info.get("clamp"),
         )
 
     def _jacobian_error(self, J: np.ndarray) -> float:
@@ -518,7 +519,7 @@ class _Loop:
         )
         extra: dict[str, Any] = {"run_id": self.header.run_id if self.header else ""}
         if outcome not in (Outcome.INTERRUPTED, Outcome.ERROR) and last is not None:
-            us = np.array([r.u for r in recs[1:]]).reshape(-1, Q)
+            us = np.array([r.u for r in recs[1:]]).reshape(-1, self.env.q)
             extra.update(
                 setup_time_s=round(self.setup_time, 4),
                 probe_steps=sum(r.phase == "probe" for r in recs),

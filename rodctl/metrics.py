@@ -34,9 +34,11 @@ def pose_steps(home: np.ndarray, target: np.ndarray, max_step: np.ndarray) -> in
 
 
 def control_moves(records: Sequence[StepRecord]) -> np.ndarray:
-    """(K, 3) the moves the control law made (probing and the initial record left out)."""
+    """(K, q) the moves the control law made (probing and the initial record left out); q = 3,
+    or 6 when both ends moved (dual-arm)."""
     us = [r.u for r in records if r.phase == "control"]
-    return np.array(us, dtype=float).reshape(-1, 3)
+    q = len(records[0].u) if records else 3
+    return np.array(us, dtype=float).reshape(-1, q)
 
 
 def smoothness(records: Sequence[StepRecord], max_step: np.ndarray) -> tuple[float, float]:
@@ -44,14 +46,19 @@ def smoothness(records: Sequence[StepRecord], max_step: np.ndarray) -> tuple[flo
 
     translation = sum_k ||(Δu_x / m_x, Δu_y / m_y)||, rotation = sum_k |Δu_θ| / m_θ, with
     Δu_k = u_k - u_{k-1} over the control moves and u_0 = 0 (the gripper starts at rest).
+    Dual-arm (q = 6): the sums over both ends (each end's translation norm, each rotation).
     """
     us = control_moves(records) / np.asarray(max_step, dtype=float)
     if len(us) == 0:
         return 0.0, 0.0
-    du = np.diff(np.vstack([np.zeros(3), us]), axis=0)
+    du = np.diff(np.vstack([np.zeros(us.shape[1]), us]), axis=0)
     # Row norms by elementwise arithmetic (no BLAS: the same bits on every machine).
     trans = np.sqrt(du[:, 0] ** 2 + du[:, 1] ** 2)
-    return float(np.sum(trans)), float(np.sum(np.abs(du[:, 2])))
+    rot = np.abs(du[:, 2])
+    if du.shape[1] == 6:
+        trans = trans + np.sqrt(du[:, 3] ** 2 + du[:, 4] ** 2)
+        rot = rot + np.abs(du[:, 5])
+    return float(np.sum(trans)), float(np.sum(rot))
 
 
 def near_origin_steps(records: Sequence[StepRecord], tolerance: float) -> int | None:

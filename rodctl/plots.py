@@ -218,6 +218,13 @@ def _series(records: Sequence[StepRecord]) -> tuple[np.ndarray, np.ndarray, np.n
     return steps, t1, px, u
 
 
+def _second_end(records: Sequence[StepRecord]) -> np.ndarray | None:
+    """(K, 3) the second end's [dx, dy, dtheta] of a dual-arm run (q = 6), else None."""
+    if not records or np.asarray(records[0].u).size != 6:
+        return None
+    return np.array([np.asarray(r.u)[3:6] for r in records], dtype=float).reshape(-1, 3)
+
+
 def _log_safe(y: np.ndarray) -> np.ndarray:
     """Values for a log axis: non-positive ones hidden (NaN) rather than breaking the scale."""
     return np.where(y > 0, y, np.nan)
@@ -288,8 +295,12 @@ def _commands(runs: Mapping[str, Sequence[StepRecord]], limits: np.ndarray | Non
     for i, (name, recs) in enumerate(runs.items()):
         steps, _, _, u = _series(recs)
         st = style(0 if single else i)
+        other = _second_end(recs) if single else None
         for j, ax in enumerate(axes):
-            ax.plot(steps, u[:, j], label=name, **st)
+            ax.plot(steps, u[:, j], label=name if other is None else "gripper", **st)
+        if other is not None:  # dual-arm: the x0 end's increments beside the gripper's
+            for j, ax in enumerate(axes):
+                ax.plot(steps, other[:, j], label="x0 end (second arm)", **style(1))
     for j, (ax, label) in enumerate(zip(axes, AXES, strict=True)):
         shade_probing(ax, spans, label=j == 0)
         if limits is not None:

@@ -100,6 +100,9 @@ class StepRecord:
         image: (H, W, 3) uint8 RGB camera frame, or None. The sinks choose which frames to log
             by `sim_time` (`rodctl.logs.codec.FrameSchedule`), so the loop may attach one to
             every record; records read back from a log carry one only where it was logged.
+        clamp: (3,) the x0 end's pose [x, y, theta] after the move when a second arm moves it
+            (`rod.arms: 2`; MCAP topic `/rod/clamp`), else None. Dual-arm, `u`, `u_raw` and
+            `saturated` are (6,): the gripper's axes, then the x0 end's.
     """
 
     step: int
@@ -128,6 +131,7 @@ class StepRecord:
     events: list[str] = field(default_factory=list)
     jacobian_error: float = float("nan")
     image: np.ndarray | None = None
+    clamp: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

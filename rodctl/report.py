@@ -125,10 +125,14 @@ def describe_target(folder: Path) -> str:
     target = next((t for t in data.get("targets", []) if t.get("index") == index), None)
     if target is None:
         return "the figure target"
-    x, y, th = target["pose"]
+    x, y, th = target["pose"][:3]
+    other = ""
+    if len(target["pose"]) == 6:  # dual-arm: the x0 end's pose too
+        cx, cy, cth = target["pose"][3:]
+        other = f"; x0 end at x {cx:.3f} m, y {cy:.3f} m, θ {cth:+.2f} rad"
     return (
         f"target {index} (difficulty {target['difficulty']:.2f}, gripper at x {x:.3f} m, "
-        f"y {y:.3f} m, θ {th:+.2f} rad)"
+        f"y {y:.3f} m, θ {th:+.2f} rad{other})"
     )
 
 

@@ -90,8 +90,16 @@ class ShapeServoRLEnv(gym.Env):
         ws = cfg.rod.workspace
         lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]], dtype=float)
         hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]], dtype=float)
-        self._ws_mid, self._ws_half = (lo + hi) / 2.0, (hi - lo) / 2.0
         self._max_step = np.asarray(cfg.rod.max_step, dtype=float)
+        self._q = int(getattr(core, "q", 3))
+        if self._q == 6:  # dual-arm: the x0 end's workspace and speed limit follow the gripper's
+            cws = cfg.rod.clamp_arm.workspace
+            lo = np.concatenate([lo, [cws.x_limits[0], cws.y_limits[0], cws.theta_limits[0]]])
+            hi = np.concatenate([hi, [cws.x_limits[1], cws.y_limits[1], cws.theta_limits[1]]])
+            self._max_step = np.concatenate(
+                [self._max_step, np.asarray(cfg.rod.clamp_arm.max_step, dtype=float)]
+            )
+        self._ws_mid, self._ws_half = (lo + hi) / 2.0, (hi - lo) / 2.0
         self._lost_frame_cost = float(np.hypot(*size))
         self._tolerance = float(cfg.run.pixel_tolerance)
         n = cfg.camera.points
@@ -112,7 +120,7 @@ class ShapeServoRLEnv(gym.Env):
         }
         self.observation_space = spaces.Dict(self._spaces)
         if self.normalize_actions:
-            self.action_space = spaces.Box(-1.0, 1.0, (3,), dtype=F32)
+            self.action_space = spaces.Box(-1.0, 1.0, (self._q,), dtype=F32)
         else:
             limit = self._max_step.astype(F32)
             self.action_space = spaces.Box(-limit, limit, dtype=F32)
@@ -145,7 +153,7 @@ class ShapeServoRLEnv(gym.Env):
 
     def _move(self, action: np.ndarray) -> np.ndarray:
         """The pose increment [dx, dy, dtheta] an action asks for."""
-        a = np.asarray(action, dtype=float).reshape(3)
+        a = np.asarray(action, dtype=float).reshape(self._q)
         return np.clip(a, -1.0, 1.0) * self._max_step if self.normalize_actions else a
 
     # --- Gymnasium API -------------------------------------------------------------------------

@@ -27,9 +27,16 @@ def target_scale(rod_length: float) -> np.ndarray:
     return np.array([fx * rod_length, fy * rod_length, TARGET_SCALE_THETA])
 
 
+def _scale(rod_length: float, q: int) -> np.ndarray:
+    """(q,) `target_scale` per moved end: q = 3 (the gripper) or 6 (dual-arm, both ends)."""
+    scale = target_scale(rod_length)
+    return scale if q == 3 else np.tile(scale, q // 3)
+
+
 def difficulty(pose: np.ndarray, home: np.ndarray, rod_length: float) -> float:
-    """Normalised distance of a target gripper pose from the home pose."""
-    return fla.norm((np.asarray(pose) - np.asarray(home)) / target_scale(rod_length))
+    """Normalised distance of a target pose from the home pose (dual-arm: both ends' (6,))."""
+    d = np.asarray(pose) - np.asarray(home)
+    return fla.norm(d / _scale(rod_length, d.shape[0]))
 
 
 def sample_target_pose(
@@ -49,9 +56,10 @@ def sample_target_pose(
     Raises:
         UserError: no allowed pose was found (the band does not fit the workspace).
     """
-    scale = target_scale(rod_length)
+    q = np.asarray(home).shape[0]  # 3, or 6 in dual-arm: both ends' offsets drawn together
+    scale = _scale(rod_length, q)
     for _ in range(max_tries):
-        direction = rng.normal(size=3)
+        direction = rng.normal(size=q)
         direction /= fla.norm(direction)
         radius = rng.uniform(min_offset, max_offset)
         pose = np.asarray(home, dtype=float) + radius * direction * scale

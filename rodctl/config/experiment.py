@@ -82,6 +82,16 @@ class ExperimentConfig(StrictModel):
         return self
 
     @model_validator(mode="after")
+    def _dual_arm_supported(self) -> ExperimentConfig:
+        """A target pose of both ends (6 values) needs rod.arms: 2 (docs/dual-arm.md)."""
+        pose = self.run.target.pose
+        if self.rod.arms == 1 and pose is not None and len(pose) == 6:
+            raise ValueError(
+                "run.target.pose has 6 values (both ends' poses): that needs rod.arms: 2"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _stages_fit_together(self) -> ExperimentConfig:
         """A stage config may check the rest of the experiment (`check_experiment(cfg)`), e.g.
         the offline model's servoed nodes must be the feature's."""

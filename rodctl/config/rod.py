@@ -132,6 +132,27 @@ class WorkspaceConfig(StrictModel):
         return self
 
 
+class ClampArmConfig(StrictModel):
+    """The second arm of a dual-arm set-up (`rod.arms: 2`): it holds the x0 end (the clamp) and
+    moves it in (x, y, theta) like the gripper, with its own speed limit and workspace."""
+
+    max_step: tuple[
+        bounded(0, 1.0, strict_lo=True),
+        bounded(0, 1.0, strict_lo=True),
+        bounded(0, 3.2, strict_lo=True),
+    ] = Field(
+        (0.01, 0.01, 0.05),
+        description="Per-axis limit [dx, dy, dtheta] (m, m, rad) on one step of the x0 end.",
+    )
+    workspace: WorkspaceConfig = Field(
+        WorkspaceConfig(x_limits=(-0.2, 0.25), y_limits=(-0.35, 0.35)),
+        description=(
+            "Where the x0 end may go (its max_reach and on_violation as for the gripper; the "
+            "ends' distance is held within the smaller of the two max_reach)."
+        ),
+    )
+
+
 class RodConfig(StrictModel):
     """A planar elastic rod: one end clamped, the other held by a gripper moving in (x, y, θ)."""
 
@@ -187,6 +208,18 @@ class RodConfig(StrictModel):
         ),
     )
     workspace: WorkspaceConfig = WorkspaceConfig()
+    arms: Literal[1, 2] = Field(
+        1,
+        description=(
+            "1: the x0 end is clamped, the gripper moves (q = 3). 2: dual-arm, the x0 end is "
+            "held by a second arm (`clamp_arm`) that moves too: a command is [dx, dy, dtheta] of "
+            "the gripper, then of the x0 end (q = 6); docs/dual-arm.md."
+        ),
+    )
+    clamp_arm: ClampArmConfig = Field(
+        ClampArmConfig(),
+        description="The second arm's speed limit and workspace (only with arms: 2).",
+    )
     dt: PositiveFloat | None = Field(
         None,
         le=0.1,
@@ -268,6 +301,9 @@ class RodConfig(StrictModel):
                 data.pop("table_friction", None)
             if self.engine == "pymunk":
                 data.pop("engine", None)
+            if self.arms == 1:  # one arm: the dump of the versions before dual-arm
+                data.pop("arms", None)
+                data.pop("clamp_arm", None)
         return data
 
     @model_validator(mode="before")
@@ -315,6 +351,24 @@ class RodConfig(StrictModel):
                 "nor validated against the pymunk table, so it is refused rather than ignored. "
                 "Use engine: pymunk for a rod on a table"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _clamp_arm_needs_two(self) -> RodConfig:
+        if self.arms == 1 and "clamp_arm" in self.model_fields_set:
+            raise ValueError("clamp_arm is the second arm's: it needs arms: 2")
+        if self.arms == 2:
+            ws = self.clamp_arm.workspace
+            x, y, th = self.clamp_pose
+            if not (
+                ws.x_limits[0] <= x <= ws.x_limits[1]
+                and ws.y_limits[0] <= y <= ws.y_limits[1]
+                and ws.theta_limits[0] <= th <= ws.theta_limits[1]
+            ):
+                raise ValueError(
+                    f"clamp_pose {list(self.clamp_pose)} (the x0 end's start with arms: 2) is "
+                    "outside rod.clamp_arm.workspace"
+                )
         return self
 
     @model_validator(mode="after")

@@ -18,7 +18,7 @@ from pydantic import (
     model_validator,
 )
 
-from rodctl.config.base import Pose, StageSlot, StrictModel, bounded
+from rodctl.config.base import Angle, Coordinate, Pose, StageSlot, StrictModel, bounded
 from rodctl.outcome import EXPECTABLE, Outcome
 from rodctl.registry import depends_on_stages
 
@@ -43,13 +43,20 @@ ExpectedOutcome = Annotated[
 ]
 
 
+#: Both ends' poses (rod.arms: 2): the gripper's [x, y, theta], then the x0 end's.
+EndPoses = tuple[Coordinate, Coordinate, Angle, Coordinate, Coordinate, Angle]
+
+
 class TargetConfig(StrictModel):
     """Where the target shape comes from. Targets are reachable by construction: the rod is driven
     to a gripper pose, allowed to settle, and the camera's view of it becomes the target."""
 
-    pose: Pose | None = Field(
+    pose: Pose | EndPoses | None = Field(
         None,
-        description="Gripper pose that produces the target shape (world). None: sample one.",
+        description=(
+            "Gripper pose that produces the target shape (world). None: sample one. Dual-arm "
+            "(rod.arms: 2): 6 values, the gripper's pose then the x0 end's (3: the x0 end stays)."
+        ),
     )
     min_offset: float = Field(
         0.3,

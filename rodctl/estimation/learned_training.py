@@ -44,10 +44,10 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
     """One seeded random walk with `count` + 1 good frames (runs in a worker process).
 
     Returns:
-        {"pixels": (F, N, 2), "poses": (F, 3), "segment": (F,) int (a new segment after the
-        simulator was rebuilt: no pair spans two), "attempts": int}.
+        {"pixels": (F, N, 2), "poses": (F, q) (q = 6 dual-arm: both ends), "segment": (F,) int
+        (a new segment after the simulator was rebuilt: no pair spans two), "attempts": int}.
     """
-    from rodctl.features.collection import random_walk_start, sample_goal
+    from rodctl.features.collection import random_walk_start, sample_end_goals, sample_goal
     from rodctl.sim import RodSim
 
     cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
@@ -55,8 +55,14 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
     jitter = float(cfg.estimator.data.jitter)  # type: ignore[union-attr]
     frames, poses, segments = [], [], []
     segment = attempts = 0
+    dual = cfg.rod.arms == 2  # dual-arm: both ends walk, poses and moves are (6,)
+    if dual:
+        max_step = sim.max_steps
+        goal = sample_end_goals(gen, sim, cfg, goal)
 
     def look() -> bool:
+        if dual:
+            return _look_dual()
         pose = np.asarray(sim.gripper_pose, dtype=float)
         ext = extractor.extract(camera.render(sim.centerline(), pose, clamp), pose)
         if ext.ok:
@@ -64,6 +70,23 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
             poses.append(pose)
             segments.append(segment)
         return bool(ext.ok)
+
+    def _look_dual() -> bool:
+        from rodctl.vision import CenterlineExtractor
+
+        grip, at = sim.gripper_pose, sim.clamp_pose
+        ext = CenterlineExtractor(cfg.camera, camera, at).extract(
+            camera.render(sim.centerline(), grip, at), grip
+        )
+        if ext.ok:
+            frames.append(np.asarray(ext.points, dtype=np.float32))
+            poses.append(sim.end_poses)
+            segments.append(segment)
+        return bool(ext.ok)
+
+    def new_goal() -> np.ndarray:
+        goal = sample_goal(gen, sim, cfg)
+        return sample_end_goals(gen, sim, cfg, goal) if dual else goal
 
     look()
     while len(frames) < count + 1:
@@ -73,10 +96,10 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
                 f"model data: {attempts} control steps gave only {len(frames)} usable frames; "
                 "the simulator or the extractor fails on most shapes"
             )
-        pose = np.asarray(sim.gripper_pose, dtype=float)
+        pose = np.asarray(sim.end_poses if dual else sim.gripper_pose, dtype=float)
         delta = goal - pose
         if np.max(np.abs(delta) / max_step) < 0.5:
-            goal = sample_goal(gen, sim, cfg)
+            goal = new_goal()
             continue
         move = (1.0 - jitter) * np.clip(delta, -max_step, max_step)
         move = np.clip(move + jitter * gen.uniform(-max_step, max_step), -max_step, max_step)
@@ -84,11 +107,11 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
         if res.diverged:
             sim = RodSim(cfg.rod)
             segment += 1
-            goal = sample_goal(gen, sim, cfg)
+            goal = new_goal()
             look()
             continue
         if res.refused:
-            goal = sample_goal(gen, sim, cfg)
+            goal = new_goal()
             continue
         if res.settled:
             look()
@@ -273,7 +296,7 @@ def train_model_from_walks(cfg: ExperimentConfig, walks: list[dict[str, Any]]) -
     t0 = time.perf_counter()
     model = fit_rbf(
         data["X"], data["dR"], data["dS"], centres=tcfg.centres, width=tcfg.width,
-        ridge=tcfg.ridge, r_scale=np.asarray(cfg.rod.max_step, dtype=float), seed=cfg.seed,
+        ridge=tcfg.ridge, r_scale=_r_scale(cfg), seed=cfg.seed,
     )  # fmt: skip
     fit_time = time.perf_counter() - t0
     model.train_length = float(np.median(data["length"]))
@@ -291,6 +314,14 @@ def train_model_from_walks(cfg: ExperimentConfig, walks: list[dict[str, Any]]) -
         "feature_units": getattr(feature, "units", ""),
     }
     return model
+
+
+def _r_scale(cfg: ExperimentConfig) -> np.ndarray:
+    """(q,) the command scale: `rod.max_step`, then (dual-arm) `rod.clamp_arm.max_step`."""
+    scale = np.asarray(cfg.rod.max_step, dtype=float)
+    if cfg.rod.arms == 2:
+        scale = np.concatenate([scale, np.asarray(cfg.rod.clamp_arm.max_step, dtype=float)])
+    return scale
 
 
 def train_model(cfg: ExperimentConfig, run: RunDir, *, progress: bool = True) -> dict[str, Any]:

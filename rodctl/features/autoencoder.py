@@ -183,6 +183,8 @@ def _rod_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
     """
     rod = cfg.rod
     out: dict[str, Any] = {"length": rod.length, "clamp_pose": list(rod.clamp_pose)}
+    if rod.arms == 2:  # both ends move: a wider family of shapes (docs/dual-arm.md)
+        out["arms"] = 2
     if tuple(rod.gravity) != (0.0, 0.0):
         scale = rod.mass_per_length / rod.bending_stiffness
         out["gravity_load_per_stiffness"] = [scale * g for g in rod.gravity]

@@ -157,6 +157,22 @@ def sample_goal(gen: np.random.Generator, sim: Any, cfg: ExperimentConfig) -> np
     raise UserError("rod.workspace: no gripper pose in the box is within reach of the clamp")
 
 
+def sample_end_goals(
+    gen: np.random.Generator, sim: Any, cfg: ExperimentConfig, grip: np.ndarray
+) -> np.ndarray:
+    """Dual-arm: a (6,) goal, the gripper's `grip` and an x0-end pose uniform over the second
+    arm's workspace box, redrawn (both) until the pair is allowed (within reach)."""
+    ws = cfg.rod.clamp_arm.workspace
+    lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]])
+    hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]])
+    for _ in range(10_000):
+        pose = np.concatenate([grip, gen.uniform(lo, hi)])
+        if not sim.clip_pose(pose)[1]:
+            return pose
+        grip = sample_goal(gen, sim, cfg)
+    raise UserError("rod.clamp_arm.workspace: no pair of end poses is within reach")
+
+
 def random_walk_start(cfg_json: str, seed: np.random.SeedSequence) -> tuple:
     """What a random-motion walk through the camera starts from (encoder data and the learned
     model's walks alike): (config, the walk's generator, a camera with its own noise stream, the
@@ -193,6 +209,15 @@ def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> di
 
     cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
     clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
+    dual = cfg.rod.arms == 2  # dual-arm: both ends walk, each over its own workspace
+    if dual:
+        max_step = sim.max_steps
+        goal = sample_end_goals(gen, sim, cfg, goal)
+
+    def new_goal() -> np.ndarray:
+        grip = sample_goal(gen, sim, cfg)
+        return sample_end_goals(gen, sim, cfg, grip) if dual else grip
+
     points = np.empty((count, cfg.camera.points, 2), dtype=np.float32)
     poses = np.empty((count, 3))
     n = attempts = 0
@@ -203,21 +228,26 @@ def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> di
                 f"data collection: {attempts} control steps gave only {n} usable centerlines; "
                 "the simulator or the extractor fails on most shapes"
             )
-        delta = goal - np.asarray(sim.gripper_pose, dtype=float)
+        delta = goal - np.asarray(sim.end_poses if dual else sim.gripper_pose, dtype=float)
         if np.max(np.abs(delta) / max_step) < _ARRIVED:
-            goal = sample_goal(gen, sim, cfg)
+            goal = new_goal()
             continue
         res = sim.apply(np.clip(delta, -max_step, max_step))
         if res.diverged:
             sim = RodSim(cfg.rod)
-            goal = sample_goal(gen, sim, cfg)
+            goal = new_goal()
             continue
         if res.refused:
-            goal = sample_goal(gen, sim, cfg)
+            goal = new_goal()
             continue
         if not res.settled:
             continue
         pose = np.asarray(sim.gripper_pose, dtype=float)
+        if dual:  # the extractor starts at the x0 end, wherever it is now
+            from rodctl.vision import CenterlineExtractor
+
+            clamp = sim.clamp_pose
+            extractor = CenterlineExtractor(cfg.camera, camera, clamp)
         image = camera.render(sim.centerline(), pose, clamp)
         ext = extractor.extract(image, pose)
         if not ext.ok:

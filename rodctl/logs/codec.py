@@ -45,6 +45,8 @@ FORMAT_VERSION = "2"
 TOPIC_ROD_STATE = "/rod/state"
 TOPIC_CAMERA_CENTERLINE = "/camera/centerline"
 TOPIC_CONTROL = "/control"
+#: Dual-arm runs only (rod.arms: 2): the x0 end's pose per step (added, not in single-arm logs).
+TOPIC_CLAMP_STATE = "/rod/clamp"
 # Foxglove well-known topics; the names double as Rerun entity paths.
 TOPIC_ROD_SCENE = "/world/rod"
 TOPIC_TARGET_SCENE = "/world/target"
@@ -420,14 +422,22 @@ def header_from_json(d: dict[str, Any], run_id: str) -> RunHeader:
         config_yaml=str(d["config_yaml"]),
         image_size=(int(w), int(h)),
         clamp_pose=decode_vec(d["clamp_pose"], 3),
-        home_pose=decode_vec(d["home_pose"], 3),
+        home_pose=_decode_q(d["home_pose"]),
         target_centerline=decode_points(d["target_centerline"]),
         target_pixels=decode_points(d["target_pixels"]),
         target_feature=decode_vec(d["target_feature"]),
-        target_pose=decode_vec(d["target_pose"], 3),
+        target_pose=_decode_q(d["target_pose"]),
         rod_length=decode_real(d["rod_length"]),
         numeric_env={str(kv["key"]): json.loads(kv["value"]) for kv in d["numeric_env"]},
     )
+
+
+def _decode_q(v: Any) -> np.ndarray:
+    """A pose vector of q = 3 (one moved end) or 6 (dual-arm) numbers."""
+    out = decode_vec(v)
+    if out.shape not in ((3,), (6,)):
+        raise ValueError(f"expected 3 or 6 numbers, got {out.shape[0]}")
+    return out
 
 
 def sanitize(v: Any) -> Any:
@@ -473,6 +483,17 @@ def rod_state_message(r: StepRecord) -> dict[str, Any]:
         "max_joint_gap": e.real("max_joint_gap", r.max_joint_gap),
         "kinetic_energy": e.real("kinetic_energy", r.kinetic_energy),
         "events": [str(line) for line in r.events],
+        "nonfinite": e.nonfinite,
+    }
+
+
+def clamp_state_message(r: StepRecord) -> dict[str, Any]:
+    """/rod/clamp (dual-arm): `step, sim_time, clamp` (the x0 end's pose)."""
+    e = Encoder()
+    return {
+        "step": int(r.step),
+        "sim_time": e.real("sim_time", r.sim_time),
+        "clamp": e.vec("clamp", r.clamp),
         "nonfinite": e.nonfinite,
     }
 
@@ -560,8 +581,12 @@ def record_from_messages(
 
 
 # ---------------------------------------------------------------------------------------- logs
+_AXES = ("x", "y", "theta", "x0-end x", "x0-end y", "x0-end theta")
+
+
 def _saturated_axes(r: StepRecord) -> list[str]:
-    return [axis for axis, bit in zip(("x", "y", "theta"), r.saturated, strict=True) if bit]
+    bits = np.asarray(r.saturated).ravel()
+    return [axis for axis, bit in zip(_AXES[: len(bits)], bits, strict=True) if bit]
 
 
 def step_log_lines(prev: StepRecord | None, r: StepRecord) -> list[tuple[str, str]]:

@@ -160,6 +160,8 @@ class LiveView:
     def _send(self, topic: str, t_ns: int, msg: dict[str, Any]) -> None:
         import orjson
 
+        if topic == codec.TOPIC_CLAMP_STATE and topic not in self._channels:
+            return  # dual-arm's /rod/clamp is in the MCAP file, not on the live view's channels
         self._channels[topic].log(orjson.dumps(msg), log_time=t_ns)
 
     def open(self, header: RunHeader) -> None:

@@ -254,8 +254,18 @@ def image_annotations(t_ns: int, header: RunHeader, r: StepRecord) -> dict[str, 
     }
 
 
-def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, Any]:
-    """A foxglove.SceneUpdate with an arrow at the gripper pose, pointing along theta."""
+def gripper_scene(
+    t_ns: int, pose: np.ndarray, rod_length: float, clamp: np.ndarray | None = None
+) -> dict[str, Any]:
+    """A foxglove.SceneUpdate with an arrow at the gripper pose, pointing along theta (and,
+    dual-arm, a second entity `clamp_arm` at the x0 end's pose, pointing into the rod)."""
+    out = {"deletions": [], "entities": [_arrow_entity(t_ns, "gripper", pose, rod_length)]}
+    if clamp is not None:
+        out["entities"].append(_arrow_entity(t_ns, "clamp_arm", clamp, rod_length))
+    return out
+
+
+def _arrow_entity(t_ns: int, name: str, pose: np.ndarray, rod_length: float) -> dict[str, Any]:
     x, y, th = (float(v) for v in np.nan_to_num(np.asarray(pose, dtype=np.float64))[:3])
     size = 0.12 * rod_length if np.isfinite(rod_length) and rod_length > 0 else 0.05
     arrow = {
@@ -274,7 +284,7 @@ def gripper_scene(t_ns: int, pose: np.ndarray, rod_length: float) -> dict[str, A
         "head_diameter": 0.2 * size,
         "color": _color(_GRIPPER_RGB),
     }
-    return {"deletions": [], "entities": [_entity(t_ns, "gripper", arrows=[arrow])]}
+    return _entity(t_ns, name, arrows=[arrow])
 
 
 #: Where the camera is, by the step from which it holds: (FrameTransform, CameraCalibration).
@@ -390,8 +400,10 @@ def step_messages(
         (codec.TOPIC_CAMERA_CENTERLINE, codec.camera_message(r)),
         (codec.TOPIC_CONTROL, codec.control_message(r)),
         (codec.TOPIC_ROD_SCENE, line_strip_scene(t_ns, "rod", r.centerline, _ROD_RGB, 0.006)),
-        (codec.TOPIC_GRIPPER_SCENE, gripper_scene(t_ns, r.gripper, header.rod_length)),
+        (codec.TOPIC_GRIPPER_SCENE, gripper_scene(t_ns, r.gripper, header.rod_length, r.clamp)),
     ]
+    if r.clamp is not None:  # dual-arm: the second arm's end
+        msgs.insert(3, (codec.TOPIC_CLAMP_STATE, codec.clamp_state_message(r)))
     if png is not None:
         image = {
             "timestamp": codec.foxglove_time(t_ns),
@@ -491,6 +503,18 @@ class McapSink:
                 message_encoding=MessageEncoding.JSON,
                 schema_id=schema_ids[name],
                 metadata={f"unit.{k}": v for k, v in units.items()},
+            )
+        if np.asarray(header.home_pose).size == 6:  # dual-arm: registered last, only then
+            sid = w.register_schema(
+                name=schemas.CLAMP_STATE["title"],
+                encoding=SchemaEncoding.JSONSchema,
+                data=schemas.schema_bytes(schemas.CLAMP_STATE),
+            )
+            self._channels[codec.TOPIC_CLAMP_STATE] = w.register_channel(
+                topic=codec.TOPIC_CLAMP_STATE,
+                message_encoding=MessageEncoding.JSON,
+                schema_id=sid,
+                metadata={"unit.clamp": "m, m, rad (world frame, y up)"},
             )
         w.add_metadata(
             "rodctl.run",
@@ -905,9 +929,16 @@ def _assemble(
     order: list[int] = []
     frames: dict[int, bytes] = {}
     summary: dict[str, Any] | None = None
+    clamps: dict[int, np.ndarray] = {}
     wanted = (codec.TOPIC_ROD_STATE, codec.TOPIC_CAMERA_CENTERLINE, codec.TOPIC_CONTROL)
     for topic, seq, _, data in raw:
-        if topic in wanted:
+        if topic == codec.TOPIC_CLAMP_STATE:  # dual-arm: the x0 end's pose
+            msg = codec.restore_nonfinite(_json(path, topic, data))
+            try:
+                clamps[int(msg["step"])] = codec.decode_vec(msg["clamp"], 3)
+            except (KeyError, TypeError, ValueError) as exc:
+                raise UserError(f"{path}: malformed {topic} message: {exc!r}") from None
+        elif topic in wanted:
             msg = _json(path, topic, data)
             step = msg.get("step")
             if not isinstance(step, int):
@@ -944,6 +975,7 @@ def _assemble(
             records.append(codec.record_from_messages(*(slot[t] for t in wanted), image))
         except (KeyError, TypeError, ValueError) as exc:
             raise UserError(f"{path}: malformed step {step}: {exc!r}") from None
+        records[-1].clamp = clamps.get(step)
 
     status = meta.get("rodctl.end", {}).get("status")
     if summary is not None:

@@ -173,6 +173,8 @@ def _empty_buffer() -> dict[str, list]:
             "centerline",
             "projected_truth",
             "T1",
+            "clamp_origin",
+            "clamp_vector",
             "pixel_error",
             "u",
         )
@@ -406,6 +408,10 @@ class RerunSink:
         b["T1"].append(float(r.T1))
         b["pixel_error"].append(float(r.pixel_error))
         b["u"].append(np.array(r.u, dtype=np.float64)[:3])
+        if r.clamp is not None:  # dual-arm: the second arm's end, an arrow into the rod
+            c = np.asarray(r.clamp, dtype=np.float64)
+            b["clamp_origin"].append((c[0], -c[1]))
+            b["clamp_vector"].append((size * np.cos(c[2]), -size * np.sin(c[2])))
         self._prev = r
         self._steps += 1
         if len(b["step"]) >= self.cfg.flush_every_steps:
@@ -482,6 +488,14 @@ class RerunSink:
                 origins=np.asarray(b["origin"]), vectors=np.asarray(b["vector"])
             ).partition(ones),
         )
+        if len(b["clamp_origin"]) == n:  # dual-arm
+            rec.send_columns(
+                "/world/clamp_arm",
+                idx,
+                rr.Arrows2D.columns(
+                    origins=np.asarray(b["clamp_origin"]), vectors=np.asarray(b["clamp_vector"])
+                ).partition(ones),
+            )
         for name in ("centerline", "projected_truth"):
             rec.send_columns(
                 f"/camera/{name}", idx, rr.LineStrips2D.columns(strips=b[name]).partition(ones)

@@ -76,6 +76,14 @@ def _vec(n: int | None, desc: str) -> dict[str, Any]:
     return out
 
 
+def _qvec(desc: str) -> dict[str, Any]:
+    """q = 3 values (one moved end: [x, y, theta]) or 6 (dual-arm: the gripper's, then the x0
+    end's)."""
+    out = _vec(None, desc)
+    out["minItems"], out["maxItems"] = 3, 6
+    return out
+
+
 def _points(unit: str, desc: str) -> dict[str, Any]:
     return {
         "type": "array",
@@ -136,6 +144,22 @@ ROD_STATE: dict[str, Any] = {
     "required": ["step", "sim_time", "gripper", "centerline", "nonfinite"],
 }
 
+CLAMP_STATE: dict[str, Any] = {
+    "title": "rodctl.ClampState",
+    "description": (
+        "Dual-arm only (rod.arms: 2): the pose of the x0 end, held and moved by the second arm, "
+        "after one control step (world frame, y up)."
+    ),
+    "type": "object",
+    "properties": {
+        "step": _STEP,
+        "sim_time": _num("Simulated time at the end of the step (s)."),
+        "clamp": _vec(3, "x0 end pose [x, y, theta] (m, m, rad), world frame."),
+        "nonfinite": _NONFINITE,
+    },
+    "required": ["step", "sim_time", "clamp", "nonfinite"],
+}
+
 CAMERA_CENTERLINE: dict[str, Any] = {
     "title": "rodctl.CameraCenterline",
     "description": "Centerline seen by the camera, pixels (u right, v down).",
@@ -157,7 +181,7 @@ CONTROL: dict[str, Any] = {
     "type": "object",
     "properties": {
         "step": _STEP,
-        "u": _vec(3, "Applied pose increment [dx, dy, dtheta] (m, m, rad)."),
+        "u": _qvec("Applied pose increment [dx, dy, dtheta] per moved end (m, m, rad)."),
         "s": _vec(None, "Shape feature s_k (p,)."),
         "s_target": _vec(None, "Target feature s* (p,)."),
         "T1": _num("||s* - s_k||, the paper's deformation metric."),
@@ -175,7 +199,7 @@ CONTROL: dict[str, Any] = {
             "description": "[p, q]",
         },
         "J_singular_values": _vec(None, "Singular values of J, largest first."),
-        "u_raw": _vec(3, "Command before saturation and workspace clipping."),
+        "u_raw": _qvec("Command before saturation and workspace clipping."),
         "saturated": {"type": "array", "items": {"type": "boolean"}},
         "phase": _PHASE,
         "estimator_info": {
@@ -212,11 +236,11 @@ RUN_HEADER: dict[str, Any] = {
             "description": "[width, height] (px)",
         },
         "clamp_pose": _vec(3, "Clamp pose [x, y, theta] (m, m, rad)."),
-        "home_pose": _vec(3, "Gripper pose at the start (m, m, rad)."),
+        "home_pose": _qvec("Moved ends' poses at the start (gripper, then x0 end) (m, m, rad)."),
         "target_centerline": _points("m", "Target centerline (m), clamp first."),
         "target_pixels": _points("px", "Target centerline as extracted (px)."),
         "target_feature": _vec(None, "s* (p,)."),
-        "target_pose": _vec(3, "Gripper pose that produced the target (m, m, rad)."),
+        "target_pose": _qvec("Moved ends' poses that produced the target (m, m, rad)."),
         "rod_length": _num("Rod length L (m)."),
         "numeric_env": {
             "type": "array",

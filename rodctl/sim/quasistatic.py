@@ -816,6 +816,7 @@ class QuasiStaticSim(RodSim):
             clamp_pose=cfg.clamp_pose,
             dt=self.dt,
             gravity=cfg.gravity,
+            movable_clamp=cfg.arms == 2,  # dual-arm: the clamp pose is a second input
         )
         self._snap_seen = 0
 

@@ -127,6 +127,10 @@ def register_engine(name: str, sim_type: type) -> None:
 class RodSim:
     """A clamped elastic rod held by a kinematic gripper moving in (x, y, theta).
 
+    With `rod.arms: 2` (dual-arm, docs/dual-arm.md) the clamp is a second gripper: `apply` takes
+    (6,) commands (the gripper's increment, then the x0 end's), each end saturated by its own
+    speed limit and clipped into its own workspace (`rod.clamp_arm`), and both ends move together.
+
     Building it is deterministic: the chain is built straight along the clamp direction and
     driven quasi-statically to the home pose (`move_to`), then settled. Two `RodSim`s built from
     the same config and fed the same commands give bit-identical centerlines.
@@ -248,9 +252,43 @@ class RodSim:
             gravity=cfg.gravity,
             table_friction=cfg.table_friction,
             table_gravity=STANDARD_GRAVITY,
+            # Dual-arm: the x0 end is a kinematic body the second arm drives.
+            movable_clamp=cfg.arms == 2,
         )
 
     # ------------------------------------------------------------------ state
+    @property
+    def dual_arm(self) -> bool:
+        """Both ends are moved (`rod.arms: 2`): commands and poses have q = 6."""
+        return self.cfg.arms == 2
+
+    @property
+    def q(self) -> int:
+        """Command dimension: 3 (the gripper) or 6 (the gripper, then the x0 end)."""
+        return 6 if self.dual_arm else 3
+
+    @property
+    def end_poses(self) -> np.ndarray:
+        """(q,) the moved ends' poses: the gripper's [x, y, theta], then (dual-arm) the x0
+        end's."""
+        if self.dual_arm:
+            return np.concatenate([self.gripper_pose, self.clamp_pose])
+        return self.gripper_pose
+
+    @property
+    def home_end_poses(self) -> np.ndarray:
+        """(q,) `end_poses` at the start: the home pose, then (dual-arm) `rod.clamp_pose`."""
+        if self.dual_arm:
+            return np.concatenate([self._home, np.asarray(self.cfg.clamp_pose, dtype=float)])
+        return self._home.copy()
+
+    @property
+    def max_steps(self) -> np.ndarray:
+        """(q,) per-axis speed limits: `rod.max_step`, then (dual-arm) `rod.clamp_arm.max_step`."""
+        if self.dual_arm:
+            return np.concatenate([self._max_step, np.asarray(self.cfg.clamp_arm.max_step, float)])
+        return self._max_step
+
     @property
     def _max_step(self) -> np.ndarray:
         return np.asarray(self.cfg.max_step, dtype=float)
@@ -336,6 +374,8 @@ class RodSim:
         `restore`. The chain itself (its bodies and joints) must be the same at restore: no
         grasp slip or clamp move in between."""
         bodies = [*self.chain.bodies] + ([self.chain.gripper] if self.chain.gripper else [])
+        if self.chain.clamp_body is not None:  # a moved clamp (dual-arm, clamp_move)
+            bodies.append(self.chain.clamp_body)
         return {
             "bodies": bodies,
             "state": [
@@ -370,6 +410,33 @@ class RodSim:
             ((3,) allowed pose, True if it differs from `pose`).
         """
         pose = np.asarray(pose, dtype=float)
+        if pose.shape == (6,):
+            return self._clip_both(pose)
+        return self._clip_gripper(pose, self.chain.current_clamp_pose()[:2])
+
+    def _clip_both(self, pose: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Dual-arm `clip_pose` of (6,) [gripper, x0 end]: the x0 end into its workspace box,
+        then the gripper into its box and within reach of the x0 end's new position."""
+        if not self.dual_arm:
+            raise ValueError("a (6,) pose needs rod.arms: 2")
+        ws = self.cfg.clamp_arm.workspace
+        lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]])
+        hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]])
+        clamp = np.clip(pose[3:], lo, hi)
+        grip, _ = self._clip_gripper(pose[:3], clamp[:2])
+        out = np.concatenate([grip, clamp])
+        changed = bool(np.any(np.abs(out - pose) > 1e-12 * (1 + np.abs(pose))))
+        return out, changed
+
+    def _reach(self) -> float:
+        """Largest distance (m) between the ends: max_reach of the held length (dual-arm: the
+        smaller of the two arms' max_reach)."""
+        f = self.cfg.workspace.max_reach
+        if self.dual_arm:
+            f = min(f, self.cfg.clamp_arm.workspace.max_reach)
+        return f * self.held_length
+
+    def _clip_gripper(self, pose: np.ndarray, clamp: np.ndarray) -> tuple[np.ndarray, bool]:
         ws = self.cfg.workspace
         # Fast path (the usual case; the quasi-static engine's step costs about as much as this
         # check otherwise): a pose inside the box and the reach is returned unchanged, exactly
@@ -386,8 +453,7 @@ class RodSim:
         lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]])
         hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]])
         out = np.clip(pose, lo, hi)
-        clamp = self.chain.current_clamp_pose()[:2]
-        reach = ws.max_reach * self.held_length
+        reach = self._reach()
         for _ in range(3):  # the reach cut and the box cut may need a second pass
             d = out[:2] - clamp
             dist = float(np.hypot(*d))
@@ -409,7 +475,13 @@ class RodSim:
 
         Returns:
             What happened; `u_applied` is the increment actually carried out.
+
+        Dual-arm (`rod.arms: 2`): `u` is (6,), the gripper's increment then the x0 end's; each
+        end is saturated by its own `max_step` and clipped into its own workspace, and both
+        move together over the control period.
         """
+        if self.dual_arm:
+            return self._apply_both(u)
         u = np.asarray(u, dtype=float).reshape(3)
         if not np.all(np.isfinite(u)):
             raise ValueError(f"RodSim.apply: non-finite command {u}")
@@ -432,6 +504,8 @@ class RodSim:
             The combined result: `u_applied` is the total displacement, `settle_time` the sum,
             `settled` that of the last increment.
         """
+        if self.dual_arm and np.asarray(pose).size == 6:
+            return self._move_to_both(np.asarray(pose, dtype=float).reshape(6))
         start = self.gripper_pose
         target = np.asarray(pose, dtype=float).reshape(3)
         if not np.all(np.isfinite(target)):
@@ -500,6 +574,103 @@ class RodSim:
             diverged=diverged,
             u_applied=self.gripper_pose - start,
             settle_time=settle_steps * self.dt,
+            sim_steps=chain.steps - steps0,
+        )
+
+    # ------------------------------------------------------------------ dual-arm moves
+    def _refuses(self, target: np.ndarray, allowed: np.ndarray) -> bool:
+        """Whether a clipped (6,) move is refused: an end that had to be clipped whose arm's
+        workspace says `refuse`."""
+        changed = np.abs(allowed - target) > 1e-12 * (1 + np.abs(target))
+        grip_ws, clamp_ws = self.cfg.workspace, self.cfg.clamp_arm.workspace
+        return bool(
+            (np.any(changed[:3]) and grip_ws.on_violation == "refuse")
+            or (np.any(changed[3:]) and clamp_ws.on_violation == "refuse")
+        )
+
+    def _apply_both(self, u: np.ndarray) -> ApplyResult:
+        """`apply` with both ends moved: u = (6,), the gripper's [dx, dy, dtheta], the x0 end's."""
+        u = np.asarray(u, dtype=float).reshape(-1)
+        if u.shape != (6,):
+            raise ValueError(f"RodSim.apply: a dual-arm command has 6 values, got {u.shape[0]}")
+        if not np.all(np.isfinite(u)):
+            raise ValueError(f"RodSim.apply: non-finite command {u}")
+        limit = self.max_steps
+        u_sat = np.clip(u, -limit, limit)
+        saturated = u_sat != u
+        result = self._move_both(self.end_poses + u_sat)
+        result.saturated = saturated
+        return result
+
+    def _move_to_both(self, target: np.ndarray) -> ApplyResult:
+        """`move_to` of both ends to (6,) poses, in equal increments within both speed limits
+        (a straight line between allowed poses stays allowed: the boxes are convex and the ends'
+        distance is convex along it)."""
+        if not np.all(np.isfinite(target)):
+            raise ValueError(f"RodSim.move_to: non-finite pose {target}")
+        start = self.end_poses
+        allowed, clipped = self.clip_pose(target)
+        refuse = clipped and self._refuses(target, allowed)
+        if self._diverged or refuse:
+            return ApplyResult(
+                settled=not self._diverged and self._is_slow(),
+                clipped=clipped,
+                refused=refuse,
+                diverged=self._diverged,
+                u_applied=np.zeros(6),
+                settle_time=0.0,
+                saturated=np.zeros(6, dtype=bool),
+            )
+        delta = allowed - start
+        n = max(1, math.ceil(float(np.max(np.abs(delta) / self.max_steps)) - 1e-9))
+        total = ApplyResult(True, clipped, False, False, np.zeros(6), 0.0, np.zeros(6, bool))
+        for k in range(1, n + 1):
+            step = self._move_both(start + delta * (k / n), check=False)
+            total.settled = step.settled
+            total.settle_time += step.settle_time
+            total.sim_steps += step.sim_steps
+            if step.diverged:
+                total.diverged = True
+                break
+        total.u_applied = self.end_poses - start
+        return total
+
+    def _move_both(self, target: np.ndarray, check: bool = True) -> ApplyResult:
+        """Both ends to (6,) `target` over one control period, then settle (`_move`'s twin)."""
+        start = self.end_poses
+        allowed, clipped = self.clip_pose(target) if check else (target.copy(), False)
+        refused = clipped and self._refuses(target, allowed)
+        if self._diverged or refused:
+            return ApplyResult(
+                settled=not self._diverged and self._is_slow(),
+                clipped=clipped,
+                refused=refused,
+                diverged=self._diverged,
+                u_applied=np.zeros(6),
+                settle_time=0.0,
+                saturated=np.zeros(6, dtype=bool),
+            )
+        chain = self.chain
+        steps0 = chain.steps
+        n = self._move_steps
+        grip0, clamp0 = start[:3], start[3:]
+        dgrip, dclamp = allowed[:3] - grip0, allowed[3:] - clamp0
+        for k in range(1, n + 1):  # both ends on a velocity-driven linear ramp
+            chain.step(grip0 + dgrip * (k / n), clamp0 + dclamp * (k / n))
+        settled, diverged = self._settle(allowed[:3])
+        settle_steps = chain.steps - steps0 - n
+        diverged = diverged or self._gaps_too_wide()
+        if diverged:
+            self._diverged = True
+            settled = False
+        return ApplyResult(
+            settled=settled,
+            clipped=clipped,
+            refused=False,
+            diverged=diverged,
+            u_applied=self.end_poses - start,
+            settle_time=settle_steps * self.dt,
+            saturated=np.zeros(6, dtype=bool),
             sim_steps=chain.steps - steps0,
         )
 

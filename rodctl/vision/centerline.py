@@ -226,6 +226,11 @@ def _locate_row(
     return offset, width, _OK
 
 
+#: cv2.remap refuses maps of SHRT_MAX (32767) columns or more; longer samplings go in rows.
+_REMAP_MAX = 32767
+_REMAP_ROW = 4096
+
+
 class CenterlineExtractor:
     """Finds the rod in a camera image and returns its centerline as N ordered pixel points.
 
@@ -326,9 +331,17 @@ class CenterlineExtractor:
     def _sample_map(self, image: np.ndarray, map32: np.ndarray) -> np.ndarray:
         """`_sample` at (..., 2) float32 pixel positions."""
         shape = map32.shape[:-1]
+        flat = map32.reshape(1, -1, 2)
+        n = flat.shape[1]
+        if n >= _REMAP_MAX:
+            # cv2.remap takes maps narrower than SHRT_MAX: a long trace (a rod looping across
+            # the image) is sampled in rows (each point's value does not depend on the layout)
+            rows = np.zeros((-(-n // _REMAP_ROW), _REMAP_ROW, 2), dtype=np.float32)
+            rows.reshape(-1, 2)[:n] = flat[0]
+            flat = rows
         rgb = cv2.remap(  # one two-channel map: the same samples as two maps, one copy fewer
             image,
-            map32.reshape(1, -1, 2),
+            flat,
             None,
             cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_CONSTANT,
@@ -336,7 +349,7 @@ class CenterlineExtractor:
         )
         # not clipped to [0, 1]: only 50 % crossings are used, and clipping costs time
         part = cv2.LUT(rgb, self._coverage_lut)
-        return ((part[..., 0] + part[..., 1]) + part[..., 2]).reshape(shape)
+        return ((part[..., 0] + part[..., 1]) + part[..., 2]).reshape(-1)[:n].reshape(shape)
 
     # ------------------------------------------------------------------ cross-sections
     def _cross_sections(
