@@ -241,10 +241,16 @@ def warm_up() -> None:
 def write_figures(
     header: RunHeader, records: Sequence[StepRecord], out_dir: str | Path
 ) -> list[Path]:
-    """Write shapes.png (Fig. 1), t1.png (Fig. 2) and commands.png (Fig. 3) under `out_dir`."""
-    from rodctl.figure_worker import save_figures
+    """Write shapes.png (Fig. 1), t1.png (Fig. 2) and commands.png (Fig. 3) under `out_dir`.
 
-    return save_figures(render_figures(header, records), out_dir)
+    (`rodctl.figure_worker`, which runs this module in its helper process, writes the same
+    bytes with `save_figures`; this module does not import it back.)"""
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, data in render_figures(header, records).items():
+        paths.append(Path(out_dir) / name)
+        paths[-1].write_bytes(data)
+    return paths
 
 
 def render_figures(header: RunHeader, records: Sequence[StepRecord]) -> dict[str, bytes]:

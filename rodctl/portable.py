@@ -38,7 +38,7 @@ def checkpoint_file(cfg: Any) -> Path | None:
     if feature.checkpoint == "auto":
         from rodctl.features.auto import cache_path
 
-        return cache_path(cfg)
+        return cache_path(cfg)  # trained before the method was built (rodctl.training.auto)
     return _resolve(feature.checkpoint)
 
 

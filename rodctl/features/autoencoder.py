@@ -36,18 +36,18 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from rodctl import fixedla as fla
-from rodctl.config.experiment import ExperimentConfig
 from rodctl.errors import UserError
-from rodctl.features.autoencoder_config import AutoencoderFeatureConfig
 from rodctl.features.geometry import check_centerlines
 
 if TYPE_CHECKING:
     import torch
+
+    from rodctl.config.experiment import ExperimentConfig
 
 #: Identifies our checkpoints; bump VERSION when the layout changes.
 FORMAT = "rodctl.autoencoder"
@@ -124,7 +124,16 @@ def parameter_shapes(arch: dict[str, Any]) -> dict[str, tuple[int, ...]]:
     return out
 
 
-def architecture_of(feature: AutoencoderFeatureConfig, points: int) -> dict[str, Any]:
+class Architecture(Protocol):
+    """What the network's shape is read from: an autoencoder feature config
+    (`rodctl.features.autoencoder_config.AutoencoderFeatureConfig`, which imports this module,
+    not the other way round)."""
+
+    hidden: list[int]
+    latent_dim: int
+
+
+def architecture_of(feature: Architecture, points: int) -> dict[str, Any]:
     """The architecture record of a checkpoint for `feature` on N = `points` centerlines."""
     return {
         "inputs": 2 * points,
@@ -148,7 +157,7 @@ def encoder_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
     """
     from rodctl.vision.camera import Camera  # the camera model defines the geometry
 
-    if not isinstance(cfg.feature, AutoencoderFeatureConfig):
+    if getattr(cfg.feature, "type", None) != "autoencoder":
         raise ValueError(f"feature.type is {cfg.feature.type!r}, not 'autoencoder'")
     camera = Camera(cfg.camera, None)
     return {

@@ -13,8 +13,8 @@ from rodctl.errors import UserError
 from rodctl.features import make_feature_map
 from rodctl.features.autoencoder import encoder_fingerprint
 from rodctl.features.collection import CenterlineDataset, chunk_sizes, collect_dataset
-from rodctl.features.training import train_encoder
 from rodctl.runs import RunDir
+from rodctl.training.encoder import train_encoder
 
 SMALL = {
     "feature": {
