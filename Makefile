@@ -47,6 +47,7 @@ bench: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check rodctl tests benchmarks examples
 	$(BIN)/ruff format --check rodctl tests benchmarks examples
+	$(BIN)/lint-imports --no-cache
 
 clean-venv:
 	rm -rf $(VENV)
