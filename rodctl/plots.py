@@ -25,6 +25,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
+import yaml
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -111,8 +112,6 @@ def _ticks(ax: Axes, log_y: np.ndarray | None = None) -> None:
 def speed_limits(header: RunHeader) -> np.ndarray | None:
     """(3,) the rod's per-step limits on |Δx|, |Δy|, |Δθ| from the run's config, or None when
     the config does not say (a synthetic run)."""
-    import yaml
-
     try:
         limits = (yaml.safe_load(header.config_yaml) or {})["rod"]["max_step"]
         out = np.asarray(limits, dtype=float).reshape(3)

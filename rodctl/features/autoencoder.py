@@ -39,8 +39,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+import yaml
 
 from rodctl import fixedla as fla
+from rodctl.config.loading import safe_load  # size, nesting and alias bombs refused
 from rodctl.errors import UserError
 from rodctl.features.geometry import check_centerlines
 
@@ -155,7 +157,9 @@ def encoder_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
     Args:
         cfg: an experiment config whose `feature` is an autoencoder.
     """
-    from rodctl.vision.camera import Camera  # the camera model defines the geometry
+    # The camera model defines the geometry. Lazy: it imports OpenCV, which a config command
+    # (that loads every feature's registration) does not need.
+    from rodctl.vision.camera import Camera  # noqa: PLC0415
 
     if getattr(cfg.feature, "type", None) != "autoencoder":
         raise ValueError(f"feature.type is {cfg.feature.type!r}, not 'autoencoder'")
@@ -279,10 +283,6 @@ def config_key_differences(
     cannot be compared (no experiment, an old checkpoint without its config) stays as it is,
     with the keys that may cause it.
     """
-    import yaml
-
-    from rodctl.config.loading import safe_load  # size, nesting and alias bombs refused
-
     try:
         trained = safe_load(checkpoint.config_yaml) if checkpoint.config_yaml else None
     except (yaml.YAMLError, RecursionError):
