@@ -51,6 +51,7 @@ def _cfg(**camera) -> ExperimentConfig:
     )
 
 
+@pytest.mark.slow
 def test_auto_trains_once_caches_by_fingerprint_and_says_so(tiny_quick, tmp_path, capsys):
     cfg = _cfg()
     prepare_feature(cfg)  # what simulate, compare, sweep and replay do before building
@@ -89,6 +90,7 @@ def test_the_feature_factory_never_trains_and_names_the_missing_file(tiny_quick)
     assert tiny_quick == [] and not cache_path(cfg).exists()
 
 
+@pytest.mark.slow
 def test_simulate_trains_the_quick_encoder_before_the_run(tiny_quick, tmp_path):
     res = runner.invoke(
         app,
@@ -133,6 +135,7 @@ def test_mismatch_names_the_users_keys_and_the_quick_command():
     assert "rodctl train-encoder CONFIG --quick" in msg and "feature.checkpoint=auto" in msg
 
 
+@pytest.mark.slow
 def test_train_encoder_quick_uses_the_quick_sizes(tiny_quick, tmp_path):
     res = runner.invoke(
         app,

@@ -65,6 +65,7 @@ def test_collection_goes_through_the_camera_and_moves_the_rod(small_cfg, small_d
     assert np.ptp(d.centerlines[:8, -1, :], axis=0).max() > 5.0
 
 
+@pytest.mark.slow
 def test_collection_is_seeded_and_independent_of_worker_count(small_cfg, small_dataset):
     two = small_cfg.model_copy(deep=True)
     two.feature.data.workers = 2
