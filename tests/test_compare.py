@@ -284,6 +284,7 @@ def test_sigterm_to_compare_stops_the_pool_keeps_results_and_resume_finishes_it(
     assert json.loads((run.folder / "meta.json").read_text())["status"] == "completed"
 
 
+@pytest.mark.slow
 def test_resume_with_another_config_names_what_changed(compare_smoke_run, tmp_path):
     with pytest.raises(UserError, match=r"config changed.*targets\.count"):
         run_compare(
