@@ -13,7 +13,7 @@ PLUGIN := $(VENV)/.plugin-installed
 TORCH_INDEX ?=
 TORCH_FROM  := $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX),)
 
-.PHONY: demo test bench lint clean-venv
+.PHONY: demo test test-fast bench lint clean-venv
 
 # The test set-up: torch first (TORCH_INDEX: from that index only, e.g. PyTorch's CPU build),
 # then the project with the extras `train` (torch, already satisfied) and `test`.
@@ -42,12 +42,18 @@ demo: $(DEMO)
 test: $(STAMP) $(PLUGIN)
 	$(BIN)/python -m pytest -q
 
+# The inner loop: every test but those marked `slow` (whole runs, compares, signals, Ray);
+# `make test` (and CI) still runs them all (docs/development.md).
+test-fast: $(STAMP) $(PLUGIN)
+	$(BIN)/python -m pytest -q -m "not slow"
+
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(BIN)/python $$b || exit 1; done
 
 lint: $(STAMP)
 	$(BIN)/ruff check rodctl tests benchmarks examples
 	$(BIN)/ruff format --check rodctl tests benchmarks examples
+	$(BIN)/lint-imports --no-cache
 
 clean-venv:
 	rm -rf $(VENV)

@@ -26,7 +26,7 @@ from rodctl.features import BezierFeatureMap, FourierFeatureMap, NodesFeatureMap
 from rodctl.features.autoencoder import torch_encode
 from rodctl.features.collection import collect_dataset
 from rodctl.features.synthetic import rod_like_centerlines
-from rodctl.features.training import fit_autoencoder
+from rodctl.training.encoder import fit_autoencoder
 
 
 def per_call_us(fn, arg, repeat: int = 2000) -> tuple[float, float]:

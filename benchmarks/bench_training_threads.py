@@ -19,8 +19,9 @@ import os
 import numpy as np
 
 from rodctl.config import ExperimentConfig
+from rodctl.features.auto import QUICK_BATCH, QUICK_SAMPLES
 from rodctl.features.synthetic import rod_like_centerlines
-from rodctl.features.training import QUICK_BATCH, QUICK_SAMPLES, fit_autoencoder
+from rodctl.training.encoder import fit_autoencoder
 
 SETUPS = {
     "quick (--quick)": (int(QUICK_SAMPLES * 0.9), QUICK_BATCH, 20),

@@ -513,9 +513,9 @@ def train_encoder(
     from pathlib import Path
 
     from rodctl.features.autoencoder import require_torch
-    from rodctl.features.training import quick_config
-    from rodctl.features.training import train_encoder as train
     from rodctl.runs import RunDir
+    from rodctl.training.encoder import quick_config
+    from rodctl.training.encoder import train_encoder as train
 
     require_torch("rodctl train-encoder")  # before anything is collected or written
     cfg = load_config(config, set_ or [])

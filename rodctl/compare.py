@@ -818,9 +818,11 @@ def _preflight(cfg: CompareConfig) -> dict[str, ExperimentConfig]:
     """Every method's config, each built once here so a missing checkpoint, or one trained for
     another rod or camera, fails before work (and `checkpoint: auto` trains here, once)."""
     from rodctl.features import make_feature_map
+    from rodctl.training import prepare_feature
 
     configs = {name: method_config(cfg, name) for name in cfg.methods}
     for ecfg in configs.values():
+        prepare_feature(ecfg)
         make_feature_map(ecfg.feature, points=ecfg.camera.points, experiment=ecfg)
     return configs
 

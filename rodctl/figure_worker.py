@@ -26,6 +26,7 @@ Protocol: the parent writes one pickle `(header, records)` to the helper's stdin
 
 from __future__ import annotations
 
+import ctypes
 import os
 import pickle
 import signal
@@ -222,8 +223,6 @@ def _die_with_parent(parent: int) -> None:
     """Be killed when the parent dies (Linux), and exit now if it already has."""
     if sys.platform.startswith("linux"):
         try:
-            import ctypes
-
             PR_SET_PDEATHSIG = 1
             ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL))
         except (OSError, AttributeError):  # pragma: no cover - no prctl: stdin's end does it
@@ -237,7 +236,8 @@ def main() -> None:
     reply = sys.stdout.buffer
     sys.stdout = sys.stderr  # anything printed while drawing must not corrupt the reply
     _die_with_parent(int(sys.argv[2]))
-    from rodctl import plots  # the slow part, while the parent runs the episode
+    # The slow part (matplotlib), while the parent runs the episode; the command never imports it.
+    from rodctl import plots  # noqa: PLC0415
 
     plots.warm_up()
     data = sys.stdin.buffer.read()

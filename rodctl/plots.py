@@ -25,6 +25,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
+import yaml
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -111,8 +112,6 @@ def _ticks(ax: Axes, log_y: np.ndarray | None = None) -> None:
 def speed_limits(header: RunHeader) -> np.ndarray | None:
     """(3,) the rod's per-step limits on |Δx|, |Δy|, |Δθ| from the run's config, or None when
     the config does not say (a synthetic run)."""
-    import yaml
-
     try:
         limits = (yaml.safe_load(header.config_yaml) or {})["rod"]["max_step"]
         out = np.asarray(limits, dtype=float).reshape(3)
@@ -248,10 +247,16 @@ def warm_up() -> None:
 def write_figures(
     header: RunHeader, records: Sequence[StepRecord], out_dir: str | Path
 ) -> list[Path]:
-    """Write shapes.png (Fig. 1), t1.png (Fig. 2) and commands.png (Fig. 3) under `out_dir`."""
-    from rodctl.figure_worker import save_figures
+    """Write shapes.png (Fig. 1), t1.png (Fig. 2) and commands.png (Fig. 3) under `out_dir`.
 
-    return save_figures(render_figures(header, records), out_dir)
+    (`rodctl.figure_worker`, which runs this module in its helper process, writes the same
+    bytes with `save_figures`; this module does not import it back.)"""
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, data in render_figures(header, records).items():
+        paths.append(Path(out_dir) / name)
+        paths[-1].write_bytes(data)
+    return paths
 
 
 def render_figures(header: RunHeader, records: Sequence[StepRecord]) -> dict[str, bytes]:

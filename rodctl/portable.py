@@ -19,6 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from rodctl.errors import UserError
+from rodctl.features.auto import cache_path
+from rodctl.features.autoencoder import DEFAULT_CHECKPOINT
+from rodctl.features.autoencoder_config import AutoencoderFeatureConfig, _resolve
 
 
 def checkpoint_file(cfg: Any) -> Path | None:
@@ -26,19 +29,13 @@ def checkpoint_file(cfg: Any) -> Path | None:
 
     Call it after the method was built: for `checkpoint: auto` the cached file exists then.
     """
-    from rodctl.features.autoencoder_config import AutoencoderFeatureConfig, _resolve
-
     feature = getattr(cfg, "feature", None)
     if not isinstance(feature, AutoencoderFeatureConfig):
         return None
     if feature.checkpoint is None:
-        from rodctl.features.autoencoder import DEFAULT_CHECKPOINT
-
         return DEFAULT_CHECKPOINT
     if feature.checkpoint == "auto":
-        from rodctl.features.auto import cache_path
-
-        return cache_path(cfg)
+        return cache_path(cfg)  # trained before the method was built (rodctl.training.auto)
     return _resolve(feature.checkpoint)
 
 

@@ -595,7 +595,9 @@ def rerun_records(cfg: Any, run_id: str) -> list[StepRecord]:
     from rodctl.env import ShapeServoEnv
     from rodctl.episode import EpisodeFailed, run_episode
     from rodctl.method import Method
+    from rodctl.training import prepare_feature
 
+    prepare_feature(cfg)
     try:
         result = run_episode(ShapeServoEnv(cfg), Method.from_config(cfg), run_id=run_id)
     except EpisodeFailed as exc:

@@ -29,6 +29,7 @@ from rodctl.logs.sinks import FiguresSinkConfig, SinkContext, make_sink, selecte
 from rodctl.method import Method
 from rodctl.records import RunSummary, StepRecord
 from rodctl.runs import RunDir, write_json_best_effort
+from rodctl.training.auto import prepare_feature
 
 #: Exit codes of `rodctl simulate` (docs/reliability.md).
 EXIT_OK, EXIT_RUN_FAILED = 0, 1
@@ -104,6 +105,7 @@ def simulate(
         figures = make_sink(FiguresSinkConfig(), SinkContext(None, cfg.logging, cfg))
     with stops.installed(), figures or nullcontext():
         env = ShapeServoEnv(cfg)
+        prepare_feature(cfg)  # `feature.checkpoint: auto`: the quick encoder trained once
         method = Method.from_config(cfg)
         run = RunDir.create(out, cfg, command="simulate", argv=argv)
         _embed_encoder(cfg, run)

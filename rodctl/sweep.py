@@ -284,9 +284,11 @@ def run_sweep(
 def _preflight(methods: dict[str, dict[str, Any]]) -> None:
     """Build each method's feature once here, so a missing checkpoint fails before any work."""
     from rodctl.features import make_feature_map
+    from rodctl.training import prepare_feature
 
     for data in methods.values():
         ecfg = ExperimentConfig.model_validate(data)
+        prepare_feature(ecfg)
         make_feature_map(ecfg.feature, points=ecfg.camera.points, experiment=ecfg)
 
 

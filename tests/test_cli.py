@@ -49,6 +49,7 @@ def test_help_cli_runner(cmd):
     assert "Usage" in result.output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cmd", COMMANDS, ids=lambda c: " ".join(c) or "rodctl")
 def test_help_subprocess(cmd):
     proc = subprocess.run(
@@ -79,6 +80,7 @@ def test_version_and_config_show_derived_values():
     assert "0000000" not in res.output  # floats print cleanly
 
 
+@pytest.mark.slow
 def test_simulate_json_prints_one_parseable_object(tmp_path):
     res = CliRunner().invoke(
         app,

@@ -4,6 +4,7 @@ error, an aligned `rodctl plugins`, and `config show` naming a file that exists.
 
 from __future__ import annotations
 
+import pytest
 from paths import REPO
 from typer.testing import CliRunner
 
@@ -36,6 +37,7 @@ def test_an_error_before_the_first_step_prints_no_progress_bar(tmp_path):
     assert "nan" not in res.output and res.output.startswith("error: run.target.pose")
 
 
+@pytest.mark.slow
 def test_replay_quiet_prints_only_the_verdict(tmp_path):
     sim = runner.invoke(
         app,

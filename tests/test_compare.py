@@ -38,6 +38,7 @@ def test_shipped_compare_configs_validate():
         assert cfg.methods
 
 
+@pytest.mark.slow
 def test_every_method_converges_on_the_easy_smoke_targets(smoke_run):
     cfg = load_compare_config(SMOKE)
     rows = _rows(smoke_run)
@@ -55,6 +56,7 @@ def test_every_method_converges_on_the_easy_smoke_targets(smoke_run):
         assert float(r["difficulty"]) <= cfg.targets.max_offset + 0.05
 
 
+@pytest.mark.slow
 def test_every_method_sees_the_same_targets(smoke_run):
     rows = _rows(smoke_run)
     by_target: dict[str, set] = {}
@@ -65,6 +67,7 @@ def test_every_method_sees_the_same_targets(smoke_run):
     assert all(len(v) == 1 for v in by_target.values()), by_target
 
 
+@pytest.mark.slow
 def test_outputs_are_complete(smoke_run):
     for name in ("results.csv", "results.json", "summary.md", "targets.yaml", "meta.json"):
         assert (smoke_run / name).is_file(), name
@@ -79,6 +82,7 @@ def test_outputs_are_complete(smoke_run):
     assert all(f"| {m} |" in md for m in cfg.methods)
 
 
+@pytest.mark.slow
 def test_a_shared_targets_file_reproduces_the_run_in_one_process(smoke_run, tmp_path):
     """targets.yaml fed back as targets.file, one worker: the same episodes, step for step."""
     again = run_compare(
@@ -94,6 +98,7 @@ def test_a_shared_targets_file_reproduces_the_run_in_one_process(smoke_run, tmp_
     assert first == second
 
 
+@pytest.mark.slow
 def test_an_episode_on_the_shared_target_equals_one_that_drives_its_own(tmp_path):
     """Targets are driven once and shared (issue #17): an episode handed the target's view
     gives the row an episode that drives a rod to the target itself gives, step for step."""
@@ -227,6 +232,7 @@ def test_unreachable_target_pose_is_a_user_error(tmp_path):
         )
 
 
+@pytest.mark.slow
 def test_sigterm_to_compare_stops_the_pool_keeps_results_and_resume_finishes_it(
     compare_smoke_run, tmp_path
 ):
@@ -278,6 +284,7 @@ def test_sigterm_to_compare_stops_the_pool_keeps_results_and_resume_finishes_it(
     assert json.loads((run.folder / "meta.json").read_text())["status"] == "completed"
 
 
+@pytest.mark.slow
 def test_resume_with_another_config_names_what_changed(compare_smoke_run, tmp_path):
     with pytest.raises(UserError, match=r"config changed.*targets\.count"):
         run_compare(
@@ -292,6 +299,7 @@ def test_resume_with_another_config_names_what_changed(compare_smoke_run, tmp_pa
         run_compare(str(SMOKE), [], str(tmp_path), progress=False, workers=1, resume=str(tmp_path))
 
 
+@pytest.mark.slow
 def test_an_exception_inside_an_episode_is_its_error_row_and_the_run_goes_on(tmp_path, monkeypatch):
     from rodctl.method import Method
 

@@ -4,6 +4,7 @@ Jacobian reaches from the same state is the `estimator`'s fault; pinned is the w
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from paths import REPO
 
 from rodctl.config import load_config
@@ -25,6 +26,7 @@ def _env_at_home(shift_px: float):
     return env, cfg
 
 
+@pytest.mark.slow
 def test_a_compare_episode_on_a_target_no_pose_can_make_stalls_and_is_unreachable():
     """Through the compare worker: the episode stalls, then its row says why."""
     from rodctl.compare import _episode
@@ -42,6 +44,7 @@ def test_a_compare_episode_on_a_target_no_pose_can_make_stalls_and_is_unreachabl
     assert row["error"] == ""
 
 
+@pytest.mark.slow
 def test_a_target_the_true_jacobian_reaches_blames_the_estimator_and_pinned_the_workspace():
     env, cfg = _env_at_home(shift_px=0.0)
     assert diagnose(env, cfg, "stalled", estimator_steps=30) == "estimator"
@@ -49,6 +52,7 @@ def test_a_target_the_true_jacobian_reaches_blames_the_estimator_and_pinned_the_
     assert diagnose(env, cfg, "converged") is None
 
 
+@pytest.mark.slow
 def test_a_search_cut_off_while_still_improving_is_inconclusive():
     """Unreachable means the search stopped improving short of the tolerance; one that only ran
     out of iterations (here: one) says nothing either way."""

@@ -19,6 +19,7 @@ def _config(*extra: str):
     return load_config(REPO / "configs/default.yaml", [*FAST, *extra])
 
 
+@pytest.mark.slow
 def test_registered_id_makes_an_env_that_passes_the_checker():
     env = gym.make("rodctl/ShapeServo-v0", config=_config(), render_mode="rgb_array")
     check_env(env.unwrapped, skip_render_check=False)
@@ -46,6 +47,7 @@ def test_reset_and_step_follow_the_documented_contract():
     assert truncated, "run.max_steps=4 truncates the fourth step"
 
 
+@pytest.mark.slow
 def test_an_episode_is_a_pure_function_of_config_and_seed():
     env = ShapeServoEnv(_config("camera.render.noise_std=3"))
     runs = []
@@ -59,6 +61,7 @@ def test_an_episode_is_a_pure_function_of_config_and_seed():
     assert not np.array_equal(runs[0][1], runs[2][1])  # another noise stream
 
 
+@pytest.mark.slow
 def test_options_give_a_target_and_a_start_pose():
     env = ShapeServoEnv(_config())
     _, info = env.reset(seed=0, options={"target_pose": [0.38, 0.05, 0.6]})
@@ -69,6 +72,7 @@ def test_options_give_a_target_and_a_start_pose():
         env.reset(options={"goal": [0, 0, 0]})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["sync", "async"])
 def test_vector_env_rolls_out_two_envs(mode):
     envs = gym.make_vec(
@@ -99,6 +103,7 @@ def test_random_rollout_until_truncated():
     env.close()
 
 
+@pytest.mark.slow
 def test_a_target_made_once_is_the_target_every_episode_would_make():
     cfg = _config("camera.render.noise_std=3")
     env = ShapeServoEnv(cfg)

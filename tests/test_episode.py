@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from paths import REPO
 from typer.testing import CliRunner
 
@@ -105,6 +106,7 @@ def test_a_nan_command_ends_the_run_as_diverged_without_moving():
     assert np.array_equal(last.gripper, before.gripper) and not np.any(last.u)
 
 
+@pytest.mark.slow
 def test_one_method_and_env_run_twice_give_identical_episodes():
     """Re-entrant: every stream (camera noise included) is rebuilt by reset."""
     cfg = load_config(REPO / "configs/camera-noise.yaml", [*FAST, "run.max_steps=8"])
@@ -127,6 +129,7 @@ def test_a_stop_request_ends_between_steps_as_interrupted():
     assert [r.step for r in result.records] == [0, 1, 2, 3]
 
 
+@pytest.mark.slow
 def test_sinks_are_closed_with_the_real_status():
     cfg = load_config(REPO / "configs/default.yaml", [*FAST, "run.max_steps=6"])
 

@@ -26,6 +26,7 @@ def sim_run(tmp_path_factory) -> Path:
     return Path(res.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_estimate_on_a_simulated_run_reproduces_its_live_estimates_bit_for_bit(sim_run):
     pairs = pairs_from_run(read_run(sim_run, images=False), feature="logged")
     assert pairs.logged_J is not None and len(pairs.ds) > 5
@@ -37,6 +38,7 @@ def test_estimate_on_a_simulated_run_reproduces_its_live_estimates_bit_for_bit(s
         assert mine.tobytes() == live.tobytes(), f"pair {k} (step {pairs.steps[k]})"
 
 
+@pytest.mark.slow
 def test_estimate_command_on_a_run_writes_results_and_steps(sim_run, tmp_path):
     out = tmp_path / "est"
     res = CliRunner().invoke(
@@ -105,6 +107,7 @@ def test_a_bad_points_file_exits_2_naming_the_column_or_frame(tmp_path, text, ne
     assert "Traceback" not in res.output
 
 
+@pytest.mark.slow
 def test_an_imported_recording_replays_and_estimates_like_the_file(tmp_path):
     rec = dual_arm_recording(90, seed=4, points=6)
     path = write_points_csv(rec, tmp_path / "arm.csv")
@@ -140,6 +143,7 @@ def test_import_of_a_bad_file_exits_2(tmp_path):
 # --- export to a ROS 2 bag (shares the simulated run above) -------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_export_writes_a_ros2_bag_that_rosbags_reads_back(sim_run, tmp_path, storage):
     from rosbags.highlevel import AnyReader
@@ -177,6 +181,7 @@ def test_export_writes_a_ros2_bag_that_rosbags_reads_back(sim_run, tmp_path, sto
     )
 
 
+@pytest.mark.slow
 def test_export_refuses_an_existing_bag_folder(sim_run, tmp_path):
     res = CliRunner().invoke(app, ["export", str(sim_run), "--ros2", str(tmp_path)])
     assert res.exit_code == 2 and "exists already" in res.output
@@ -185,6 +190,7 @@ def test_export_refuses_an_existing_bag_folder(sim_run, tmp_path):
 # --- import of tracked points and poses from a ROS 2 bag -----------------------------------
 
 
+@pytest.mark.slow
 def test_a_bag_exported_from_a_run_imports_back_to_the_same_shapes_and_poses(sim_run, tmp_path):
     run = read_run(sim_run, images=False)
     for storage in ("mcap", "sqlite3"):
@@ -257,6 +263,7 @@ def test_bag_poses_are_interpolated_at_the_frame_times(tmp_path):
         assert np.array_equal(r.centerline, frames[k][1])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("pose_times", "needle"),
     [
@@ -274,6 +281,7 @@ def test_bag_poses_that_miss_the_frames_exit_2_naming_the_time(tmp_path, pose_ti
     assert needle in res.output and "/arm/pose" in res.output
 
 
+@pytest.mark.slow
 def test_a_bag_frame_with_another_point_count_exits_2_naming_it(tmp_path):
     frames = [(0.1 * k, np.zeros((3 if k != 4 else 2, 2))) for k in range(8)]
     _bag(tmp_path / "bag", frames, [(0.05 * k, [0, 0, 0]) for k in range(20)])
@@ -361,6 +369,7 @@ def _image_import(bag, out, clamp, cfg_path):
     )  # fmt: skip
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 def test_bag_images_segment_and_extract_within_a_pixel_of_the_truth(sim_run, tmp_path, storage):
     import yaml
@@ -386,6 +395,7 @@ def test_bag_images_segment_and_extract_within_a_pixel_of_the_truth(sim_run, tmp
         assert np.allclose(b.gripper, r.gripper, atol=1e-9)  # synced at the frame's own time
 
 
+@pytest.mark.slow
 def test_a_bag_frame_without_the_rod_exits_2_naming_it(sim_run, tmp_path):
     import yaml
 
@@ -406,6 +416,7 @@ def test_a_bag_frame_without_the_rod_exits_2_naming_it(sim_run, tmp_path):
     assert "/cam/image: frame 1" in res.output and "no rod" in res.output
 
 
+@pytest.mark.slow
 def test_an_image_import_cut_short_keeps_the_frames_it_converted(sim_run, tmp_path, monkeypatch):
     import yaml
 
@@ -476,6 +487,7 @@ def _folder(tmp_path, sim_run, missing_at=None):
     return run, framed, args
 
 
+@pytest.mark.slow
 def test_an_image_folder_with_poses_imports_within_a_pixel_of_the_truth(sim_run, tmp_path):
     run, framed, args = _folder(tmp_path, sim_run)
     res = CliRunner().invoke(app, args)
@@ -488,6 +500,7 @@ def test_an_image_folder_with_poses_imports_within_a_pixel_of_the_truth(sim_run,
         assert np.allclose(b.gripper, r.gripper, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_an_image_folder_missing_a_frame_file_exits_2_naming_it(sim_run, tmp_path):
     _, _, args = _folder(tmp_path, sim_run, missing_at=1)
     res = CliRunner().invoke(app, args)

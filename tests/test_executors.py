@@ -88,6 +88,7 @@ def test_in_process_runs_in_task_order_and_stops_between_tasks():
     assert all(d.error in (CANCELLED, "not run") for d in done[2:])
 
 
+@pytest.mark.slow
 def test_pool_retries_a_lost_worker_and_passes_task_exceptions_on(tmp_path):
     with LocalExecutor(2) as ex:
         done = ex.map(crash_once, [{"marker": str(tmp_path / "m")}])
@@ -96,6 +97,7 @@ def test_pool_retries_a_lost_worker_and_passes_task_exceptions_on(tmp_path):
             ex.map(fail, [7])
 
 
+@pytest.mark.slow
 def test_a_signal_to_one_pool_worker_stops_the_whole_run_and_no_process_is_left(tmp_path):
     ex = LocalExecutor(2)
     ex.start()
@@ -168,6 +170,7 @@ def ray_address():
         assert not t.is_alive(), "ray.shutdown() hung"
 
 
+@pytest.mark.slow
 def test_ray_is_local_and_loopback_only(ray_address):
     import ray
 
@@ -176,6 +179,7 @@ def test_ray_is_local_and_loopback_only(ray_address):
     assert all(n["NodeManagerAddress"] == "127.0.0.1" for n in ray.nodes())
 
 
+@pytest.mark.slow
 def test_ray_runs_the_smoke_benchmark_to_the_local_pools_results(
     ray_address, compare_smoke_run, tmp_path
 ):
@@ -186,6 +190,7 @@ def test_ray_runs_the_smoke_benchmark_to_the_local_pools_results(
     assert len(journal(folder)) == len(rows(folder))
 
 
+@pytest.mark.slow
 def test_ray_retries_a_lost_worker_then_records_an_error(ray_address, tmp_path):
     with make_executor("ray", 2) as ex:
         done = ex.map(crash_once, [{"marker": str(tmp_path / "m")}])
@@ -194,6 +199,7 @@ def test_ray_retries_a_lost_worker_then_records_an_error(ray_address, tmp_path):
     assert lost[0].value is None and "worker lost 3 time(s)" in lost[0].error
 
 
+@pytest.mark.slow
 def test_ray_runs_a_sweep(ray_address, tmp_path):
     from rodctl.sweep import run_sweep
 
@@ -206,6 +212,7 @@ def test_ray_runs_a_sweep(ray_address, tmp_path):
     assert [g["rank"] for g in summary["ranking"]] == [1, 2]
 
 
+@pytest.mark.slow
 def test_ray_run_interrupted_by_sigterm_keeps_results_and_resumes(
     ray_address, compare_smoke_run, tmp_path
 ):

@@ -70,6 +70,7 @@ def _run(tmp_path: Path, *sets: str):
     return simulate(cfg, tmp_path / "runs")
 
 
+@pytest.mark.slow
 def test_figures_exist_when_simulate_returns_and_match_the_records(tmp_path):
     res = _run(tmp_path)
     assert res.exit_code == 0 and res.error is None
@@ -81,6 +82,7 @@ def test_figures_exist_when_simulate_returns_and_match_the_records(tmp_path):
         assert (folder / name).read_bytes() == data, name
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("kind", "reason"),
     [
@@ -108,6 +110,7 @@ def test_a_figure_process_that_fails_costs_the_figures_only(
     assert _gone(int(pid_file.read_text())), "the figure process outlived the command"
 
 
+@pytest.mark.slow
 def test_a_figure_process_that_cannot_start_costs_the_figures_only(tmp_path, monkeypatch):
     missing = tmp_path / "no-python"
     monkeypatch.setattr("sys.executable", str(missing))
@@ -122,6 +125,7 @@ def test_a_figure_process_that_cannot_start_costs_the_figures_only(tmp_path, mon
     assert read_run(res.run.path).complete
 
 
+@pytest.mark.slow
 def test_no_figure_process_when_figures_are_off(tmp_path, broken_helper):
     pid_file = broken_helper("fails")
     res = _run(tmp_path, "logging.figures=false")
@@ -130,6 +134,7 @@ def test_no_figure_process_when_figures_are_off(tmp_path, broken_helper):
     assert not pid_file.exists(), "a figure process was started"
 
 
+@pytest.mark.slow
 def test_a_figures_folder_that_cannot_be_made_fails_the_run_with_the_reason(tmp_path):
     """A write error is the command's own, as when it drew in-process: here `figures` is a
     file (made during the run), so the folder cannot be created."""
@@ -147,6 +152,7 @@ def test_a_figures_folder_that_cannot_be_made_fails_the_run_with_the_reason(tmp_
     assert meta["status"] == "failed" and meta["error"] == message
 
 
+@pytest.mark.slow
 def test_replay_reports_a_failed_figure_process_and_keeps_run_rrd(tmp_path, broken_helper):
     res = _run(tmp_path)
     broken_helper("fails")
@@ -161,6 +167,7 @@ def test_replay_reports_a_failed_figure_process_and_keeps_run_rrd(tmp_path, brok
     assert (out / "run.rrd").is_file() and not (out / "figures").exists()
 
 
+@pytest.mark.slow
 def test_replay_draws_the_same_figures(tmp_path):
     res = _run(tmp_path)
     out = tmp_path / "replayed"
@@ -172,6 +179,7 @@ def test_replay_draws_the_same_figures(tmp_path):
         ).read_bytes()
 
 
+@pytest.mark.slow
 def test_the_summary_is_shown_before_the_figures_are_waited_for(tmp_path):
     """`on_summary` (the CLI's table) comes as soon as summary.json is written; a display that
     fails (a closed pipe) is raised only once meta.json is final."""

@@ -14,6 +14,7 @@ import rodctl
 from rodctl.errors import UserError
 
 
+@pytest.mark.slow
 def test_load_results_returns_the_csv_columns_from_either_file(compare_smoke_run, tmp_path):
     with (compare_smoke_run / "results.csv").open(newline="") as fh:
         header = next(csv.reader(fh))

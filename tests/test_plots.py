@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from rodctl import plots
 from rodctl.logs.synthetic import SyntheticRun
@@ -39,6 +40,7 @@ def test_method_styles_differ_in_colour_dashes_and_marker():
         assert len(set(values)) == 6, key
 
 
+@pytest.mark.slow
 def test_comparison_figures_include_pixel_error_in_one_unit(tmp_path):
     runs = {}
     for i, name in enumerate(("paper", "ma2022", "aghajanzadeh2022", "akf-pinv")):
@@ -92,6 +94,7 @@ def _texts(fig):
     return out
 
 
+@pytest.mark.slow
 def test_no_title_or_legend_overlaps_another_and_nothing_is_cut_off(tmp_path, monkeypatch):
     figures = _drawn_figures(monkeypatch)
     run = _with_limits(SyntheticRun(seed=1, image_every=0))

@@ -58,6 +58,7 @@ def test_simulate_runs_the_plugin_method_to_convergence(tmp_path):
     assert summary["method"] == "navarro_fourier/navarro_rls/navarro_dls"
 
 
+@pytest.mark.slow
 @needs_plugin
 def test_compare_runs_the_plugin_beside_builtin_methods_in_worker_processes(tmp_path):
     res = CliRunner().invoke(
@@ -72,6 +73,7 @@ def test_compare_runs_the_plugin_beside_builtin_methods_in_worker_processes(tmp_
     assert {r["method"] for r in rows} == {"navarro2018", "paper-bezier", "ma2022"}
 
 
+@pytest.mark.slow
 def test_a_plugin_that_fails_to_import_is_named_with_exit_code_2(tmp_path):
     dist = tmp_path / "broken_plugin-0.1.dist-info"
     dist.mkdir()

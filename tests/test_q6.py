@@ -112,6 +112,7 @@ def learned_estimator(J_true: np.ndarray):
     return LearnedJacobian(J_true.shape[0], Q, model, home_pose=HOME, learning_rate=0.5)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ESTIMATOR_TYPES)
 def test_estimator_at_q6(name):
     J_true = plant(6)

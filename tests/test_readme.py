@@ -53,6 +53,7 @@ def test_the_examples_block_lists_every_command():
     assert {"simulate", "replay", "compare", "train-encoder", "config", "plugins"} <= commands
 
 
+@pytest.mark.slow
 def test_every_command_example_runs(tmp_path, monkeypatch):
     monkeypatch.chdir(REPO)
     runner = CliRunner()
@@ -70,6 +71,7 @@ def test_every_command_example_runs(tmp_path, monkeypatch):
             run_dir = res.output.strip().splitlines()[-1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("section", list(PAGES))
 def test_python_examples_run(section, tmp_path):
     code = _block_after(section, "python", (REPO / PAGES[section]).read_text(encoding="utf-8"))

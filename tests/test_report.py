@@ -20,6 +20,7 @@ from rodctl.statistics import PairedDifference, paired_difference
 CHROMIUM = "/usr/bin/chromium"
 
 
+@pytest.mark.slow
 def test_a_plain_compare_writes_statistics_and_a_report(compare_smoke_run):
     folder = compare_smoke_run
     stats = json.loads((folder / "statistics.json").read_text(encoding="utf-8"))
@@ -91,6 +92,7 @@ def _until(what: str, fn, timeout: float = 60.0):
         time.sleep(0.05)
 
 
+@pytest.mark.slow
 def test_report_renders_in_headless_chromium_with_every_figure_visible(compare_smoke_run, tmp_path):
     from websockets.sync.client import connect
 

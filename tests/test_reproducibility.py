@@ -174,6 +174,7 @@ def test_flags_steps_and_texts_must_agree_at_any_tolerance():
 _LOOP_FIELDS: set[str] = set()
 
 
+@pytest.mark.slow
 def test_a_run_verifies_bit_for_bit_under_another_kernel(tmp_path):
     """The Ma et al. baseline (Bezier, Broyden, pinv) makes no BLAS/LAPACK call in its stages:
     every stage output is bit-identical under another kernel."""
@@ -187,6 +188,7 @@ def test_a_run_verifies_bit_for_bit_under_another_kernel(tmp_path):
     assert result.steps == len(read_run(run).records) > 5
 
 
+@pytest.mark.slow
 def test_the_paper_method_verifies_within_tolerance_under_another_kernel(tmp_path):
     """The paper's method (autoencoder, AKF, MFAC) verifies under another kernel (its AKF is
     fixed-order too, so bit for bit in practice; 1e-9 is the stated tolerance); a value altered
@@ -305,6 +307,7 @@ print(json.dumps({"akf": h.hexdigest(), "lapack": lapack.hexdigest(), "kernels":
 """
 
 
+@pytest.mark.slow
 def test_the_akf_is_bit_identical_under_another_kernel():
     """300 AKF updates (outliers, an abrupt change, dead-zone steps) give the same bits of J, P,
     Q and R under this CPU's OpenBLAS kernel and another one: no BLAS/LAPACK call is left in it.

@@ -35,6 +35,7 @@ def _config(*extra: str):
     return load_config(REPO / "configs/default.yaml", [*TINY, *extra])
 
 
+@pytest.mark.slow
 def test_every_observation_stays_inside_its_space_for_1000_random_steps():
     # Half the steps in metres at twice the speed limit (the robot saturates, the workspace
     # clips), half normalised; the core's observation is checked at every step too.
@@ -64,6 +65,7 @@ def test_every_observation_stays_inside_its_space_for_1000_random_steps():
     assert beyond_limit > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("env_id", [rodctl.RL_ENV_ID, rodctl.GOAL_ENV_ID])
 def test_stable_baselines3_and_gymnasium_checkers_pass_without_warnings(env_id):
     from gymnasium.utils.env_checker import check_env as gymnasium_check
@@ -125,6 +127,7 @@ def test_compute_reward_is_vectorised_and_knows_lost_frames():
     assert env.compute_reward(goal, goal, None) == 0.0
 
 
+@pytest.mark.slow
 def test_the_ppo_example_trains_and_evaluates(tmp_path, monkeypatch):
     import runpy
 

@@ -21,6 +21,7 @@ if plugin_installed():
 SHORT = ["logging.mcap=false", "logging.rerun=false", "logging.figures=false"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", EXPERIMENTS, ids=lambda p: p.stem)
 def test_config_reaches_its_declared_outcome(path):
     cfg = load_config(path, SHORT)
@@ -38,6 +39,7 @@ def test_config_reaches_its_declared_outcome(path):
         assert gap.mean() < 3e-3, gap.mean()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", EXPERIMENTS, ids=lambda p: p.stem)
 def test_replay_verify_reproduces_every_shipped_config(path, tmp_path):
     """Each shipped config, logged and re-run from its log by `replay --verify`, matches bit for

@@ -53,6 +53,7 @@ def run_dir(tmp_path_factory) -> Path:
     return simulate(tmp_path_factory.mktemp("sim"))
 
 
+@pytest.mark.slow
 def test_run_directory_contract(run_dir):
     names = {p.name for p in run_dir.iterdir()}
     assert {"config.yaml", "meta.json", "summary.json", "run.mcap", "run.rrd", "figures"} <= names
@@ -84,6 +85,7 @@ def test_run_directory_contract(run_dir):
     assert summary["steps"] == summary["steps_to_converge"]
 
 
+@pytest.mark.slow
 def test_log_agrees_with_summary(run_dir):
     run = read_mcap(run_dir / "run.mcap")
     summary = json.loads((run_dir / "summary.json").read_text())
@@ -95,6 +97,7 @@ def test_log_agrees_with_summary(run_dir):
     assert all(p == "control" for p in phases[5:])
 
 
+@pytest.mark.slow
 def test_same_config_gives_identical_logs(run_dir, tmp_path):
     again = simulate(tmp_path)
     assert (again / "run.mcap").read_bytes() == (run_dir / "run.mcap").read_bytes()
@@ -115,6 +118,7 @@ def test_same_config_gives_identical_logs(run_dir, tmp_path):
         assert cmp.returncode == 0, cmp.stdout + cmp.stderr
 
 
+@pytest.mark.slow
 def test_files_pass_rerun_validators(run_dir):
     if not RERUN:
         pytest.skip("rerun CLI not found")
@@ -125,6 +129,7 @@ def test_files_pass_rerun_validators(run_dir):
         assert res.returncode == 0, res.stdout + res.stderr
 
 
+@pytest.mark.slow
 def test_replay_verify_passes_on_a_fresh_run(run_dir, tmp_path):
     result = runner.invoke(app, ["replay", str(run_dir), "--verify", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
@@ -132,6 +137,7 @@ def test_replay_verify_passes_on_a_fresh_run(run_dir, tmp_path):
     assert (tmp_path / "run.rrd").exists() and (tmp_path / "figures" / "t1.png").exists()
 
 
+@pytest.mark.slow
 def test_replay_verify_reports_an_altered_value(run_dir, tmp_path):
     run = read_run(run_dir)
     run.records[7].pixel_error += 1e-9
@@ -145,6 +151,7 @@ def test_replay_verify_reports_an_altered_value(run_dir, tmp_path):
     assert "FAILED" in result.output and "step 7: pixel_error differs" in result.output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["truncated", "random"])
 def test_replay_of_a_broken_file_exits_2(run_dir, tmp_path, kind):
     data = (run_dir / "run.mcap").read_bytes()
@@ -155,6 +162,7 @@ def test_replay_of_a_broken_file_exits_2(run_dir, tmp_path, kind):
     assert "Traceback" not in result.output and "run.mcap" in result.output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_signal_half_way_leaves_an_interrupted_readable_run(tmp_path, sig):
     """A long run stopped by a signal: exit 1, meta `interrupted`, the MCAP opens with every
@@ -223,6 +231,7 @@ def test_signal_half_way_leaves_an_interrupted_readable_run(tmp_path, sig):
         assert f"verify: OK, {len(run.records)} steps identical" in res.output
 
 
+@pytest.mark.slow
 def test_bad_target_is_a_user_error(tmp_path):
     result = runner.invoke(
         app,

@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from paths import REPO
 from typer.testing import CliRunner
 
@@ -18,6 +19,7 @@ from rodctl.cli import app
 SMOKE = str(REPO / "configs/benchmarks/suite-smoke.yaml")
 
 
+@pytest.mark.slow
 def test_smoke_suite_runs_every_scenario_and_reports_paired_statistics(tmp_path):
     res = CliRunner().invoke(app, ["compare", SMOKE, "-q", "-o", str(tmp_path), "--workers", "2"])
     assert res.exit_code == 0, res.output
@@ -122,6 +124,7 @@ def _suite_with_two_episodes_done(
     return proc
 
 
+@pytest.mark.slow
 def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
     """SIGTERM during a suite: the suite's meta.json says `interrupted` (not `failed`), the
     scenarios done so far are kept, and `--resume` runs the rest to a complete suite."""
@@ -159,6 +162,7 @@ def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
         assert len({t for _, t in again}) <= 1, again  # only the figure target's episodes
 
 
+@pytest.mark.slow
 def test_a_killed_suite_resumes_its_cut_scenario_in_the_same_folder(tmp_path):
     """SIGKILL (or a power cut) gives the suite no chance to say anything: meta.json still says
     `running`. `--resume` must still continue the cut scenario's folder, keeping its finished

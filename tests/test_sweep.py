@@ -177,6 +177,7 @@ def smoke_sweep(tmp_path_factory):
     return run_sweep(str(SMOKE), [], str(out), progress=False, workers=1)
 
 
+@pytest.mark.slow
 def test_sweep_results_summary_and_figures(smoke_sweep):
     got = rows(smoke_sweep)
     assert len(got) == 4
@@ -198,6 +199,7 @@ def test_sweep_results_summary_and_figures(smoke_sweep):
     assert meta["status"] == "completed" and meta["command"] == "sweep"
 
 
+@pytest.mark.slow
 def test_resume_of_a_finished_sweep_runs_nothing_and_a_changed_one_is_refused(
     smoke_sweep, tmp_path
 ):
@@ -219,6 +221,7 @@ def test_resume_of_a_finished_sweep_runs_nothing_and_a_changed_one_is_refused(
         )
 
 
+@pytest.mark.slow
 def test_an_interrupted_sweep_keeps_what_finished_and_resumes_to_the_same_table(
     smoke_sweep, tmp_path
 ):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from paths import REPO
 from typer.testing import CliRunner
 
@@ -18,6 +19,7 @@ TINY = [
 ]  # fmt: skip
 
 
+@pytest.mark.slow
 def test_train_model_writes_a_model_the_config_then_accepts(tmp_path, monkeypatch):
     monkeypatch.chdir(REPO)
     runner = CliRunner()

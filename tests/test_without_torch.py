@@ -15,6 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from paths import REPO
 from typer.testing import CliRunner
 
@@ -54,6 +55,7 @@ def _rodctl(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_a_run_without_torch_verifies_elsewhere_without_its_checkpoint(tmp_path):
     """The autoencoder feature encoded in numpy, and a portable run folder (rodctl/portable.py):
     copied to another place with its original checkpoint gone, it still verifies."""
@@ -93,6 +95,7 @@ def test_a_run_without_torch_verifies_elsewhere_without_its_checkpoint(tmp_path)
     assert "SHA-256" in res.output and "encoder.npz" in res.output
 
 
+@pytest.mark.slow
 def test_train_encoder_without_torch_says_how_to_install_it(tmp_path):
     res = _rodctl(
         "train-encoder", str(REPO / "configs/default.yaml"), "--quick", "--out", str(tmp_path),
@@ -104,6 +107,7 @@ def test_train_encoder_without_torch_says_how_to_install_it(tmp_path):
     assert list(tmp_path.iterdir()) == [], "nothing is collected or written"
 
 
+@pytest.mark.slow
 def test_gymnasium_env_runs_without_torch():
     code = (
         BLOCK_TORCH

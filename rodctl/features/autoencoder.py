@@ -36,18 +36,20 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+import yaml
 
 from rodctl import fixedla as fla
-from rodctl.config.experiment import ExperimentConfig
+from rodctl.config.loading import safe_load  # size, nesting and alias bombs refused
 from rodctl.errors import UserError
-from rodctl.features.autoencoder_config import AutoencoderFeatureConfig
 from rodctl.features.geometry import check_centerlines
 
 if TYPE_CHECKING:
     import torch
+
+    from rodctl.config.experiment import ExperimentConfig
 
 #: Identifies our checkpoints; bump VERSION when the layout changes.
 FORMAT = "rodctl.autoencoder"
@@ -124,7 +126,16 @@ def parameter_shapes(arch: dict[str, Any]) -> dict[str, tuple[int, ...]]:
     return out
 
 
-def architecture_of(feature: AutoencoderFeatureConfig, points: int) -> dict[str, Any]:
+class Architecture(Protocol):
+    """What the network's shape is read from: an autoencoder feature config
+    (`rodctl.features.autoencoder_config.AutoencoderFeatureConfig`, which imports this module,
+    not the other way round)."""
+
+    hidden: list[int]
+    latent_dim: int
+
+
+def architecture_of(feature: Architecture, points: int) -> dict[str, Any]:
     """The architecture record of a checkpoint for `feature` on N = `points` centerlines."""
     return {
         "inputs": 2 * points,
@@ -146,9 +157,11 @@ def encoder_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
     Args:
         cfg: an experiment config whose `feature` is an autoencoder.
     """
-    from rodctl.vision.camera import Camera  # the camera model defines the geometry
+    # The camera model defines the geometry. Lazy: it imports OpenCV, which a config command
+    # (that loads every feature's registration) does not need.
+    from rodctl.vision.camera import Camera  # noqa: PLC0415
 
-    if not isinstance(cfg.feature, AutoencoderFeatureConfig):
+    if getattr(cfg.feature, "type", None) != "autoencoder":
         raise ValueError(f"feature.type is {cfg.feature.type!r}, not 'autoencoder'")
     camera = Camera(cfg.camera, None)
     return {
@@ -272,10 +285,6 @@ def config_key_differences(
     cannot be compared (no experiment, an old checkpoint without its config) stays as it is,
     with the keys that may cause it.
     """
-    import yaml
-
-    from rodctl.config.loading import safe_load  # size, nesting and alias bombs refused
-
     try:
         trained = safe_load(checkpoint.config_yaml) if checkpoint.config_yaml else None
     except (yaml.YAMLError, RecursionError):

@@ -1,7 +1,8 @@
 """Config of the paper's feature (section VI-A), an autoencoder latent, and its registration.
 
-Kept apart from `autoencoder.py` so that reading a config never imports torch: the network is only
-loaded when a feature map is built. The autoencoder config also carries the settings of
+Kept apart from `autoencoder.py`, which knows no config model: this module imports it (and
+`auto.py`, the cache of `checkpoint: auto`), never the other way round, and neither imports torch
+or the training code (`rodctl.training`). The autoencoder config also carries the settings of
 `rodctl train-encoder`: how the training centerlines are collected through the simulator and
 camera, and how the network is trained. Those settings never change what a trained checkpoint
 *is* for (the fingerprint ignores them); the architecture settings do.
@@ -17,6 +18,13 @@ from pydantic import Field, field_validator
 
 from rodctl.config.base import StrictModel
 from rodctl.errors import UserError
+from rodctl.features.auto import cached_checkpoint
+from rodctl.features.autoencoder import (
+    DEFAULT_CHECKPOINT,
+    EncoderCheckpoint,
+    architecture_of,
+    encoder_fingerprint,
+)
 from rodctl.registry import FEATURES, BuildContext
 
 
@@ -138,19 +146,10 @@ def load_autoencoder(cfg: AutoencoderFeatureConfig, *, points: int, experiment=N
         UserError: the file is missing or corrupt, or was trained for another setup; the message
             names the file and each mismatch.
     """
-    from rodctl.features.autoencoder import (
-        DEFAULT_CHECKPOINT,
-        EncoderCheckpoint,
-        architecture_of,
-        encoder_fingerprint,
-    )
-
     if cfg.checkpoint == "auto":
         if experiment is None:
             raise UserError("feature.checkpoint: 'auto' needs the whole experiment config")
-        from rodctl.features.auto import auto_checkpoint
-
-        path = auto_checkpoint(experiment)
+        path = cached_checkpoint(experiment)  # trained before by the command (module doc)
     else:
         path = _resolve(cfg.checkpoint) if cfg.checkpoint is not None else DEFAULT_CHECKPOINT
     ckpt = EncoderCheckpoint.load(path)

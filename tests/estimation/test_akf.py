@@ -100,6 +100,7 @@ def test_dead_zone_skips_the_update():
     np.testing.assert_array_equal(est.P, P_before)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("r_update", ["eq33", "eq32"])
 def test_noise_estimates_stay_psd_over_10000_random_steps(r_update):
     rng = np.random.default_rng(5)

@@ -99,6 +99,7 @@ def test_asap_translation_response_turns_with_the_move(seed):
     assert np.allclose(jy, jx @ S90.T, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_asap_step_is_a_descent_step_at_home():
     """At the home S-shape, where the loop builds the model, ASAP differs from the rod (~60 %),
     but the fixed-model step J_asap^+ e still contracts the rod's error: every eigenvalue of

@@ -66,6 +66,7 @@ def learned(setup, walk, eta: float, model=None) -> LearnedJacobian:
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_the_learned_one_step_prediction_beats_the_akf_on_held_out_motion(setup):
     _, model, held, _, encode, *_ = setup
     akf = one_step_errors(AdaptiveKalmanJacobian(model.p, model.q), held, encode)
@@ -75,6 +76,7 @@ def test_the_learned_one_step_prediction_beats_the_akf_on_held_out_motion(setup)
     assert np.mean(mine) < 0.8 * np.mean(akf)
 
 
+@pytest.mark.slow
 def test_the_learned_prior_still_beats_the_akf_after_a_stiffness_change(setup):
     _, model, held, held_soft, encode, *_ = setup
     # the same moves from the same start: the softer rod sags to other shapes
@@ -87,6 +89,7 @@ def test_the_learned_prior_still_beats_the_akf_after_a_stiffness_change(setup):
     assert np.mean(offline) < np.mean(akf)
 
 
+@pytest.mark.slow
 def test_online_updates_reduce_the_error_of_an_under_trained_model(setup):
     _, _, held, _, encode, _, small = setup
     offline = one_step_errors(learned(setup, held, 0.0, small), held, encode)

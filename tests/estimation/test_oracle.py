@@ -4,6 +4,7 @@ simulator exactly as it was."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from paths import REPO
 
 from rodctl.config import load_config
@@ -11,6 +12,7 @@ from rodctl.env import ShapeServoEnv
 from rodctl.features import make_feature_map
 
 
+@pytest.mark.slow
 def test_true_jacobian_predicts_a_small_move_and_restores_the_simulator():
     cfg = load_config(REPO / "configs/default.yaml", ["feature.type=nodes"])
     env = ShapeServoEnv(cfg)

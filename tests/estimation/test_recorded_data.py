@@ -87,6 +87,7 @@ def _long_recording(steps: int):
     return pairs_from_recording(dual_arm_recording(steps, seed=7, points=10, noise=0.001))
 
 
+@pytest.mark.slow
 def test_every_estimator_runs_a_noisy_p20_q6_recording_to_the_end():
     # The cheap estimators over 1,000 steps here; the AKF (a 120-dimensional state, 50-200 ms
     # a step) over 20 pairs after J_0 here and over all 3,000 steps in the slow test below.

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 from faults.filesystems import fill
 from paths import REPO
 from typer.testing import CliRunner
@@ -40,6 +41,7 @@ class _FullAfter:
         self.sink.close(summary, status)
 
 
+@pytest.mark.slow
 def test_injected_enospc_mid_run_fails_cleanly_and_keeps_the_steps_before(tmp_path, monkeypatch):
     real = simulate_module.make_sinks
     monkeypatch.setattr(
@@ -68,6 +70,7 @@ def _simulate(out, *extra, timeout=120):
     return proc, time.monotonic() - t0
 
 
+@pytest.mark.slow
 def test_a_disk_already_full_at_start_leaves_nothing_half_written(small_disk):
     disk = small_disk("1m")
     fill(disk)
@@ -79,6 +82,7 @@ def test_a_disk_already_full_at_start_leaves_nothing_half_written(small_disk):
     assert not runs.exists() or not any(runs.iterdir())
 
 
+@pytest.mark.slow
 def test_a_disk_that_fills_mid_run_ends_within_seconds_with_failed_status(small_disk):
     disk = small_disk("600k")
     # The scripted path with a frame every step fills 600 kB with both logs well before its end.
@@ -92,6 +96,7 @@ def test_a_disk_that_fills_mid_run_ends_within_seconds_with_failed_status(small_
     assert "No space left on device" in meta.get("error", ""), meta
 
 
+@pytest.mark.slow
 def test_replay_into_a_read_only_folder_says_so(tmp_path, small_disk):
     res = CliRunner().invoke(
         app, ["simulate", SCRIPTED, "-q", "-o", str(tmp_path), "--set", "run.max_steps=5", *QUICK]
@@ -114,6 +119,7 @@ class _FailsToOpen:
         raise AssertionError("never opened")
 
 
+@pytest.mark.slow
 def test_a_log_that_cannot_be_opened_fails_the_run_cleanly(tmp_path, monkeypatch):
     monkeypatch.setattr(simulate_module, "make_sinks", lambda cfg, path: [_FailsToOpen()])
     res = CliRunner().invoke(app, ["simulate", SCRIPTED, "-q", "-o", str(tmp_path), *QUICK])

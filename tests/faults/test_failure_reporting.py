@@ -28,6 +28,7 @@ def _run(*args: str):
     return res
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
 def test_a_non_finite_command_ends_the_run_diverged_saying_what_and_when(
     tmp_path, monkeypatch, bad
@@ -52,6 +53,7 @@ def test_a_non_finite_command_ends_the_run_diverged_saying_what_and_when(
     assert said in (run_dir / "error.txt").read_text()
 
 
+@pytest.mark.slow
 def test_a_simulation_that_breaks_down_says_so_with_the_step(tmp_path, monkeypatch):
     real = env_module.ShapeServoEnv.step
 
@@ -93,6 +95,7 @@ def test_a_disk_without_inodes_or_read_only_is_exit_1_and_a_wrong_path_exit_2(tm
     assert res.exit_code == 2 and str(a_file) in res.output, res.output
 
 
+@pytest.mark.slow
 def test_replay_on_a_read_only_disk_is_one_line_with_the_path(small_disk):
     """A run folder on a read-only disk (an archive), replayed plainly, without figures, with
     --verify, or with -o into an existing read-only folder."""
@@ -138,6 +141,7 @@ def test_a_compare_whose_disk_fills_records_why_in_meta_json(tmp_path, monkeypat
     assert meta["status"] == "failed" and meta["error"] == said
 
 
+@pytest.mark.slow
 def test_bad_input_found_after_the_run_folder_was_made_leaves_nothing(tmp_path):
     not_npz = tmp_path / "data.npz"
     not_npz.write_text("centerlines, but as text\n")

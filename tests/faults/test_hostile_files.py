@@ -55,6 +55,7 @@ def test_an_empty_or_mismatched_dataset_is_refused_before_training(tmp_path, n, 
     assert why in res.output and "Traceback" not in res.output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["edit", "garbage", "delete"])
 def test_verify_reports_a_config_yaml_that_no_longer_matches_the_log(tmp_path, damage):
     runner = CliRunner()

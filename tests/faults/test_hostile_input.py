@@ -55,6 +55,7 @@ def test_a_run_that_cannot_fit_in_memory_is_refused():
     assert res.exit_code == 2 and "GiB" in res.output
 
 
+@pytest.mark.slow
 def test_deeply_nested_yaml_is_refused(tmp_path):
     deep = tmp_path / "deep.yaml"
     deep.write_text("a: " + "[" * 600 + "]" * 600 + "\n")

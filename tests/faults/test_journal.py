@@ -72,6 +72,7 @@ def _once_per_key(folder) -> None:
     assert all(r["outcome"] != "interrupted" for r in journal(folder))
 
 
+@pytest.mark.slow
 def test_compare_resume_is_one_journal_a_second_resume_is_refused_and_rows_are_not_duplicated(
     tmp_path,
 ):
@@ -115,6 +116,7 @@ def test_compare_resume_is_one_journal_a_second_resume_is_refused_and_rows_are_n
     assert json.loads((folder / "meta.json").read_text())["status"] == "completed"
 
 
+@pytest.mark.slow
 def test_sweep_resume_after_an_interrupt_leaves_one_row_per_key(tmp_path):
     # Two targets: after the first row three episodes remain, so the signal lands in one of
     # them even when the machine is loaded (with one target the second could finish first).

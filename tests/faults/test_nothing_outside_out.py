@@ -51,6 +51,7 @@ def test_the_dirty_check_does_not_write_the_index_of_the_users_checkout(tmp_path
     assert not (tmp_path / ".git" / "index.lock").exists()
 
 
+@pytest.mark.slow
 def test_training_leaves_nothing_in_the_temp_folder(tmp_path):
     """torch.optim imports torch._dynamo, which makes `torchinductor_<user>` in TMPDIR."""
     from rodctl.config import ExperimentConfig
@@ -81,6 +82,7 @@ def test_training_leaves_nothing_in_the_temp_folder(tmp_path):
     assert sorted(p.name for p in tmp.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_ray_started_for_the_run_leaves_no_session_folder_in_the_temp_folder():
     pytest.importorskip("ray")
     # Short: Ray's socket paths (under its session folder) must stay below 108 bytes.

@@ -80,6 +80,7 @@ def _line(text: str, type_name: str) -> str:
     return next(ln for ln in text.splitlines() if ln.strip().startswith(type_name + " "))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("code", [REPLACE, PATCH], ids=["re-registered", "registry patched"])
 def test_a_plugin_cannot_replace_a_builtin_type_unless_allowed(tmp_path, code):
     _install(tmp_path, "hijack", code)
@@ -96,6 +97,7 @@ def test_a_plugin_cannot_replace_a_builtin_type_unless_allowed(tmp_path, code):
     assert "failed plug-in hijack" in listed.stderr and "'mfac'" in listed.stderr
 
 
+@pytest.mark.slow
 def test_an_allowed_override_is_loud_and_recorded_in_meta_and_mcap(tmp_path):
     module = _install(tmp_path, "hijack", REPLACE)
     out = tmp_path / "runs"
@@ -136,6 +138,7 @@ def test_an_allowed_override_is_loud_and_recorded_in_meta_and_mcap(tmp_path):
     assert sha in listed.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("code", "said"),
     [

@@ -44,6 +44,7 @@ def _meta(run_dir: Path) -> dict:
     return json.loads((run_dir / "meta.json").read_text())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 @pytest.mark.parametrize("after_bytes", [1, 40_000])
 def test_simulate_stops_cleanly_on_a_signal(tmp_path, sig, after_bytes):
@@ -75,6 +76,7 @@ def _live_processes(session: int) -> list[str]:
     return [line for line in ps.stdout.splitlines() if line.split()[1][0] != "Z"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("sig", "to_group"),
     [(signal.SIGTERM, False), (signal.SIGINT, True)],
@@ -101,6 +103,7 @@ def test_simulate_stopped_by_a_signal_keeps_its_figures_and_leaves_no_process(
     }  # fmt: skip
 
 
+@pytest.mark.slow
 def test_a_killed_simulate_leaves_no_figure_process(tmp_path):
     """SIGKILL to the command alone: its figure process, which nothing told, ends too."""
     proc = _start(["simulate", SCRIPTED, "-q", "-o", str(tmp_path), "--set", "logging.rerun=false"])
@@ -113,6 +116,7 @@ def test_a_killed_simulate_leaves_no_figure_process(tmp_path):
     _wait_for(lambda: _live_processes(proc.pid) == [], 10)
 
 
+@pytest.mark.slow
 def test_sigkill_then_replay_recover_reads_the_whole_steps(tmp_path):
     proc = _start(["simulate", SCRIPTED, "-q", "-o", str(tmp_path), "--set", "logging.rerun=false",
                    "--set", "logging.flush_every_steps=2"])  # fmt: skip
@@ -139,6 +143,7 @@ def test_sigkill_then_replay_recover_reads_the_whole_steps(tmp_path):
     assert "recovered" in res.stderr
 
 
+@pytest.mark.slow
 def test_train_encoder_records_sigterm_as_interrupted_and_keeps_the_data(tmp_path):
     """SIGTERM while collecting: `interrupted`, exit 1, no worker left, and the chunks collected
     so far saved as the run's dataset.npz, which `--dataset` trains on."""

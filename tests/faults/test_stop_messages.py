@@ -38,6 +38,7 @@ def test_a_workers_signal_is_named_once(tmp_path):
     assert stop_reason() == "SIGTERM"
 
 
+@pytest.mark.slow
 def test_a_stop_before_any_episode_finished_does_not_claim_results(tmp_path, monkeypatch):
     def stopped(*args, **kwargs):
         raise KeyboardInterrupt("SIGTERM")

@@ -8,7 +8,7 @@ import pytest
 from rodctl.config import ExperimentConfig
 from rodctl.features.autoencoder import EncoderCheckpoint, encoder_fingerprint
 from rodctl.features.synthetic import rod_like_centerlines
-from rodctl.features.training import fit_autoencoder
+from rodctl.training.encoder import fit_autoencoder
 
 #: A small but real training run: enough steps to learn the 3-parameter family well.
 TINY = {

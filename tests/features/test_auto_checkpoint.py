@@ -11,8 +11,9 @@ from typer.testing import CliRunner
 from rodctl.cli import app
 from rodctl.config import ExperimentConfig, load_config
 from rodctl.errors import UserError
-from rodctl.features import make_feature_map, training
+from rodctl.features import auto, make_feature_map
 from rodctl.features.auto import cache_dir, cache_path
+from rodctl.training import encoder, prepare_feature
 
 runner = CliRunner()
 
@@ -22,16 +23,16 @@ def tiny_quick(monkeypatch, tmp_path):
     """Quick training shrunk to seconds, the cache in a temporary XDG_CACHE_HOME, and a count
     of the trainings."""
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    monkeypatch.setattr(training, "QUICK_SAMPLES", 24)
-    monkeypatch.setattr(training, "QUICK_EPOCHS", 3)
+    monkeypatch.setattr(auto, "QUICK_SAMPLES", 24)
+    monkeypatch.setattr(auto, "QUICK_EPOCHS", 3)
     calls = []
-    real = training.train_checkpoint
+    real = encoder.train_checkpoint
 
     def counting(cfg, **kw):
         calls.append(cfg)
         return real(cfg, **kw)
 
-    monkeypatch.setattr(training, "train_checkpoint", counting)
+    monkeypatch.setattr(encoder, "train_checkpoint", counting)
     return calls
 
 
@@ -50,8 +51,10 @@ def _cfg(**camera) -> ExperimentConfig:
     )
 
 
+@pytest.mark.slow
 def test_auto_trains_once_caches_by_fingerprint_and_says_so(tiny_quick, tmp_path, capsys):
     cfg = _cfg()
+    prepare_feature(cfg)  # what simulate, compare, sweep and replay do before building
     first = make_feature_map(cfg.feature, points=100, experiment=cfg)
     err = capsys.readouterr().err
     assert "training a quick one once" in err and "cached" in err
@@ -64,6 +67,7 @@ def test_auto_trains_once_caches_by_fingerprint_and_says_so(tiny_quick, tmp_path
 
     # a second run with the same rod and camera (another seed, noise) reuses the file
     again = _cfg(render={"noise_std": 2.0}).model_copy(update={"seed": 9})
+    prepare_feature(again)
     second = make_feature_map(again.feature, points=100, experiment=again)
     assert "using the quick encoder cached" in capsys.readouterr().err
     assert len(tiny_quick) == 1
@@ -72,8 +76,46 @@ def test_auto_trains_once_caches_by_fingerprint_and_says_so(tiny_quick, tmp_path
 
     # another camera pose: another fingerprint, another training
     other = _cfg(tilt_deg=20.0)
+    prepare_feature(other)
     make_feature_map(other.feature, points=100, experiment=other)
     assert len(tiny_quick) == 2 and cache_path(other) != path
+
+
+def test_the_feature_factory_never_trains_and_names_the_missing_file(tiny_quick):
+    """Building the feature map only looks the quick encoder up: training is the command's."""
+    cfg = _cfg()
+    with pytest.raises(UserError, match="no quick encoder is cached") as err:
+        make_feature_map(cfg.feature, points=100, experiment=cfg)
+    assert str(cache_path(cfg)) in str(err.value) and "prepare_feature" in str(err.value)
+    assert tiny_quick == [] and not cache_path(cfg).exists()
+
+
+@pytest.mark.slow
+def test_simulate_trains_the_quick_encoder_before_the_run(tiny_quick, tmp_path):
+    res = runner.invoke(
+        app,
+        [
+            "simulate",
+            str(REPO / "configs/default.yaml"),
+            "--out",
+            str(tmp_path / "runs"),
+            "--set",
+            "feature.checkpoint=auto",
+            "--set",
+            "feature.hidden=[16, 8]",
+            "--set",
+            "feature.data.workers=1",
+            "--set",
+            "feature.training.batch_size=8",
+            "--set",
+            "run.max_steps=2",
+            "--set",
+            "logging.figures=false",
+        ],
+    )
+    assert res.exit_code in (0, 1), res.output  # converging is not the point: no exit 2
+    assert len(tiny_quick) == 1, res.output
+    assert cache_path(tiny_quick[0]).is_file()
 
 
 def test_auto_needs_the_experiment():
@@ -93,6 +135,7 @@ def test_mismatch_names_the_users_keys_and_the_quick_command():
     assert "rodctl train-encoder CONFIG --quick" in msg and "feature.checkpoint=auto" in msg
 
 
+@pytest.mark.slow
 def test_train_encoder_quick_uses_the_quick_sizes(tiny_quick, tmp_path):
     res = runner.invoke(
         app,

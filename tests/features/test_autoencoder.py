@@ -15,7 +15,7 @@ from rodctl.features.autoencoder import (
     encoder_fingerprint,
     torch_encode,
 )
-from rodctl.features.training import fit_autoencoder
+from rodctl.training.encoder import fit_autoencoder
 
 
 def test_tiny_training_learns_the_shape_family(tiny_checkpoint, synthetic_split):

@@ -13,8 +13,8 @@ from rodctl.errors import UserError
 from rodctl.features import make_feature_map
 from rodctl.features.autoencoder import encoder_fingerprint
 from rodctl.features.collection import CenterlineDataset, chunk_sizes, collect_dataset
-from rodctl.features.training import train_encoder
 from rodctl.runs import RunDir
+from rodctl.training.encoder import train_encoder
 
 SMALL = {
     "feature": {
@@ -65,6 +65,7 @@ def test_collection_goes_through_the_camera_and_moves_the_rod(small_cfg, small_d
     assert np.ptp(d.centerlines[:8, -1, :], axis=0).max() > 5.0
 
 
+@pytest.mark.slow
 def test_collection_is_seeded_and_independent_of_worker_count(small_cfg, small_dataset):
     two = small_cfg.model_copy(deep=True)
     two.feature.data.workers = 2

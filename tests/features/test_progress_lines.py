@@ -10,7 +10,7 @@ import numpy as np
 from rodctl import display
 from rodctl.config import ExperimentConfig
 from rodctl.features.synthetic import rod_like_centerlines
-from rodctl.features.training import fit_autoencoder
+from rodctl.training.encoder import fit_autoencoder
 
 LINE = re.compile(
     r"^training: (\d+)/4 epochs \((\d+)%\), rms [0-9.]+ px, \d+:\d\d elapsed, ETA (\d+:\d\d|\?)$"

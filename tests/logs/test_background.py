@@ -35,6 +35,7 @@ def slow_random_encoder(monkeypatch):
     codec.FRAMES.reset()
 
 
+@pytest.mark.slow
 def test_mcap_bytes_do_not_depend_on_encoding_speed(tmp_path, helpers, slow_random_encoder):
     run = SyntheticRun(seed=8, image_every=1)
     records = run.records(25)

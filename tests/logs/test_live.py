@@ -153,6 +153,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_a_rerun_viewer_receives_the_recording_run_rrd_holds(tmp_path):
     """A Rerun server on loopback (the `rerun` CLI the SDK ships, saving what it receives, as a
     headless stand-in for the viewer) gets the same recording as the run's own run.rrd:

@@ -99,6 +99,7 @@ def test_units_timing_and_sequence(mcap_file, synthetic):
     assert summary.statistics.message_count == len(msgs)
 
 
+@pytest.mark.slow
 def test_schemas_foxglove_messages_and_images(mcap_file, synthetic):
     header, records = synthetic
     summary, msgs, _, _ = _messages(mcap_file)

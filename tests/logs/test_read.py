@@ -234,6 +234,7 @@ def _run_child(tmp_path, mode):
     )
 
 
+@pytest.mark.slow
 def test_sigkilled_run_leaves_a_recoverable_file(tmp_path):
     res = _run_child(tmp_path, "kill")
     assert res.returncode == -signal.SIGKILL
@@ -246,6 +247,7 @@ def test_sigkilled_run_leaves_a_recoverable_file(tmp_path):
     assert compare_records(run.records, want, images=True) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode,status", [("term", "interrupted"), ("error", "failed")])
 def test_sigterm_and_exception_finalise_both_files(tmp_path, rerun_exe, mode, status):
     res = _run_child(tmp_path, mode)

@@ -23,6 +23,7 @@ def run_dir(tmp_path, synthetic, helpers):
     return d
 
 
+@pytest.mark.slow
 def test_rebuild_writes_an_rrd_equal_to_the_live_one(run_dir, rerun_exe):
     out = rebuild(run_dir)
     assert out.rrd == run_dir / "run.rrd" and out.run.complete

@@ -46,6 +46,7 @@ def settled_heavy_cantilever(load: float, segments: int) -> RodChain:
     raise AssertionError(f"heavy cantilever load={load} N={segments} did not come to rest")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("load", [2.0, 19.25, 100.0])
 def test_heavy_cantilever_shape_within_0p2_percent(load: float) -> None:
     chain = settled_heavy_cantilever(load, 50)
@@ -63,6 +64,7 @@ def test_heavy_cantilever_error_is_second_order() -> None:
     assert 3.0 < err25 / err50 < 5.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("load", [19.25, 100.0])
 def test_random_reachable_poses_match_heavy_bvp_within_0p2_percent(load: float) -> None:
     rho_a = rho_a_for(load)

@@ -33,6 +33,7 @@ def test_small_load_matches_linear_beam_theory() -> None:
     assert sol.curvature0 == pytest.approx(-w / 2, rel=1e-5)  # clamp moment q L^2 / 2
 
 
+@pytest.mark.slow
 def test_large_load_is_stiffer_than_linear_theory_and_monotonic() -> None:
     loads = [1.0, 5.0, 10.0, 20.0, 50.0, 100.0]
     drops = [heavy_cantilever(w).deflection for w in loads]
@@ -55,6 +56,7 @@ def test_greenhill_self_buckling_load() -> None:
     assert abs(bent.tip_angle - np.pi / 2) > 0.3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("w", [1.0, 10.0, 100.0])
 def test_cantilever_shooting_and_two_pose_bvp_agree(w: float) -> None:
     # Give the BVP both end poses of the free-end solution: it must find the same shape with a
@@ -71,6 +73,7 @@ def test_cantilever_shooting_and_two_pose_bvp_agree(w: float) -> None:
     np.testing.assert_allclose(tip[3:], [0.0, 0.0, 0.0], atol=1e-5)  # kappa, p_x, p_y
 
 
+@pytest.mark.slow
 def test_two_pose_bvp_and_shooting_recover_manufactured_solutions() -> None:
     # Manufactured problems: integrate the six equations forward from a random clamp curvature
     # and force, take the end pose reached as the gripper pose; both solvers must recover that

@@ -141,6 +141,7 @@ def test_cantilever_matches_the_elastica_table(alpha: float) -> None:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("load", [2.0, 19.25, 100.0])
 def test_heavy_cantilever_shape(load: float) -> None:
     chain = QuasiStaticChain(
@@ -193,6 +194,7 @@ def test_heavy_random_poses_match_the_heavy_bvp() -> None:
 
 
 # ---------------------------------------------------------------------- stability and snaps
+@pytest.mark.slow
 def test_a_fold_is_a_reported_snap_to_the_branch_pymunk_reaches() -> None:
     # A buckled rod, both ends clamped horizontally, bowed down; turning the gripper far enough
     # makes the bow lose stability and snap through to the other side (a fold of the path).
@@ -293,6 +295,7 @@ _centerline_jacobian = QuasiStaticSim.centerline_jacobian
 
 
 # ---------------------------------------------------------------------- config
+@pytest.mark.slow
 def test_table_friction_is_refused_with_the_quasistatic_engine() -> None:
     with pytest.raises(ValidationError, match="table_friction"):
         RodConfig(table_friction=0.5, engine="quasistatic")

@@ -95,6 +95,7 @@ def test_move_past_reach_is_clipped_and_recorded() -> None:
     assert sim.health().max_joint_gap < 1e-4
 
 
+@pytest.mark.slow
 def test_refuse_mode_does_not_move() -> None:
     clip_mode_home = RodSim(RodConfig()).centerline()
     sim = RodSim(RodConfig(workspace=WorkspaceConfig(on_violation="refuse")))

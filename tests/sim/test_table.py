@@ -33,6 +33,7 @@ def test_zero_friction_table_is_the_frictionless_rod() -> None:
     np.testing.assert_allclose(table.centerline(), plain.centerline(), atol=1e-12)
 
 
+@pytest.mark.slow
 def test_friction_makes_the_shape_depend_on_the_path() -> None:
     direct = settled_at_target(0.5, detour=False)
     around = settled_at_target(0.5, detour=True)
@@ -46,6 +47,7 @@ def test_friction_makes_the_shape_depend_on_the_path() -> None:
     assert with_friction > 10 * without
 
 
+@pytest.mark.slow
 def test_gripper_still_nothing_creeps() -> None:
     # "Settled" means slower than settle_speed_tol; friction then still finishes the last slide
     # (measured 0.13 mm over the next 10 s, 0.06 px). After that the rod must stay put: the
@@ -74,6 +76,7 @@ def test_friction_change_and_weight_change_rescale_the_joints() -> None:
         RodSim(RodConfig(segments=20)).set_table_friction(0.3)
 
 
+@pytest.mark.slow
 def test_a_faint_table_settles_where_the_frictionless_rod_does() -> None:
     # With mu > 0 the pivots close their joint gaps faster (chain.TABLE_GAP_RATE); the gaps are a
     # solver error, so that must not move an equilibrium: a table with next to no friction ends
@@ -103,6 +106,7 @@ def random_walk_steps(cfg: RodConfig, commands: int = 10) -> int:
     return steps
 
 
+@pytest.mark.slow
 def test_a_control_step_on_the_table_takes_few_more_physics_steps() -> None:
     # Issue #12: friction held the segments against the solver's slow joint-gap correction, so
     # the rod crept at about the settle speed and a control step took 2.15x the weightless rod's
@@ -112,6 +116,7 @@ def test_a_control_step_on_the_table_takes_few_more_physics_steps() -> None:
     assert table <= 1.5 * weightless
 
 
+@pytest.mark.slow
 def test_friction_and_gravity_runs_are_bit_identical() -> None:
     # Determinism holds with the new constraints and body forces (replay --verify relies on it).
     for extra in ({"table_friction": 0.5}, {"gravity": (0.0, -9.81)}):

@@ -70,6 +70,7 @@ def open_sim() -> RodSim:
     return RodSim(RodConfig(workspace=ws))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("turn", [1.0, 2.0, np.pi])
 def test_gripper_held_arc_within_0p1_percent(open_sim: RodSim, turn: float) -> None:
     # Clamp at the origin along +x, gripper at the end pose of an arc turning by `turn`: the
@@ -84,6 +85,7 @@ def test_gripper_held_arc_within_0p1_percent(open_sim: RodSim, turn: float) -> N
     sim.move_to(sim.home_pose)
 
 
+@pytest.mark.slow
 def test_random_reachable_poses_match_two_pose_bvp_within_0p5_percent() -> None:
     sim = RodSim(RodConfig())
     rng = np.random.default_rng(3)

@@ -1,5 +1,8 @@
 """Training the centerline autoencoder, and `train_encoder`, the body of `rodctl train-encoder`.
 
+(Moved from `rodctl/features/training.py`: the feature stage loads a trained encoder and never
+imports its training.)
+
 The paper (section VI-A) trains with Adam at an initial learning rate of 1e-3, batches of 10,000
 and an MSE reconstruction loss. With batches that large one epoch over 100,000 shapes is only ten
 optimiser steps, so the number of epochs decides the quality; "initial" learning rate suggests a
@@ -28,6 +31,7 @@ import numpy as np
 from rodctl.config import ExperimentConfig, dump_config
 from rodctl.display import task_progress
 from rodctl.errors import UserError
+from rodctl.features import auto as quick
 from rodctl.features.autoencoder import (
     AutoencoderNet,
     EncoderCheckpoint,
@@ -276,26 +280,18 @@ def train_encoder(
     return metrics
 
 
-#: `rodctl train-encoder --quick` and `feature.checkpoint: auto` (issue #15): a working encoder
-#: for a new rod or camera in about 30 s on 2 cores instead of the paper's 100,000-sample run.
-#: Batches of 500 (6 Adam steps an epoch): on the same 3,000 shapes (camera tilted 35 degrees)
-#: 1.89 px validation error against 4.73 px with one full batch an epoch, for 1.3x the time.
-QUICK_SAMPLES = 3_000
-QUICK_EPOCHS = 300
-QUICK_BATCH = 500
-
-
 def quick_config(cfg: ExperimentConfig) -> ExperimentConfig:
-    """`cfg` with the quick encoder's data and training sizes (QUICK_SAMPLES, QUICK_EPOCHS,
-    batches of at most QUICK_BATCH)."""
+    """`cfg` with the quick encoder's data and training sizes (`rodctl.features.auto`:
+    QUICK_SAMPLES, QUICK_EPOCHS, batches of at most QUICK_BATCH; they also name its cache file)."""
     if not isinstance(cfg.feature, AutoencoderFeatureConfig):
         return cfg  # nothing to shrink; train_encoder says what is wrong
     data = cfg.model_dump(mode="json")
     feature = data["feature"]
-    feature["data"]["samples"] = QUICK_SAMPLES
-    feature["data"]["chunk"] = min(int(feature["data"]["chunk"]), QUICK_SAMPLES // 6)
-    feature["training"]["epochs"] = QUICK_EPOCHS
-    feature["training"]["batch_size"] = min(int(feature["training"]["batch_size"]), QUICK_BATCH)
+    feature["data"]["samples"] = quick.QUICK_SAMPLES
+    feature["data"]["chunk"] = min(int(feature["data"]["chunk"]), quick.QUICK_SAMPLES // 6)
+    feature["training"]["epochs"] = quick.QUICK_EPOCHS
+    batch = min(int(feature["training"]["batch_size"]), quick.QUICK_BATCH)
+    feature["training"]["batch_size"] = batch
     return ExperimentConfig.model_validate(data)
 
 
