@@ -91,7 +91,8 @@ def _unbounded(schema: dict) -> set[str]:
                 walk(sub, path)
         kind = node.get("type")
         if kind in ("number", "integer"):
-            if "maximum" not in node and "exclusiveMaximum" not in node:
+            bounded = "maximum" in node or "exclusiveMaximum" in node or "enum" in node
+            if not bounded:  # an enum (e.g. rod.arms: 1 | 2) is bounded by its values
                 out.add(path)
         for name, sub in node.get("properties", {}).items():
             walk(sub, f"{path}.{name}" if path else name)
