@@ -442,18 +442,18 @@ class RodSim:
         # check otherwise): a pose inside the box and the reach is returned unchanged, exactly
         # what the cuts below would return for it.
         x, y, t = pose.tolist()
-        cx, cy = self.chain.current_clamp_pose()[:2].tolist()
+        cx, cy = np.asarray(clamp, dtype=float)[:2].tolist()  # where the x0 end will be
+        reach = self._reach()
         if (
             ws.x_limits[0] <= x <= ws.x_limits[1]
             and ws.y_limits[0] <= y <= ws.y_limits[1]
             and ws.theta_limits[0] <= t <= ws.theta_limits[1]
-            and float(np.hypot(x - cx, y - cy)) <= ws.max_reach * self.held_length
+            and float(np.hypot(x - cx, y - cy)) <= reach
         ):
             return pose.copy(), False
         lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]])
         hi = np.array([ws.x_limits[1], ws.y_limits[1], ws.theta_limits[1]])
         out = np.clip(pose, lo, hi)
-        reach = self._reach()
         for _ in range(3):  # the reach cut and the box cut may need a second pass
             d = out[:2] - clamp
             dist = float(np.hypot(*d))
@@ -764,7 +764,7 @@ class RodSim:
         start = self.clamp_pose[:2]
         end = np.asarray(clamp_pose, dtype=float)[:2]
         grip = self.gripper_pose[:2]
-        reach = self.cfg.workspace.max_reach * self.held_length
+        reach = self._reach()
         d = end - start
         r0 = start - grip
         # |r0 + f d|² = reach²  ->  a f² + b f + c = 0
