@@ -424,16 +424,21 @@ class ShapeServoEnv(gym.Env):
         None where the run does not compute it.
 
         "auto": only where it costs no settle: the quasi-static engine at a converged
-        equilibrium (analytic), or a `true_jacobian` already evaluated at this state for this
-        feature (the oracle's). "always": pymunk's six-settle finite differences otherwise too;
-        their restore keeps no solver warm start, so they perturb the rest of the run within the
-        settle tolerance, as the oracle's do. "never": None.
+        equilibrium with one arm (analytic; a dual-arm J is central differences), or a
+        `true_jacobian` already evaluated at this state for this feature (the oracle's).
+        "always": pymunk's six-settle finite differences otherwise too; their restore keeps no
+        solver warm start, so they perturb the rest of the run within the settle tolerance, as
+        the oracle's do. "never": None.
         """
         mode = self.cfg.run.jacobian_error
         if mode == "never" or self.sim is None:
             return None
         if mode == "auto":
-            cheap = hasattr(self.sim, "centerline_jacobian") and self.sim.chain.converged
+            cheap = (  # analytic: the quasi-static engine at an equilibrium, one arm
+                not self.dual_arm
+                and hasattr(self.sim, "centerline_jacobian")
+                and self.sim.chain.converged
+            )
             cached = self._true_jacobian_cache
             key = self._state_key()
             if not cheap and not (cached and cached[0][:-1] == key and cached[1] == encode):

@@ -121,6 +121,14 @@ class Method:
         )
         self.estimator: JacobianEstimator = ESTIMATORS.build(self.configs["estimator"], ctx)
         self.controller: Controller = CONTROLLERS.build(self.configs["controller"], ctx)
+        if getattr(self.controller, "open_loop", False) and not isinstance(
+            self.controller, OpenLoopController
+        ):
+            # an open-loop controller without `done` would silently run closed-loop (probed)
+            raise UserError(
+                f"controller {self.configs['controller'].type!r} says open_loop but is not an "
+                "OpenLoopController: it needs `done` too (rodctl/control/base.py)"
+            )
         for kind, registry in (("estimator", ESTIMATORS), ("controller", CONTROLLERS)):
             self.stages[kind] = registry.provenance(self.configs[kind].type)
         self.J = np.zeros((self.p, self.q))

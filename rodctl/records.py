@@ -163,6 +163,7 @@ FIELD_UNITS: dict[str, Unit] = {
     "step": Unit("1"),
     "sim_time": Unit("s"),
     "gripper": Unit(_POSE, " (world frame, y up)"),
+    "clamp": Unit(_POSE, " (world frame, y up)"),
     "centerline": Unit("m", " (world frame, y up; clamp end first)"),
     "extracted": Unit(_PIXELS, " (u right, v down)"),
     "projected_truth": Unit(_PIXELS, " (u right, v down)"),

@@ -67,7 +67,7 @@ from rodctl.config.logging import LoggingConfig
 from rodctl.errors import UserError
 from rodctl.logs import codec, schemas
 from rodctl.logs.base import raise_or_warn
-from rodctl.records import RunHeader, RunSummary, StepRecord
+from rodctl.records import FIELD_UNITS, RunHeader, RunSummary, StepRecord
 
 MAGIC = b"\x89MCAP0\r\n"
 #: Written into the MCAP header; no version number, so reruns stay byte-identical.
@@ -514,7 +514,7 @@ class McapSink:
                 topic=codec.TOPIC_CLAMP_STATE,
                 message_encoding=MessageEncoding.JSON,
                 schema_id=sid,
-                metadata={"unit.clamp": "m, m, rad (world frame, y up)"},
+                metadata={"unit.clamp": FIELD_UNITS["clamp"].described},
             )
         w.add_metadata(
             "rodctl.run",
