@@ -514,7 +514,7 @@ class McapSink:
                 topic=codec.TOPIC_CLAMP_STATE,
                 message_encoding=MessageEncoding.JSON,
                 schema_id=sid,
-                metadata={"unit.clamp": "m, m, rad (world frame, y up)"},
+                metadata={f"unit.{k}": v for k, v in codec.CLAMP_UNITS.items()},
             )
         w.add_metadata(
             "rodctl.run",
