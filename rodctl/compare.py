@@ -298,6 +298,8 @@ def given_target_poses(cfg: CompareConfig, config_dir: Path) -> list[list[float]
             path if path.is_absolute() else config_dir / path, cfg.base.rod.arms
         )
     if tc.poses is not None:
+        # A compare config checks this when it loads; a sweep's (same targets) here.
+        check_pose_lengths(tc.poses, cfg.base.rod.arms, "targets.poses", ConfigError)
         return [list(p) for p in tc.poses]
     return None
 

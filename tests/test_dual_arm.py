@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from paths import REPO
 from typer.testing import CliRunner
 
 from rodctl.cli import app
@@ -244,3 +245,14 @@ def test_target_poses_of_the_wrong_length_for_the_arms_exit_2_naming_the_field(
     assert res.exit_code == 2, out
     assert "Traceback" not in out
     assert re.search(match, " ".join(out.split())), out
+
+
+def test_a_sweep_refuses_six_value_target_poses_on_one_arm(tmp_path):
+    """A sweep shares compare's targets (`given_target_poses`): the same check, exit 2."""
+    sweep = str(REPO / "configs/sweep-smoke.yaml")
+    over = ["--set", "targets.poses=[[0.4, 0.1, 0.5, 0.0, 0.0, 0.0]]", "--set", "seeds=[0]"]
+    res = CliRunner().invoke(app, ["sweep", sweep, *over, "-o", str(tmp_path / "out"), "-q"])
+    out = res.stdout + (res.stderr or "")
+    assert res.exit_code == 2 and "Traceback" not in out, out
+    assert re.search(r"targets\.poses: item 0 has 6 values.*one arm", " ".join(out.split())), out
+    assert not (tmp_path / "out").exists()  # refused before anything is created
