@@ -375,7 +375,7 @@ def _live_view(cfg: ExperimentConfig, port: int) -> Any:
     from rodctl.logs.live import LiveView
 
     # A short grace at the end: the last messages are still on their way when the run ends.
-    view = LiveView(cfg.logging, port=port, grace_s=0.5).start()
+    view = LiveView(cfg.logging, port=port, grace_s=0.5, arms=cfg.rod.arms).start()
     typer.echo(
         f"live view on {view.url}: in Foxglove, Open connection > Foxglove WebSocket > that URL; "
         "the run starts when it subscribes (Ctrl-C to give up)",

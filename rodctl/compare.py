@@ -42,7 +42,7 @@ from pydantic import ValidationError
 
 from rodctl import journal
 from rodctl.config import ExperimentConfig, dump_config
-from rodctl.config.compare import CompareConfig
+from rodctl.config.compare import CompareConfig, check_pose_lengths, pose_kind
 from rodctl.config.loading import (
     ConfigError,
     config_source,
@@ -172,7 +172,8 @@ class CompareTarget:
 
     Attributes:
         index: position in the target set (targets are numbered easy to hard when sampled).
-        pose: (3,) gripper pose [x, y, theta], world frame, as the rod settled there.
+        pose: (3,) gripper pose [x, y, theta], world frame, as the rod settled there (rod.arms:
+            2: (6,), the gripper's pose then the x0 end's).
         difficulty: normalised distance of `pose` from the home pose (`rodctl.targets`).
         seed: the experiment seed of every episode on this target (camera noise).
         view: what the clean camera saw there, {"centerline": (M, 2) m, "pixels": (N, 2) px}:
@@ -199,11 +200,15 @@ def _target_seeds(seed: int, k: int) -> list[int]:
     return [int(v) for v in state]
 
 
-def read_target_file(path: str | Path) -> list[list[float]]:
+def read_target_file(path: str | Path, arms: int = 1) -> list[list[float]]:
     """Gripper poses from a YAML/JSON file: a list of [x, y, theta], or {targets: [...]}.
 
+    `arms`: the rod's `rod.arms`; with 2 every pose holds 6 values, both ends' poses (the
+    gripper's, then the x0 end's), and 3-value poses are refused (`check_pose_lengths`).
+
     Raises:
-        ConfigError: missing file, not YAML, or not a non-empty list of 3-number poses.
+        ConfigError: missing file, not YAML, or not a non-empty list of 3-number (rod.arms: 2:
+            6-number) poses.
     """
     from rodctl.config.loading import parse_yaml, read_yaml_text
 
@@ -212,10 +217,9 @@ def read_target_file(path: str | Path) -> list[list[float]]:
     data = parse_yaml(read_yaml_text(path, f"targets.file {path}"), f"targets.file {path}")
     if isinstance(data, dict) and "targets" in data:
         data = data["targets"]
+    kind = pose_kind(arms)
     if not isinstance(data, list) or not data:
-        raise ConfigError(
-            f"targets.file {path}: expected a non-empty list of gripper poses [[x, y, theta], ...]"
-        )
+        raise ConfigError(f"targets.file {path}: expected a non-empty list of {kind}")
     from rodctl.config.compare import MAX_TARGETS
 
     if len(data) > MAX_TARGETS:
@@ -224,14 +228,16 @@ def read_target_file(path: str | Path) -> list[list[float]]:
         )
     poses = []
     for i, item in enumerate(data):
-        ok = isinstance(item, list | tuple) and len(item) == 3
+        ok = isinstance(item, list | tuple) and len(item) in (3, 6)
         ok = ok and all(isinstance(v, int | float) and math.isfinite(v) for v in item)
         if not ok:
+            want = "[x, y, theta] (three" if arms == 1 else "6 values (six"
             raise ConfigError(
-                f"targets.file {path}: item {i} is {item!r}; expected [x, y, theta] "
-                "(three finite numbers: metres, metres, radians)"
+                f"targets.file {path}: item {i} is {item!r}; expected {want} finite numbers: "
+                "metres, metres, radians" + (")" if arms == 1 else " for each end)")
             )
         poses.append([float(v) for v in item])
+    check_pose_lengths(poses, arms, f"targets.file {path}", ConfigError)
     return poses
 
 
@@ -288,8 +294,12 @@ def given_target_poses(cfg: CompareConfig, config_dir: Path) -> list[list[float]
     tc = cfg.targets
     if tc.file is not None:
         path = Path(tc.file)
-        return read_target_file(path if path.is_absolute() else config_dir / path)
+        return read_target_file(
+            path if path.is_absolute() else config_dir / path, cfg.base.rod.arms
+        )
     if tc.poses is not None:
+        # A compare config checks this when it loads; a sweep's (same targets) here.
+        check_pose_lengths(tc.poses, cfg.base.rod.arms, "targets.poses", ConfigError)
         return [list(p) for p in tc.poses]
     return None
 
@@ -1083,7 +1093,8 @@ def _figure_target(cfg: CompareConfig, targets: Sequence[CompareTarget]) -> int:
 
 def write_targets(targets: Sequence[CompareTarget], path: Path) -> None:
     """targets.yaml: the poses (reusable as `targets.file`) with their difficulty as comments."""
-    lines = ["# rodctl compare targets: gripper poses [x, y, theta] (world, m, rad)", "targets:"]
+    arms = len(targets[0].pose) // 3 if targets else 1
+    lines = [f"# rodctl compare targets: {pose_kind(arms)} (world, m, rad)", "targets:"]
     for t in targets:
         pose = ", ".join(repr(float(v)) for v in t.pose)
         lines.append(f"  - [{pose}]  # {t.index}: difficulty {t.difficulty:.3f}")

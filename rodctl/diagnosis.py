@@ -7,12 +7,14 @@ pinned episode of a compare run is examined, in its worker, right after it ended
 simulator's own model (what no real robot has), and gets one of:
 
 - `workspace`: the episode ended pinned (every command clipped by the workspace), or the pose
-  search below could not reach the tolerance and was clipped by the workspace on the way.
+  search below could not reach the tolerance and was clipped by the workspace on the way (in a
+  dual-arm run, `rod.arms: 2`, either end's: the gripper's `rod.workspace`, the x0 end's
+  `rod.clamp_arm.workspace`, or the reach between them).
 - `estimator`: the method's own feature and law, told the true Jacobian (the `oracle`
   estimator, `ShapeServoEnv.true_jacobian`), converge from the same state within
   `ESTIMATOR_STEPS` steps: the Jacobian estimate was at fault.
 - `unreachable`: a pose search with the true model cannot bring the rod within the pixel
-  tolerance of the target: from this state, no nearby gripper pose makes the target shape
+  tolerance of the target: from this state, no nearby pose of the moved ends makes the target shape
   (after a mid-run event, or with a tolerance tighter than what the rod can show).
 - `other`: the target is reachable and the true Jacobian does not help the method's law: the
   feature (its minimum is not the shape's) or the law itself.
@@ -21,10 +23,14 @@ simulator's own model (what no real robot has), and gets one of:
 
 The pose search is Gauss-Newton on the clean pixel residual (the simulated centerline through
 the camera model minus the target's pixels), its Jacobian by central differences of the
-simulator (as `true_jacobian`, six settles an iteration), each move within the speed limit and
-halved until the error falls; it stops at the tolerance or after `SEARCH_ITERATIONS`. Cost: at
-most about `ESTIMATOR_STEPS` oracle steps plus `SEARCH_ITERATIONS` x 7 settles per diagnosed
-episode; converged episodes are never diagnosed. Mid-run events do not fire during it.
+simulator (as `true_jacobian`, 2q settles an iteration), each move within the speed limit and
+halved until the error falls; it stops at the tolerance or after `SEARCH_ITERATIONS`. It
+searches over all q commanded values: the gripper's pose (q = 3), and in a dual-arm run the x0
+end's too (q = 6), each end within its own speed limit (`rod.max_step`,
+`rod.clamp_arm.max_step`) and workspace, as the robot moves them (`RodSim.apply`). Cost: at
+most about `ESTIMATOR_STEPS` oracle steps plus `SEARCH_ITERATIONS` x (2q + 1) settles per
+diagnosed episode (7 at q = 3, 13 at q = 6); converged episodes are never diagnosed. Mid-run
+events do not fire during it.
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from rodctl.config import ExperimentConfig
-from rodctl.env import Q, ShapeServoEnv, pixel_error
+from rodctl.env import ShapeServoEnv, pixel_error
 from rodctl.geometry import resample_polyline
 
 #: The values of the `diagnosis` column (None for episodes that did not stall or get pinned).
@@ -46,7 +52,7 @@ ESTIMATOR_STEPS = 30
 #: Gauss-Newton iterations of the pose search.
 SEARCH_ITERATIONS = 20
 
-#: Finite-difference step per axis [m, m, rad] (as `ShapeServoEnv.true_jacobian`).
+#: Finite-difference step per axis [m, m, rad] of each moved end (as `ShapeServoEnv.true_jacobian`).
 _FD = (1e-3, 1e-3, 5e-3)
 
 
@@ -94,7 +100,7 @@ def true_jacobian_converges(env: ShapeServoEnv, cfg: ExperimentConfig, steps: in
 
     method = Method(cfg.feature, OracleEstimatorConfig(), cfg.controller, experiment=cfg)
     method.start(env.task)
-    obs: dict[str, Any] = env._observation(np.zeros(Q))
+    obs: dict[str, Any] = env._observation(np.zeros(env.q))
     if not obs["extraction_ok"]:
         return False
     tol, t1 = cfg.run.pixel_tolerance, cfg.run.t1_tolerance
@@ -111,14 +117,54 @@ def true_jacobian_converges(env: ShapeServoEnv, cfg: ExperimentConfig, steps: in
     return False
 
 
+def workspace_box(cfg: ExperimentConfig, q: int) -> tuple[np.ndarray, np.ndarray]:
+    """(q,) lower and upper limits of each commanded axis: the gripper's `rod.workspace` box,
+    then (q = 6) the x0 end's `rod.clamp_arm.workspace` box."""
+    boxes = [cfg.rod.workspace] + ([cfg.rod.clamp_arm.workspace] if q == 6 else [])
+    lo = [v for w in boxes for v in (w.x_limits[0], w.y_limits[0], w.theta_limits[0])]
+    hi = [v for w in boxes for v in (w.x_limits[1], w.y_limits[1], w.theta_limits[1])]
+    return np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+
+
+def _bounded_step(
+    jac: np.ndarray, r: np.ndarray, pose: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, bool]:
+    """The Gauss-Newton step min ||jac du + r|| with the axes held that sit on a workspace limit
+    and would push past it, and whether any was held (the workspace stopped the search there).
+
+    Without it a step that mostly asks for a held axis is scaled down to that axis's speed limit
+    and then clipped, so the free axes creep (a dual-arm search with the x0 end at its box's
+    edge improved by 0.01 px an iteration, never stopping, 'inconclusive')."""
+    q = pose.shape[0]
+    free = np.ones(q, dtype=bool)
+    blocked = False
+    step = np.zeros(q)
+    for _ in range(q):
+        step = np.zeros(q)
+        if not free.any():
+            break
+        step[free] = -np.linalg.lstsq(jac[:, free], r, rcond=None)[0]
+        held = free & (((pose <= lo + 1e-9) & (step < 0)) | ((pose >= hi - 1e-9) & (step > 0)))
+        if not held.any():
+            break
+        free &= ~held
+        blocked = True
+    return step, blocked
+
+
 def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool, bool]:
     """(best clean pixel error reached, whether the workspace clipped a move, whether it ran out
-    of iterations while still improving): Gauss-Newton over gripper poses on the simulated rod,
-    from its current state, towards the target."""
+    of iterations while still improving): Gauss-Newton over the poses of the moved ends (the
+    gripper's; dual-arm: the x0 end's too, q = 6) on the simulated rod, from its current state,
+    towards the target. Each move is within every axis's speed limit (`env.max_step`: the
+    gripper's, then the x0 end's), and "clipped" counts either end's workspace."""
     sim, camera = env.sim, env.camera
     n = env.cfg.camera.points
+    q = env.q
     target = np.asarray(env.target.pixels, dtype=float)
-    max_step = np.asarray(env.max_step, dtype=float)
+    max_step = np.asarray(env.max_step, dtype=float)  # (q,)
+    fd = np.tile(_FD, q // 3)
+    lo, hi = workspace_box(env.cfg, q)
     tol = env.cfg.run.pixel_tolerance
 
     def residual() -> np.ndarray:
@@ -132,17 +178,18 @@ def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool, bool]
             break
         snap = sim.snapshot()
         cols = []
-        for axis, h in enumerate(_FD):
+        for axis, h in enumerate(fd):
             values = []
             for sign in (1.0, -1.0):
-                du = np.zeros(Q)
+                du = np.zeros(q)
                 du[axis] = sign * h
                 sim.apply(du)
                 values.append(residual().ravel())
                 sim.restore(snap)
             cols.append((values[0] - values[1]) / (2.0 * h))
         jac = np.stack(cols, axis=1)
-        step = -np.linalg.lstsq(jac, r.ravel(), rcond=None)[0]
+        step, blocked = _bounded_step(jac, r.ravel(), sim.end_poses, lo, hi)
+        clipped = clipped or blocked
         step /= max(1.0, float(np.max(np.abs(step) / max_step)))  # within the speed limit
         improved = False
         for _ in range(4):  # halve the move until the error falls

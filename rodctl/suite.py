@@ -71,7 +71,7 @@ def scenario_configs(cfg: CompareConfig, config_dir: Path, source: str) -> dict[
         UserError: a scenario key that does not exist or a value out of range, named as
             `scenarios.<name>.set.<key>`.
     """
-    from rodctl.compare import method_config
+    from rodctl.compare import given_target_poses, method_config
 
     by_scenario: dict[str, dict] = {}
     common = cfg.model_dump(mode="json", exclude={"scenarios", "seeds"})
@@ -101,6 +101,7 @@ def scenario_configs(cfg: CompareConfig, config_dir: Path, source: str) -> dict[
         scfg = validate_config(data, where, CompareConfig)
         for method in scfg.methods:
             method_config(scfg, method, source=where)
+        given_target_poses(scfg, config_dir)  # a targets.file that does not fit, before any run
         by_scenario[name] = data
     out: dict[str, dict] = {}
     for key, name, seed in run_keys(cfg):

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from paths import REPO
 
+from rodctl.compare import _episode
 from rodctl.config import load_config
-from rodctl.diagnosis import diagnose
+from rodctl.diagnosis import diagnose, pose_search
 from rodctl.env import ShapeServoEnv, Target
 
 FAST = ["feature.type=bezier", "logging.mcap=false", "logging.rerun=false", "logging.figures=false"]
@@ -65,3 +66,52 @@ def test_a_search_cut_off_while_still_improving_is_inconclusive():
     env.sim.restore(snap)
     best_full, _, capped_full = pose_search(env, 20)
     assert best_full <= best and not capped_full  # given room, it stops at its minimum
+
+
+# --- dual-arm (rod.arms: 2, q = 6): the search moves both ends, each in its own box -------------
+
+DUAL = [*FAST, "rod.arms=2", "rod.engine=quasistatic", "rod.segments=20", "run.max_steps=80"]
+
+
+def _dual_env(*over: str, scale: float = 1.0, shift_px: float = 0.0):
+    """A dual-arm env at home whose target is the default one scaled about its centroid and
+    moved sideways in the image."""
+    cfg = load_config(REPO / "configs/default.yaml", [*DUAL, *over])
+    env = ShapeServoEnv(cfg)
+    env.reset()
+    t = env.target
+    c = t.pixels.mean(axis=0)
+    pixels = c + scale * (t.pixels - c) + np.array([shift_px, 0.0])
+    env.reset(options={"target": Target(t.pose, t.centerline, pixels, t.difficulty)})
+    return env, cfg
+
+
+def test_a_dual_arm_search_moves_both_ends_and_stops_at_the_x0_ends_workspace():
+    """The whole target moved sideways: no gripper pose makes it (one arm: `unreachable`, the
+    test above), both ends together do; with the x0 end's own box too narrow for it, the search
+    stops short, clipped, and says `workspace`, not `inconclusive`."""
+    env, cfg = _dual_env(shift_px=15.0)
+    best, _, _ = pose_search(env, 20)
+    assert best < cfg.run.pixel_tolerance
+    assert np.any(np.abs(env.sim.clamp_pose) > 1e-3)  # the x0 end moved
+    narrow = "rod.clamp_arm.workspace.x_limits=[-0.001,0.001]"
+    env, cfg = _dual_env(narrow, shift_px=15.0)
+    best, clipped, capped = pose_search(env, 20)
+    assert best > cfg.run.pixel_tolerance and clipped and not capped
+    assert abs(env.sim.clamp_pose[0]) <= 0.001 + 1e-9  # it stayed in its box
+
+
+def test_a_dual_arm_episode_that_stalls_on_a_shape_no_pose_makes_is_unreachable():
+    """Through the compare worker at q = 6: a target 5 % smaller than the rod (no pose of the
+    two ends makes it) stalls the episode, and its row says `unreachable`."""
+    env, cfg = _dual_env(scale=0.95)
+    t = env.target
+    task = {
+        "config": cfg.model_dump(mode="json"), "method": "m", "target": 0,
+        "pose": [float(v) for v in t.pose], "target_difficulty": t.difficulty, "seed": 0,
+        "target_view": {"centerline": t.centerline, "pixels": t.pixels},
+        "want_records": False, "log_dir": None, "diagnose": True,
+    }  # fmt: skip
+    row = _episode(task)
+    assert row["outcome"] == "stalled" and row["diagnosis"] == "unreachable", row
+    assert row["error"] == ""

@@ -5,10 +5,18 @@ Small rods (N = 20) and the quasi-static engine where the engine does not matter
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
+import yaml
+from paths import REPO
+from typer.testing import CliRunner
 
-from rodctl.config import ExperimentConfig, validate_config
+from rodctl.cli import app
+from rodctl.compare import read_target_file
+from rodctl.config import ConfigError, ExperimentConfig, validate_config
 from rodctl.config.rod import RodConfig
 from rodctl.errors import UserError
 from rodctl.sim import RodSim
@@ -175,3 +183,76 @@ def test_a_short_dual_arm_episode_converges(name, tmp_path):
         (codec.header_to_json(result.header), schemas.RUN_HEADER),
     ):
         jsonschema.validate(message, schema)  # the q = 6 messages fit their channels' schemas
+
+
+def _dual_arm_compare(tmp_path, poses):
+    """A one-method dual-arm compare config on a small quasi-static rod, with given targets."""
+    data = {
+        "name": "dual-targets",
+        "base": {
+            "rod": {"arms": 2, "engine": "quasistatic", "segments": N},
+            "run": {"max_steps": 12},
+            "logging": {"mcap": False, "rerun": False, "figures": False},
+        },
+        "methods": {
+            "ma2022": {
+                "feature": {"type": "bezier", "degree": 4},
+                "estimator": {"type": "broyden", "gamma": 1.0},
+                "controller": {"type": "pinv", "gain": 0.8, "error_limit": 50.0},
+            }
+        },
+        "targets": {"poses": poses},
+        "workers": 1,
+    }
+    path = tmp_path / "compare.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_a_dual_arm_compare_takes_six_value_target_poses_and_says_so_in_targets_yaml(tmp_path):
+    """targets.poses of 6 values (both ends) at rod.arms: 2; the targets.yaml it writes names
+    what a pose holds and reads back as a dual-arm targets.file, refused on one arm."""
+    home = RodSim(rod()).home_end_poses
+    pose = [float(v) for v in home + np.array([-0.01, 0.01, 0.05, 0.005, 0.0, 0.03])]
+    config = _dual_arm_compare(tmp_path, [pose])
+    res = CliRunner().invoke(app, ["compare", str(config), "--out", str(tmp_path), "-q"])
+    assert res.exit_code == 0, res.output
+    written = Path(res.stdout.strip().splitlines()[-1]) / "targets.yaml"
+    header = written.read_text().splitlines()[0]
+    assert "[x, y, theta, x0_x, x0_y, x0_theta]" in header and "x0 end's" in header
+    (again,) = read_target_file(written, arms=2)
+    assert np.allclose(again, pose, atol=1e-3)  # the settled poses, both ends
+    with pytest.raises(ConfigError, match=r"targets\.file .*item 0 has 6 values.*one arm"):
+        read_target_file(written, arms=1)
+
+
+@pytest.mark.parametrize(
+    "over, match",
+    [
+        (["base.rod.arms=1"], r"targets\.poses: item 0 has 6 values.*one arm"),
+        (["targets.poses=[[0.5, 0.0, 0.0]]"], r"targets\.poses: item 0 has 3 values.*two arms"),
+        (["targets.poses=null", "targets.file=three.yaml"], r"targets\.file .*three\.yaml.*3 val"),
+    ],
+)
+def test_target_poses_of_the_wrong_length_for_the_arms_exit_2_naming_the_field(
+    tmp_path, over, match
+):
+    (tmp_path / "three.yaml").write_text("targets:\n  - [0.5, 0.0, 0.0]\n")
+    config = _dual_arm_compare(tmp_path, [[0.5, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    args = ["compare", str(config), "--out", str(tmp_path / "out"), "-q"]
+    res = CliRunner().invoke(app, args + [a for o in over for a in ("--set", o)])
+    out = res.stdout + (res.stderr or "")
+    assert res.exit_code == 2, out
+    assert "Traceback" not in out
+    assert re.search(match, " ".join(out.split())), out
+
+
+def test_a_sweep_refuses_six_value_target_poses_on_one_arm(tmp_path):
+    """A sweep shares compare's targets (`given_target_poses`): the same check, exit 2."""
+    sweep = str(REPO / "configs/sweep-smoke.yaml")
+    over = ["--set", "targets.poses=[[0.4, 0.1, 0.5, 0.0, 0.0, 0.0]]", "--set", "seeds=[0]"]
+    res = CliRunner().invoke(app, ["sweep", sweep, *over, "-o", str(tmp_path / "out"), "-q"])
+    out = res.stdout + (res.stderr or "")
+    assert res.exit_code == 2 and "Traceback" not in out, out
+    assert re.search(r"targets\.poses: item 0 has 6 values.*one arm", " ".join(out.split())), out
+    assert not (tmp_path / "out").exists()  # refused before anything is created

@@ -10,6 +10,7 @@ seed (easy to hard) or read from a file of gripper poses that labs can exchange.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from pydantic import ConfigDict, Field, PositiveInt, field_validator, model_validator
@@ -21,6 +22,7 @@ from rodctl.config.experiment import (
     ExperimentConfig,
     FeatureConfig,
 )
+from rodctl.config.run import EndPoses
 from rodctl.registry import depends_on_stages
 
 _NAME = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
@@ -47,6 +49,34 @@ MAX_TARGETS = 10_000
 MAX_SEED = 2**63 - 1
 
 
+def pose_kind(arms: int) -> str:
+    """What one target pose holds for `arms` moved ends (the targets.yaml header says it)."""
+    if arms == 1:
+        return "gripper poses [x, y, theta]"
+    return "both ends' poses [x, y, theta, x0_x, x0_y, x0_theta]: the gripper's, then the x0 end's"
+
+
+def check_pose_lengths(
+    poses: Sequence[Sequence[float]], arms: int, where: str, error: type[Exception]
+) -> None:
+    """Every pose has 3 values for one arm, 6 (both ends') for rod.arms: 2.
+
+    A 3-value pose of a dual-arm rod would leave the x0 end home unsaid (run.target.pose allows
+    it, a shared target set does not: its targets.yaml and difficulties are 6-D).
+
+    Raises:
+        error: the first pose of the wrong length, named as `where`: item i.
+    """
+    want = 3 * arms
+    for i, pose in enumerate(poses):
+        if len(pose) != want:
+            what = "one arm (rod.arms: 1)" if arms == 1 else "two arms (rod.arms: 2)"
+            raise error(
+                f"{where}: item {i} has {len(pose)} values, but the rod has {what}: each pose "
+                f"needs {want} values ({pose_kind(arms)}; docs/dual-arm.md)"
+            )
+
+
 class CompareTargetsConfig(StrictModel):
     """The shared target set: sampled (seeded, spread from easy to hard) or read from a file."""
 
@@ -64,19 +94,33 @@ class CompareTargetsConfig(StrictModel):
     file: str | None = Field(
         None,
         description="YAML/JSON file holding gripper poses [[x, y, theta], ...] (world frame, m, "
-        "rad), or a mapping with key `targets` holding them; a relative path is resolved from "
-        "the compare config's folder. Every compare run writes its targets as targets.yaml.",
+        "rad; rod.arms: 2: six values, the gripper's pose then the x0 end's), or a mapping with "
+        "key `targets` holding them; a relative path is resolved from the compare config's "
+        "folder. Every compare run writes its targets as targets.yaml.",
     )
-    poses: list[Pose] | None = Field(
+    poses: list[Pose | EndPoses] | None = Field(
         None,
         max_length=MAX_TARGETS,
-        description="Target gripper poses given inline (alternative to `file`).",
+        description="Target gripper poses given inline (alternative to `file`; rod.arms: 2: "
+        "six values each, as in `file`).",
     )
     bands: list[float] = Field(
         [0.4, 0.7],
         description="Difficulty band edges (normalised offset): [0.4, 0.7] makes the bands easy "
         "< 0.4 <= medium < 0.7 <= hard.",
     )
+
+    @field_validator("poses", mode="before")
+    @classmethod
+    def _three_or_six(cls, value: Any) -> Any:
+        """One clear message for a pose of neither length (the union's would list both)."""
+        for i, pose in enumerate(value if isinstance(value, list | tuple) else []):
+            if isinstance(pose, list | tuple) and len(pose) not in (3, 6):
+                raise ValueError(
+                    f"item {i} has {len(pose)} values; a pose is [x, y, theta], or 6 values "
+                    "(the gripper's pose, then the x0 end's) for rod.arms: 2"
+                )
+        return value
 
     @model_validator(mode="after")
     def _consistent(self) -> CompareTargetsConfig:
@@ -226,6 +270,13 @@ class CompareConfig(StrictModel):
     def reference_method(self) -> str:
         """The method the others are compared with (`reference`, else the first)."""
         return self.reference or next(iter(self.methods))
+
+    @model_validator(mode="after")
+    def _poses_fit_the_arms(self) -> CompareConfig:
+        """3 values a pose for one arm, 6 (both ends') for rod.arms: 2 (docs/dual-arm.md)."""
+        if self.targets.poses is not None:
+            check_pose_lengths(self.targets.poses, self.base.rod.arms, "targets.poses", ValueError)
+        return self
 
     @model_validator(mode="after")
     def _base_samples_no_target(self) -> CompareConfig:

@@ -47,6 +47,8 @@ TOPIC_CAMERA_CENTERLINE = "/camera/centerline"
 TOPIC_CONTROL = "/control"
 #: Dual-arm runs only (rod.arms: 2): the x0 end's pose per step (added, not in single-arm logs).
 TOPIC_CLAMP_STATE = "/rod/clamp"
+#: The unit metadata of /rod/clamp's channel (run.mcap and the live view).
+CLAMP_UNITS = {"clamp": FIELD_UNITS["clamp"].described}
 # Foxglove well-known topics; the names double as Rerun entity paths.
 TOPIC_ROD_SCENE = "/world/rod"
 TOPIC_TARGET_SCENE = "/world/target"

@@ -5,7 +5,8 @@ waits for a client to subscribe, since a default run is over in about a second, 
 person could connect: open Foxglove, "Open connection", `ws://127.0.0.1:8765`, and the run
 starts. The live channels are the MCAP log's (`rodctl.logs.mcap.CHANNELS`), with the same
 official schemas and the same messages built by the same functions (`mcap.step_messages`),
-so a layout made for `run.mcap` works on the live view and the other way round. Message times
+so a layout made for `run.mcap` works on the live view and the other way round; a dual-arm
+view (`arms=2`) serves the x0 end's `/rod/clamp` too, as a dual-arm run.mcap holds it. Message times
 are the MCAP's log times (simulated time since 2000-01-01), not the wall clock.
 
 Only clients on this machine can connect (the server binds 127.0.0.1 unless told otherwise).
@@ -40,6 +41,9 @@ class LiveView:
         cfg: the logging config (frame rate and PNG level of the camera frames).
         host, port: where to listen; port 0 picks a free one (`port` then tells which).
         grace_s: leaving the context waits this long before stopping, if a client subscribed.
+        arms: the rod's `rod.arms`; 2 also advertises `/rod/clamp` (the x0 end's pose), the
+            channel run.mcap registers in dual-arm runs only. Known before the run, so the
+            channel is there for a client that subscribes before the first step.
     """
 
     def __init__(
@@ -48,8 +52,10 @@ class LiveView:
         host: str = "127.0.0.1",
         port: int = DEFAULT_PORT,
         grace_s: float = 0.0,
+        arms: int = 1,
     ) -> None:
         self.cfg = cfg if cfg is not None else LoggingConfig()
+        self.arms = arms
         self.grace_s = grace_s
         self.host = host
         self._requested_port = port
@@ -105,8 +111,13 @@ class LiveView:
             ) from None
         from rodctl.logs.mcap import CHANNELS
 
-        for topic, schema in CHANNELS:
+        channels = list(CHANNELS)
+        if self.arms == 2:  # as run.mcap: registered last, in dual-arm runs only
+            channels.append((codec.TOPIC_CLAMP_STATE, schemas.CLAMP_STATE))
+        for topic, schema in channels:
             units = codec.UNITS.get(topic, {})
+            if topic == codec.TOPIC_CLAMP_STATE:
+                units = codec.CLAMP_UNITS
             self._channels[topic] = foxglove.Channel(
                 topic,
                 schema=foxglove.Schema(
@@ -161,7 +172,7 @@ class LiveView:
         import orjson
 
         if topic == codec.TOPIC_CLAMP_STATE and topic not in self._channels:
-            return  # dual-arm's /rod/clamp is in the MCAP file, not on the live view's channels
+            return  # a one-arm view (arms=1) fed a dual-arm run: run.mcap has /rod/clamp
         self._channels[topic].log(orjson.dumps(msg), log_time=t_ns)
 
     def open(self, header: RunHeader) -> None:

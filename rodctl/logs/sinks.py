@@ -168,7 +168,8 @@ def _live(cfg: LiveSinkConfig, ctx: SinkContext) -> Sink:
     """A started `LiveView` on 127.0.0.1:`port`, stopped when the run closes its sinks."""
     from rodctl.logs.live import LiveView
 
-    view = LiveView(ctx.logging, port=cfg.port, grace_s=cfg.grace_s).start()
+    arms = ctx.experiment.rod.arms if ctx.experiment is not None else 1
+    view = LiveView(ctx.logging, port=cfg.port, grace_s=cfg.grace_s, arms=arms).start()
     print(
         f"live view on {view.url} (Foxglove: Open connection > Foxglove WebSocket)", file=sys.stderr
     )

@@ -90,9 +90,8 @@ def _unbounded(schema: dict) -> set[str]:
             for sub in node.get(key, []):
                 walk(sub, path)
         kind = node.get("type")
-        if kind in ("number", "integer"):
-            bounded = "maximum" in node or "exclusiveMaximum" in node or "enum" in node
-            if not bounded:  # an enum (e.g. rod.arms: 1 | 2) is bounded by its values
+        if kind in ("number", "integer") and "enum" not in node and "const" not in node:
+            if "maximum" not in node and "exclusiveMaximum" not in node:  # an enum is bounded
                 out.add(path)
         for name, sub in node.get("properties", {}).items():
             walk(sub, f"{path}.{name}" if path else name)

@@ -21,12 +21,13 @@ TIMEOUT_S = 120.0  # generous: the machine may be loaded
 SUBPROTOCOL = "foxglove.sdk.v1"  # the SDK's; Foxglove also offers foxglove.websocket.v1
 
 
-def _small_config():
+def _small_config(arms: int = 1):
     return load_config(
         REPO / "configs/default.yaml",
         [
             "feature.type=bezier",
             "rod.segments=20",
+            f"rod.arms={arms}",
             "run.max_steps=12",
             "run.expect=null",
             "logging.rerun=false",
@@ -35,24 +36,28 @@ def _small_config():
     )
 
 
-def _advertised(ws) -> dict[int, str]:
-    """channel id -> topic, from the server's first messages (serverInfo, advertise...)."""
+def _advertised(ws, extra: int = 0) -> dict[int, str]:
+    """channel id -> topic, from the server's first messages (serverInfo, advertise...);
+    `extra`: channels beyond the MCAP's common ones (dual-arm: /rod/clamp)."""
     channels: dict[int, str] = {}
-    while len(channels) < len(CHANNELS):
+    while len(channels) < len(CHANNELS) + extra:
         msg = json.loads(ws.recv(timeout=TIMEOUT_S))
         if msg["op"] == "advertise":
             channels.update({c["id"]: c["topic"] for c in msg["channels"]})
     return channels
 
 
-def test_a_live_run_reaches_a_foxglove_websocket_client(tmp_path):
-    cfg = _small_config()
+@pytest.mark.parametrize("arms", [1, 2])
+def test_a_live_run_reaches_a_foxglove_websocket_client(tmp_path, arms):
+    """One arm, and dual-arm (q = 6), whose live view serves /rod/clamp as run.mcap has it."""
+    cfg = _small_config(arms)
     received: list[tuple[str, int, bytes]] = []
-    with LiveView(cfg.logging, port=0) as view:
+    clamp = ["/rod/clamp"] if arms == 2 else []
+    with LiveView(cfg.logging, port=0, arms=arms) as view:
         with connect(view.url, subprotocols=[SUBPROTOCOL], open_timeout=TIMEOUT_S) as ws:
             assert ws.subprotocol == SUBPROTOCOL
-            channels = _advertised(ws)
-            assert set(channels.values()) == {topic for topic, _ in CHANNELS}
+            channels = _advertised(ws, len(clamp))
+            assert set(channels.values()) == {topic for topic, _ in CHANNELS} | set(clamp)
             subs = [{"id": i, "channelId": c} for i, c in enumerate(channels)]
             ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
             topic_of = {s["id"]: channels[s["channelId"]] for s in subs}
@@ -82,7 +87,8 @@ def test_a_live_run_reaches_a_foxglove_websocket_client(tmp_path):
     steps = json.loads((result.run.path / "summary.json").read_text())["steps"]
     live_steps = [m for m in received if m[0] == "/rod/state"]
     assert len(live_steps) == steps + 1  # the initial observation and every step
-    for topic in ("/rod/state", "/control", "/world/rod", "/tf", "/camera/calibration"):
+    assert {m[0] for m in logged} >= set(clamp)  # run.mcap has /rod/clamp in dual-arm runs
+    for topic in ("/rod/state", "/control", "/world/rod", "/tf", "/camera/calibration", *clamp):
         mine = [m for m in received if m[0] == topic]
         assert mine == [m for m in logged if m[0] == topic], topic
 
