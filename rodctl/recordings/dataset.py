@@ -2,7 +2,7 @@
 
 An imported run (or any rodctl run) holds the extracted pixel centerline of every frame
 (`/camera/centerline.extracted`). Its good frames become the centerline dataset the encoder
-trains on (`rodctl.features.collection.CenterlineDataset`): the frames in time order, cut into
+trains on (`rodctl.training.collection.CenterlineDataset`): the frames in time order, cut into
 `CHUNKS` consecutive pieces that play the part of the simulator's collection walks, so the
 validation hold-out (`split_by_chunk`) is whole stretches of the recording, not frames next to
 training frames. docs/recordings.md ("An autoencoder trained on a recording") has the steps.
@@ -19,7 +19,7 @@ from rodctl.config import ExperimentConfig
 from rodctl.errors import UserError
 from rodctl.features.autoencoder import encoder_fingerprint
 from rodctl.features.autoencoder_config import AutoencoderFeatureConfig
-from rodctl.features.collection import CenterlineDataset
+from rodctl.training.collection import CenterlineDataset
 
 #: Consecutive pieces a recording's frames are cut into (the held-out unit of validation).
 CHUNKS = 10

@@ -47,8 +47,8 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
         {"pixels": (F, N, 2), "poses": (F, q) (q = 6 dual-arm: both ends), "segment": (F,) int
         (a new segment after the simulator was rebuilt: no pair spans two), "attempts": int}.
     """
-    from rodctl.features.collection import random_walk_start, sample_end_goals, sample_goal
     from rodctl.sim import RodSim
+    from rodctl.training.collection import random_walk_start, sample_end_goals, sample_goal
 
     cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
     clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
@@ -129,7 +129,7 @@ def _collect_task(args: tuple[str, int, np.random.SeedSequence]) -> dict[str, An
 
 def collect_walks(cfg: ExperimentConfig, *, progress: bool = True) -> list[dict[str, Any]]:
     """The random walks `cfg.estimator.data` describes, in order (see the module docstring)."""
-    from rodctl.features.collection import chunk_sizes, map_chunks
+    from rodctl.training.collection import chunk_sizes, map_chunks
 
     data = cfg.estimator.data  # type: ignore[union-attr]
     sizes = chunk_sizes(data.samples, data.chunk)
