@@ -34,6 +34,8 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from rodctl.suite import read_rows, run_suite  # noqa: E402
+
 SUITE = REPO / "configs" / "benchmarks" / "suite.yaml"
 SCENARIOS = ("nominal", "heavy-soft", "event-stiffness", "transfer")
 ENGINES = ("pymunk", "quasistatic")
@@ -74,8 +76,6 @@ def study_config(
 
 def run_engine(config: dict[str, Any], engine: str, out: Path, workers: int | None) -> Path:
     """Run the study's suite with one engine; its folder."""
-    from rodctl.suite import run_suite
-
     data = json.loads(json.dumps(config))
     data["name"] = f"{config['name']}-{engine}"
     data["base"].setdefault("rod", {})["engine"] = engine
@@ -87,8 +87,6 @@ def run_engine(config: dict[str, Any], engine: str, out: Path, workers: int | No
 
 def suite_rows(folder: Path) -> list[dict[str, Any]]:
     """Every episode row of a suite folder, tagged with its scenario."""
-    from rodctl.suite import read_rows
-
     meta = json.loads((Path(folder) / "meta.json").read_text(encoding="utf-8"))
     return read_rows(meta["scenarios"])
 

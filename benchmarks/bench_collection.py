@@ -1,7 +1,7 @@
 """Data collection for `train-encoder` with each rod engine: shapes per second, and where a
 shape's time goes (issue 24).
 
-Goal: >= 2,000 shapes/s on 2 cores with `rod.engine=quasistatic` (`rodctl/features/collection.py`:
+Goal: >= 2,000 shapes/s on 2 cores with `rod.engine=quasistatic` (`rodctl/training/collection.py`:
 a random walk of settled control steps, each shape rendered and extracted by the camera pipeline).
 
 Two figures per engine: the throughput of `collect_dataset` with 2 worker processes (wall time:
@@ -25,8 +25,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from rodctl.config import load_config  # noqa: E402
-from rodctl.features import collection  # noqa: E402
 from rodctl.sim import RodSim  # noqa: E402
+from rodctl.training import collection  # noqa: E402
 from rodctl.vision import Camera, CenterlineExtractor  # noqa: E402
 
 GOAL = 2000.0

@@ -19,7 +19,7 @@ import numpy as np
 
 from rodctl.config import load_config
 from rodctl.features.autoencoder import DEFAULT_CHECKPOINT, AutoencoderFeatureMap, EncoderCheckpoint
-from rodctl.features.collection import collect_chunk
+from rodctl.training.collection import collect_chunk
 
 SCENARIOS = {
     "weightless (default)": [],

@@ -24,8 +24,8 @@ import numpy as np
 from rodctl.config import ExperimentConfig
 from rodctl.features import BezierFeatureMap, FourierFeatureMap, NodesFeatureMap
 from rodctl.features.autoencoder import torch_encode
-from rodctl.features.collection import collect_dataset
 from rodctl.features.synthetic import rod_like_centerlines
+from rodctl.training.collection import collect_dataset
 from rodctl.training.encoder import fit_autoencoder
 
 

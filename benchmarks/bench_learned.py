@@ -4,7 +4,7 @@ Why: the learned prior (docs/learned.md) is only worth its training if it predic
 feature change better than what the online estimators learn on the way. This collects random
 motion as `rodctl train-model` does (configs/yu2023.yaml: the default rod, 4 servoed nodes),
 holds out whole walks, fits the model on the rest and scores every estimator on the held-out
-walks as the loop would meet them (`rodctl.estimation.learned_training.one_step_errors`):
+walks as the loop would meet them (`rodctl.training.learned.one_step_errors`):
 the estimate from what it has seen predicts the next move's feature change, then folds it in.
 Prints the mean error per estimator beside the goal: the learned model below the AKF.
 
@@ -22,12 +22,12 @@ import numpy as np
 from rodctl.config import load_config
 from rodctl.estimation import AdaptiveKalmanJacobian, BroydenJacobian
 from rodctl.estimation.learned import LearnedJacobian
-from rodctl.estimation.learned_training import (
+from rodctl.registry import FEATURES, BuildContext, load_plugins
+from rodctl.training.learned import (
     collect_walks,
     one_step_errors,
     train_model_from_walks,
 )
-from rodctl.registry import FEATURES, BuildContext, load_plugins
 from rodctl.vision import Camera
 
 

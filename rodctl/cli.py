@@ -587,8 +587,8 @@ def train_model(
     errors, the set-up fingerprint, the model's sha256) into a new run directory and prints it
     as the last line. Use it with --set estimator.checkpoint=RUN_DIR/model.npz.
     """
-    from rodctl.estimation.learned_training import train_model as train
     from rodctl.runs import RunDir
+    from rodctl.training.learned import train_model as train
 
     try:  # the model to be trained replaces any the config names (it is not checked)
         cfg = load_config(config, [*(set_ or []), "estimator.checkpoint=null"])

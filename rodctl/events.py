@@ -41,19 +41,20 @@ What the environment must redo itself after an event (this module cannot see its
 limit, then each event's own `check(state, field)` in step order on an `EventState` (what the
 earlier events left: the held length, the clamp pose, the camera pose, the occluders), e.g. a
 slip longer than the rod, a clamp pose out of reach of the target, removing an occluder that is
-not there; it raises a `UserError` naming the field, e.g. `run.events[2].ds`.
+not there; it raises a `UserError` naming the field, e.g. `run.events[2].ds`. Both live in
+`rodctl/config/events.py`, which the config's validation imports (config never imports this
+module); they are re-exported here for plug-in authors.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, model_validator
 
 from rodctl.config.base import Point2, Pose, StrictModel
+from rodctl.config.events import EventState, validate_events
 from rodctl.config.run import Event
 from rodctl.errors import UserError
 from rodctl.registry import EVENTS
@@ -90,65 +91,6 @@ def _settle_note(result: ApplyResult) -> str:
 _Step = Annotated[float, Field(gt=0.0, le=1.0)]
 _Turn = Annotated[float, Field(gt=0.0, le=3.2)]
 _Px = Annotated[float, Field(ge=-1e5, le=1e5)]
-
-
-@dataclass
-class EventState:
-    """What the events before the one being checked left, as `validate_events` follows them in
-    step order (built from the experiment config; an event's `check` reads and updates it).
-
-    Attributes:
-        segment: rod.length / rod.segments (m).
-        segments: rod.segments.
-        length: rod.length (m).
-        held: segments held between clamp and gripper (grasp slips change it).
-        max_reach: rod.workspace.max_reach (a fraction of the held length).
-        clamp: (3,) the clamp pose (world).
-        target: the fixed target gripper pose (`run.target.pose`), or None (sampled).
-        look_at, distance, tilt_deg, azimuth_deg: the camera pose.
-        boxes: the occluders present ([u0, v0, u1, v1] px each).
-        max_steps: run.max_steps.
-    """
-
-    segment: float
-    segments: int
-    length: float
-    held: int
-    max_reach: float
-    clamp: np.ndarray
-    target: Any
-    look_at: tuple[float, float]
-    distance: float
-    tilt_deg: float
-    azimuth_deg: float
-    boxes: list[tuple[float, ...]] = field(default_factory=list)
-    max_steps: int = 0
-
-    @classmethod
-    def from_config(cls, cfg: Any) -> EventState:
-        """The state before any event, from an experiment config (rod, camera, run)."""
-        rod, cam = cfg.rod, cfg.camera
-        return cls(
-            segment=rod.length / rod.segments,
-            segments=rod.segments,
-            length=rod.length,
-            held=rod.segments,
-            max_reach=rod.workspace.max_reach,
-            clamp=np.asarray(rod.clamp_pose, dtype=float),
-            target=cfg.run.target.pose,
-            look_at=tuple(cam.look_at),
-            distance=cam.distance,
-            tilt_deg=cam.tilt_deg,
-            azimuth_deg=cam.azimuth_deg,
-            boxes=[tuple(float(v) for v in b) for b in cam.render.occlusions],
-            max_steps=cfg.run.max_steps,
-        )
-
-    def target_distance(self) -> float | None:
-        """Distance (m) from the clamp to the fixed target pose; None without one."""
-        if self.target is None:
-            return None
-        return math.hypot(self.target[0] - self.clamp[0], self.target[1] - self.clamp[1])
 
 
 class EventConfig(StrictModel):
@@ -482,33 +424,3 @@ def apply_due(events: list[Any], step: int, sim: RodSim, camera: Camera) -> list
     step k's move is applied (so the controller's next observation already sees the change).
     """
     return [event.apply(sim, camera) for event in due(events, step)]
-
-
-def validate_events(events: list[Any], cfg: Any, field: str = "run.events") -> None:
-    """Refuse, before the run, events that cannot apply. Raises `UserError` naming the field.
-
-    Checks `at_step` below `run.max_steps` for every event, then each event's own `check` in
-    step order (list order within a step) on the `EventState` the earlier events left: for the
-    built-in types, the held length after every grasp slip stays within [2 segments,
-    rod.length]; a moved clamp leaves the fixed target pose (if `run.target.pose` is set) within
-    `max_reach` of the held length; the bumped camera still looks down at the plane (distance >
-    0, |tilt| < 90°); an occluder is removed only if present.
-
-    Args:
-        events: the events, as in the config.
-        cfg: the whole experiment config (rod, camera and run sections are read).
-        field: dotted name of the list, for messages.
-    """
-    state = EventState.from_config(cfg)
-    order = sorted(range(len(events)), key=lambda i: events[i].at_step)  # stable: list order
-    for i in order:
-        event = events[i]
-        name = f"{field}[{i}]"
-        if event.at_step >= state.max_steps:
-            raise UserError(
-                f"{name}.at_step: {event.at_step} is not below run.max_steps = "
-                f"{state.max_steps}; the event would never happen"
-            )
-        check = getattr(event, "check", None)
-        if check is not None:
-            check(state, name)

@@ -8,18 +8,30 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 import pytest
 import yaml
+from gymnasium.utils.env_checker import check_env
 from paths import REPO
 from typer.testing import CliRunner
 
 from rodctl.cli import app
-from rodctl.compare import read_target_file
-from rodctl.config import ConfigError, ExperimentConfig, validate_config
+from rodctl.compare import load_compare_config, method_config, read_target_file
+from rodctl.config import ConfigError, ExperimentConfig, load_config, validate_config
+from rodctl.config.compare import CompareConfig
 from rodctl.config.rod import RodConfig
+from rodctl.env import ShapeServoEnv
+from rodctl.episode import run_episode
 from rodctl.errors import UserError
+from rodctl.features.autoencoder import encoder_fingerprint
+from rodctl.logs import codec, schemas
+from rodctl.logs.mcap import McapSink, read_mcap
+from rodctl.method import Method
+from rodctl.replay import compare_records
+from rodctl.rl import ShapeServoRLEnv
 from rodctl.sim import RodSim
+from rodctl.suite import scenario_configs
 
 N = 20
 
@@ -35,8 +47,6 @@ def test_one_arm_dump_is_unchanged_and_clamp_arm_needs_two():
     assert two["arms"] == 2 and two["clamp_arm"]["max_step"] == (0.01, 0.01, 0.05)
     assert RodConfig.model_validate(two) == rod()  # a resolved dual-arm config loads again
     one = ExperimentConfig()
-    from rodctl.features.autoencoder import encoder_fingerprint
-
     assert "arms" not in encoder_fingerprint(one)["rod"]  # the packaged encoder's, unchanged
     dual = one.model_copy(update={"rod": rod()})
     assert encoder_fingerprint(dual)["rod"]["arms"] == 2  # a one-arm encoder does not fit
@@ -101,10 +111,6 @@ def _env_config(**run) -> ExperimentConfig:
 
 
 def test_env_spaces_are_q6_and_pass_check_env():
-    from gymnasium.utils.env_checker import check_env
-
-    from rodctl.env import ShapeServoEnv
-
     env = ShapeServoEnv(_env_config())
     assert env.action_space.shape == (6,)
     obs, info = env.reset(seed=3)
@@ -114,28 +120,18 @@ def test_env_spaces_are_q6_and_pass_check_env():
     np.testing.assert_allclose(obs["applied"], [0, 0, 0, 0.005, 0, 0], atol=1e-9)
     np.testing.assert_allclose(obs["gripper"][3:], env.sim.clamp_pose)
     check_env(env, skip_render_check=True)
-    try:
-        from stable_baselines3.common.env_checker import check_env as sb3_check
+    try:  # optional (the `rl` extra), and it imports torch: only where it is installed
+        from stable_baselines3.common.env_checker import check_env as sb3_check  # noqa: PLC0415
     except ImportError:
         return
-    from rodctl.rl import ShapeServoRLEnv
-
     rl = ShapeServoRLEnv(_env_config())
     assert rl.action_space.shape == (6,)
     sb3_check(rl, warn=False)
 
 
 def test_dual_arm_scenarios_load():
-    from paths import REPO
-
-    from rodctl.compare import load_compare_config, method_config
-    from rodctl.config.compare import CompareConfig
-    from rodctl.suite import scenario_configs
-
     suite = str(REPO / "configs/benchmarks/suite-dual-arm.yaml")
     runs = scenario_configs(load_compare_config(suite), REPO / "configs/benchmarks", suite)
-    from rodctl.config import load_config
-
     for name in ("dual-arm", "dual-arm-large", "dual-arm-yu2023"):
         assert load_config(REPO / f"configs/scenarios/{name}.yaml").rod.arms == 2
     names = {run["scenario"] for run in runs.values()}
@@ -150,15 +146,6 @@ def test_dual_arm_scenarios_load():
 def test_a_short_dual_arm_episode_converges(name, tmp_path):
     """The paper's method and the learned model (q = 6) on a small quasi-static rod; the MCAP
     log carries the x0 end's pose (/rod/clamp) and reads back to the same records."""
-    from paths import REPO
-
-    from rodctl.config import load_config
-    from rodctl.env import ShapeServoEnv
-    from rodctl.episode import run_episode
-    from rodctl.logs.mcap import McapSink, read_mcap
-    from rodctl.method import Method
-    from rodctl.replay import compare_records
-
     over = ["rod.engine=quasistatic", "rod.segments=30", "run.max_steps=40"]
     if name == "dual-arm":  # the packaged one-arm encoder, not a quick one trained here
         over += ["feature.checkpoint=null", "feature.other_setup=accept"]
@@ -173,10 +160,6 @@ def test_a_short_dual_arm_episode_converges(name, tmp_path):
     logged = read_mcap(tmp_path / "run.mcap", images=False)
     assert logged.header.home_pose.shape == (6,)
     assert compare_records(logged.records, result.records) == []
-    import jsonschema
-
-    from rodctl.logs import codec, schemas
-
     for message, schema in (
         (codec.clamp_state_message(last), schemas.CLAMP_STATE),
         (codec.control_message(last), schemas.CONTROL),

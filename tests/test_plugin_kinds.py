@@ -16,6 +16,8 @@ from paths import REPO
 from typer.testing import CliRunner
 
 from rodctl.cli import app
+from rodctl.config import ExperimentConfig
+from rodctl.logs.mcap import read_mcap
 
 needs_plugin = pytest.mark.skipif(
     importlib.util.find_spec("rodctl_example_kinds") is None,
@@ -47,8 +49,6 @@ def test_plugins_lists_the_event_sink_and_executor_with_their_source():
 
 @needs_plugin
 def test_simulate_applies_the_plugin_event_and_writes_the_plugin_sink(tmp_path):
-    from rodctl.logs.mcap import read_mcap
-
     res = _invoke("simulate", str(KINDS_DIR / "nudge.yaml"), "-q", "-o", str(tmp_path), *QUIET)
     assert res.exit_code == 0, res.output
     run_dir = Path(res.output.strip().splitlines()[-1])
@@ -117,8 +117,6 @@ def test_bad_plugin_settings_are_refused_with_exit_2(sets, said):
 def test_the_event_check_sees_the_state_the_earlier_events_left():
     """The nudge's own `check` reads the held length an earlier grasp slip left: 0.3 m is
     shorter than the 0.5 m rod but not than the 0.25 m left after the slip."""
-    from rodctl.config import ExperimentConfig
-
     nudge = {"type": "gripper_nudge", "at_step": 5, "delta": [0.0, 0.2, 0.0]}
     ExperimentConfig.model_validate({"run": {"events": [nudge]}})
     slip = {"type": "grasp_slip", "at_step": 3, "ds": 0.3}

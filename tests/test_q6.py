@@ -97,7 +97,7 @@ def estimator(name: str, p: int, J_true: np.ndarray):
 def learned_estimator(J_true: np.ndarray):
     """A learned model fitted to the linear plant at q = 6 (states from straight lines)."""
     from rodctl.estimation.learned import LearnedJacobian, state_vector
-    from rodctl.estimation.learned_training import fit_rbf
+    from rodctl.training.learned import fit_rbf
 
     gen = np.random.default_rng(1)
     X = np.array(

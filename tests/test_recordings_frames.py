@@ -5,17 +5,32 @@ clamp_move event drives the clamp), re-lit on a textured scene; bags written wit
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
 import yaml
+from mcap.reader import make_reader
+from rosbags.rosbag2 import Writer
+from rosbags.typesys import Stores, get_typestore
+from test_estimate import _textured
 from typer.testing import CliRunner
 
 from rodctl.cli import app
+from rodctl.config import load_config
+from rodctl.errors import RunFailed, UserError
+from rodctl.geometry import resample_polyline
+from rodctl.recordings.importer import import_bag_images
+from rodctl.recordings.ros2 import _header, line_marker, pose_stamped
+from rodctl.recordings.tf import TfTree, slerp, yaw
 from rodctl.replay import read_run
+from rodctl.sim.rod import RodSim
+from rodctl.vision.camera import Camera
+from rodctl.vision.centerline import CenterlineExtractor
 
 DT = 0.1  # seconds between frames
 
@@ -25,8 +40,6 @@ def _ns(t: float) -> int:
 
 
 def _ts():
-    from rosbags.typesys import Stores, get_typestore
-
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
@@ -73,8 +86,6 @@ def _link(name: str, t: float) -> list[float]:
 
 
 def _tf(ts, t: float, names, static_t: float | None = None):
-    from rodctl.recordings.ros2 import _header
-
     T = ts.types
     out = []
     for name in names:
@@ -97,10 +108,6 @@ def _tf(ts, t: float, names, static_t: float | None = None):
 def _chain_bag(path: Path, *, gap: tuple[float, float] | None = None) -> list[float]:
     """Tracked points at frames t = 0.013 + 0.1 k (k < 8), /tf_static once (stamp 0), /tf at
     0.05 s steps (none for link1 inside `gap`); returns the frame times."""
-    from rosbags.rosbag2 import Writer
-
-    from rodctl.recordings.ros2 import line_marker
-
     ts = _ts()
     line = np.array([[0.0, 0.0], [0.1, 0.02], [0.2, 0.0]])
     frames = [0.013 + DT * k for k in range(8)]
@@ -162,9 +169,6 @@ def test_a_tf_chain_refuses_an_unconnected_world_or_a_gap_naming_frame_and_time(
 
 
 def test_a_tf_child_with_two_parents_and_misplaced_flags_are_refused(tmp_path):
-    from rodctl.errors import UserError
-    from rodctl.recordings.tf import TfTree
-
     ts = _ts()
     tree = TfTree("/tf")
     tree.add(_tf(ts, 0.0, ["link1"]), _ns(0.0), static=False, topic="/tf")
@@ -185,8 +189,6 @@ def test_a_tf_child_with_two_parents_and_misplaced_flags_are_refused(tmp_path):
 
 
 def test_slerp_interpolates_a_general_rotation_along_the_shortest_arc():
-    from rodctl.recordings.tf import slerp, yaw
-
     q0, q1 = np.array([_quat(0.2, 0.5)]), -np.array([_quat(0.8, 0.5)])  # same rotation, -q
     mid = slerp(q0, q1, np.array([0.5]))
     assert np.allclose(np.abs(mid), np.abs(_quat(0.5, 0.5)), atol=1e-12)
@@ -201,11 +203,6 @@ def scene():
     """Frames of a quasi-static rod (default camera): 4 with the gripper moving and the clamp
     fixed, then 5 with both ends moving (the clamp driven by `RodSim.move_clamp`, as the
     clamp_move event drives it). Each: (gripper, clamp, clean render, projected truth)."""
-    from rodctl.config import load_config
-    from rodctl.geometry import resample_polyline
-    from rodctl.sim.rod import RodSim
-    from rodctl.vision.camera import Camera
-
     cfg = load_config("configs/default.yaml", ["rod.engine=quasistatic", "rod.segments=30"])
     sim = RodSim.at_home(cfg.rod)
     cam = Camera(cfg.camera)
@@ -236,10 +233,6 @@ def _relit(cfg, shots, *, distractors: bool = False, seed: int = 0):
     """The renders on a textured, unevenly lit scene with pixel noise (`_textured` of
     tests/test_estimate.py); `distractors` adds discs of the rod's own colour to the
     background, one touching the rod beyond its tip and one beside its middle."""
-    import cv2
-
-    from tests.test_estimate import _textured
-
     imgs = _textured(
         [s[2] for s in shots], cfg.camera, SimpleNamespace(clamp_pose=np.zeros(3)), seed
     )
@@ -259,8 +252,6 @@ def _relit(cfg, shots, *, distractors: bool = False, seed: int = 0):
 
 
 def _image_msg(ts, ns: int, img: np.ndarray, encoding: str = "rgb8"):
-    from rodctl.recordings.ros2 import _header
-
     h, w = img.shape[:2]
     ch = 1 if img.ndim == 2 else img.shape[2]
     return ts.types["sensor_msgs/msg/Image"](
@@ -272,10 +263,6 @@ def _image_msg(ts, ns: int, img: np.ndarray, encoding: str = "rgb8"):
 def _frames_bag(path: Path, shots, images, *, masks=None, mask_encoding="mono8", two=False):
     """Frames on /cam/image at t = 0.1 k, the gripper on /arm/pose (and, `two`, the clamp on
     /clamp/pose as end effector 0), masks [(t, mask)] on /cam/mask."""
-    from rosbags.rosbag2 import Writer
-
-    from rodctl.recordings.ros2 import pose_stamped
-
     ts = _ts()
     with Writer(path, version=8) as w:
         c_img = w.add_connection("/cam/image", "sensor_msgs/msg/Image", typestore=ts)
@@ -295,8 +282,6 @@ def _frames_bag(path: Path, shots, images, *, masks=None, mask_encoding="mono8",
 
 def _truth_masks(cfg, cam, shots):
     """Masks from the renderer's truth: the rod's coverage of each clean render >= 0.5."""
-    from rodctl.vision.centerline import CenterlineExtractor
-
     ext = CenterlineExtractor(cfg.camera, cam, np.zeros(3))
     return [np.where(ext.coverage(s[2]) >= 0.5, 255, 0).astype(np.uint8) for s in shots]
 
@@ -378,10 +363,6 @@ def test_camera_frames_with_both_ends_moving_extract_from_end_0_each_frame(scene
 
 
 def test_an_imported_camera_run_logs_its_frames_and_exports_them(scene, tmp_path):
-    import json
-
-    from mcap.reader import make_reader
-
     cfg, _, shots, _ = scene
     images = [s[2] for s in shots]
     _frames_bag(tmp_path / "bag", shots, images)
@@ -405,12 +386,6 @@ def test_an_imported_camera_run_logs_its_frames_and_exports_them(scene, tmp_path
 
 
 def test_an_import_cut_short_keeps_its_frames_as_an_interrupted_run(scene, tmp_path, monkeypatch):
-    import json
-
-    from rodctl.errors import RunFailed
-    from rodctl.recordings.importer import import_bag_images
-    from rodctl.vision.centerline import CenterlineExtractor
-
     cfg, _, shots, _ = scene
     _frames_bag(tmp_path / "bag", shots, [s[2] for s in shots])
     real, calls = CenterlineExtractor.extract, []

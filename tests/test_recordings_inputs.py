@@ -4,16 +4,31 @@ recording; and the bad input of each (exit 2 naming the topic, key or file)."""
 
 from __future__ import annotations
 
+import csv
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
 import yaml
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from test_estimate import _textured
 from typer.testing import CliRunner
 
 from rodctl.cli import app
+from rodctl.config.camera import CameraConfig
+from rodctl.recordings.calibration import Calibration
+from rodctl.recordings.points import write_points_csv
+from rodctl.recordings.ros2 import _header, _yaw, line_marker, pose_stamped, undistorter
+from rodctl.recordings.synthetic import dual_arm_recording
+from rodctl.recordings.tf import yaw
+from rodctl.recordings.video import read_video
 from rodctl.replay import read_run
+from rodctl.vision.camera import Camera
 
 FAST = ["--set", "feature.type=bezier", "--set", "run.max_steps=12", "-q",
         "--set", "logging.rerun=false", "--set", "logging.figures=false"]  # fmt: skip
@@ -24,15 +39,11 @@ def _ns(t: float) -> int:
 
 
 def _ts():
-    from rosbags.typesys import Stores, get_typestore
-
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
 def _tf_msg(ts, t: float, frames: dict[str, list[float]]):
     """A TFMessage with one TransformStamped per child frame: world -> child, planar pose."""
-    from rodctl.recordings.ros2 import _header
-
     T = ts.types
     out = []
     for child, (x, y, th) in frames.items():
@@ -54,8 +65,6 @@ def _cloud(ts, t: float, xy: np.ndarray, *, big: bool = False, bad_type: int | N
     """A PointCloud2 of the points: little endian x, y, z FLOAT32 + an intensity, point_step 16
     and height 1; or (big) big-endian FLOAT64 x at offset 8, y at 0, point_step 24, two rows
     padded by 8 bytes each."""
-    from rodctl.recordings.ros2 import _header
-
     T = ts.types
     F = T["sensor_msgs/msg/PointField"]
     n = len(xy)
@@ -100,10 +109,6 @@ def _cloud(ts, t: float, xy: np.ndarray, *, big: bool = False, bad_type: int | N
 def _points_bag(path: Path, frames, *, kind: str = "marker", tf=None, storage="sqlite3", **kw):
     """A bag with tracked points on /tracker/points (MarkerArray or PointCloud2) and, when
     `tf` = [(t, {child: pose})], a /tf topic."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
-    from rodctl.recordings.ros2 import line_marker
-
     ts = _ts()
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     pts_type = {
@@ -287,9 +292,6 @@ def test_bad_bag_input_exits_2_naming_the_topic(tmp_path, case, needles):
 @pytest.fixture(scope="module")
 def sim_frames(tmp_path_factory):
     """A short simulated run, its camera config and its frames re-lit on a textured scene."""
-    from rodctl.config.camera import CameraConfig
-    from tests.test_estimate import _textured
-
     out = tmp_path_factory.mktemp("runs")
     res = CliRunner().invoke(app, ["simulate", "configs/default.yaml", *FAST, "--out", str(out)])
     assert res.exit_code in (0, 1), res.output
@@ -310,8 +312,6 @@ def _poses_csv(path: Path, run, t0: float) -> Path:
 
 
 def _video(path: Path, images, fps: float = 10.0) -> Path:
-    import cv2
-
     h, w = images[0].shape[:2]
     vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
     assert vw.isOpened()
@@ -357,8 +357,6 @@ def test_a_video_with_poses_imports_within_a_pixel_of_the_truth(sim_frames, tmp_
 
 
 def test_video_frame_times_from_fps_and_an_unreadable_video(sim_frames, tmp_path):
-    from rodctl.recordings.video import read_video
-
     _, run, _, _, images = sim_frames
     video = _video(tmp_path / "rod.avi", images[:4], fps=8.0)
     poses = _poses_csv(tmp_path / "poses.csv", run, 0.0)
@@ -390,10 +388,6 @@ def test_video_frame_times_from_fps_and_an_unreadable_video(sim_frames, tmp_path
 def test_a_calibration_reproduces_rodctls_camera_model():
     """The extrinsic (R|t with K) and the homography of 6 marked points give the camera's own
     projection, for a tilted and turned camera."""
-    from rodctl.config.camera import CameraConfig
-    from rodctl.recordings.calibration import Calibration
-    from rodctl.vision.camera import Camera
-
     cfg = CameraConfig(tilt_deg=25.0, azimuth_deg=12.0, look_at=(0.3, -0.05))
     cam = Camera(cfg)
     plane = np.array([[0.0, 0.0], [0.5, 0.1], [0.2, -0.3], [0.6, -0.2], [0.1, 0.25], [0.4, 0.0]])
@@ -407,8 +401,6 @@ def test_a_calibration_reproduces_rodctls_camera_model():
         assert np.allclose(c.project(grid), cam.project(grid), atol=1e-6)
         assert np.allclose(c.unproject(cam.project(grid)), grid, atol=1e-9)
     # marked on a distorted image: undistorted before the fit, so the same model comes back
-    import cv2
-
     D = np.array([-0.12, 0.03, 0.0, 0.0, 0.0])
     norm = cv2.undistortPoints(cam.project(plane).reshape(-1, 1, 2), K, None).reshape(-1, 2)
     raw, _ = cv2.projectPoints(np.c_[norm, np.ones(len(norm))], np.zeros(3), np.zeros(3), K, D)
@@ -418,10 +410,6 @@ def test_a_calibration_reproduces_rodctls_camera_model():
 
 @pytest.mark.parametrize("how", ["plane_points", "extrinsic"])
 def test_a_calibration_replaces_a_wrong_camera_pose_in_an_image_import(sim_frames, tmp_path, how):
-    import cv2
-
-    from rodctl.vision.camera import Camera
-
     run_dir, run, cam_cfg, framed, images = sim_frames
     images, framed = images[:4], framed[:4]
     cam = Camera(cam_cfg)
@@ -509,9 +497,6 @@ def test_a_bad_calibration_exits_2_naming_the_key(tmp_path, text, needle):
 
 
 def test_estimate_writes_plots_and_a_table(tmp_path):
-    from rodctl.recordings.points import write_points_csv
-    from rodctl.recordings.synthetic import dual_arm_recording
-
     path = write_points_csv(dual_arm_recording(80, seed=3, points=4), tmp_path / "rec.csv")
     res = CliRunner().invoke(app, ["estimate", str(path), "-e", "broyden"])
     assert res.exit_code == 0, res.output
@@ -524,9 +509,6 @@ def test_estimate_writes_plots_and_a_table(tmp_path):
 
 def test_an_encoder_trained_on_an_imported_recording_estimates(tmp_path):
     pytest.importorskip("torch")
-    from rodctl.recordings.points import write_points_csv
-    from rodctl.recordings.synthetic import dual_arm_recording
-
     rec = write_points_csv(dual_arm_recording(60, seed=4, points=8), tmp_path / "rec.csv")
     res = CliRunner().invoke(app, ["import", str(rec), "-o", str(tmp_path / "runs")])
     assert res.exit_code == 0, res.output
@@ -571,19 +553,12 @@ def test_an_encoder_trained_on_an_imported_recording_estimates(tmp_path):
         ],
     )
     assert res.exit_code == 0, res.output
-    import csv
-
     rows = list(csv.DictReader((_last_line(res) / "results.csv").open()))
     assert [r["feature"] for r in rows] == ["autoencoder"] * 3
     assert rows[2]["outcome"] == "completed" and int(rows[2]["updates"]) == 60 - 30
 
 
 def test_camera_frames_with_a_tf_gripper_chosen_by_a_topic_mapping(sim_frames, tmp_path):
-    from rosbags.rosbag2 import Writer
-
-    from rodctl.recordings.ros2 import _header
-    from rodctl.vision.camera import Camera
-
     run_dir, run, cam_cfg, framed, images = sim_frames
     framed, images = framed[:3], images[:3]
     ts = _ts()
@@ -636,10 +611,6 @@ def test_camera_frames_with_a_tf_gripper_chosen_by_a_topic_mapping(sim_frames, t
 def _tiny_bag(path: Path, case: str) -> None:
     """Three 32x24 frames on /cam/image, the gripper on /arm/pose (or tool0 on /tf) and a
     CameraInfo on /cam/info, spoilt as `case` says."""
-    from rosbags.rosbag2 import Writer
-
-    from rodctl.recordings.ros2 import _header, pose_stamped
-
     ts = _ts()
     T = ts.types
     w_, h_ = 32, 24
@@ -719,10 +690,6 @@ def test_bad_camera_info_image_or_pose_exits_2_naming_the_topic(tmp_path, case, 
 
 
 def test_the_distortion_model_chooses_the_undistortion():
-    import cv2
-
-    from rodctl.recordings.ros2 import undistorter
-
     K = np.array([[60.0, 0, 40], [0, 60.0, 30], [0, 0, 1]])
     rng = np.random.default_rng(0)
     img = cv2.GaussianBlur(rng.integers(0, 255, (60, 80, 3), dtype=np.uint8), (5, 5), 0)
@@ -739,11 +706,6 @@ def test_the_distortion_model_chooses_the_undistortion():
 
 
 def test_yaw_is_scale_free():
-    from types import SimpleNamespace
-
-    from rodctl.recordings.ros2 import _yaw
-    from rodctl.recordings.tf import yaw
-
     q = np.array([0.0, 0.0, math.sin(0.35), math.cos(0.35)]) * 3.0  # 0.7 rad, norm 3
     assert math.isclose(_yaw(SimpleNamespace(x=q[0], y=q[1], z=q[2], w=q[3])), 0.7)
     assert math.isclose(float(yaw(q)), 0.7)
@@ -793,12 +755,6 @@ def test_a_time_that_does_not_increase_is_named_as_a_plain_number(tmp_path):
 
 
 def test_export_of_a_two_end_recording_writes_both_ends_poses(tmp_path):
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    from rodctl.recordings.points import write_points_csv
-    from rodctl.recordings.synthetic import dual_arm_recording
-
     rec = dual_arm_recording(8, seed=3)
     csv_path = write_points_csv(rec, tmp_path / "rec.csv")
     res = CliRunner().invoke(app, ["import", str(csv_path), "-o", str(tmp_path / "r")])

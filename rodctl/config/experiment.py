@@ -9,11 +9,11 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rodctl.config.base import StageSlot, StrictModel, default_stage_types, stage_field
 from rodctl.config.camera import CameraConfig
+from rodctl.config.events import validate_events
 from rodctl.config.logging import LoggingConfig
 from rodctl.config.rod import RodConfig
 from rodctl.config.run import RunConfig
 from rodctl.errors import UserError
-from rodctl.events import validate_events
 from rodctl.registry import depends_on_stages
 
 #: The config of each pluggable stage: every type registered in `rodctl.registry`, by `type`.
@@ -73,7 +73,7 @@ class ExperimentConfig(StrictModel):
     @model_validator(mode="after")
     def _events_can_apply(self) -> ExperimentConfig:
         """Events that cannot apply (a slip longer than the rod, a clamp out of reach) are
-        refused before the run, naming the field (`rodctl.events.validate_events`)."""
+        refused before the run, naming the field (`rodctl.config.events.validate_events`)."""
         if self.run.events:
             try:
                 validate_events(list(self.run.events), self)

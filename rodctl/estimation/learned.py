@@ -24,7 +24,7 @@ directions of the K - 1 chords between K points equally spaced along the centerl
 frame when the camera is calibrated, else pixels), the unit direction from the clamped end to
 the gripped end, and (cos, sin) of each end's angle. It is invariant to the rod's length.
 
-Offline training (`rodctl.estimation.learned_training`) fits W in closed form (ridge least
+Offline training (`rodctl.training.learned`) fits W in closed form (ridge least
 squares; the loss is linear in W) on random-motion data. Online, every informative move takes
 one normalised gradient step on 1/2 ||Delta s_n - Jn(x) Delta r_n||^2 (feature and command
 normalised as above), summed over a window of the last moves:

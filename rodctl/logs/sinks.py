@@ -99,7 +99,9 @@ class FiguresSinkConfig(SinkConfig):
 @SINKS.register(McapSinkConfig)
 def _mcap(cfg: McapSinkConfig, ctx: SinkContext) -> Sink:
     """`McapSink` writing run_dir/run.mcap."""
-    from rodctl.logs.mcap import McapSink
+    # Lazy, as every writer here (module docstring): registering the sinks, which every command
+    # does, must not import mcap, rerun, the figure process or the live server.
+    from rodctl.logs.mcap import McapSink  # noqa: PLC0415
 
     return McapSink(_folder(ctx, "mcap") / "run.mcap", ctx.logging)
 
@@ -107,7 +109,7 @@ def _mcap(cfg: McapSinkConfig, ctx: SinkContext) -> Sink:
 @SINKS.register(RerunSinkConfig)
 def _rerun(cfg: RerunSinkConfig, ctx: SinkContext) -> Sink:
     """`RerunSink` writing run_dir/run.rrd."""
-    from rodctl.logs.rerun import RerunSink
+    from rodctl.logs.rerun import RerunSink  # noqa: PLC0415 (the writer, lazily: `_mcap`)
 
     return RerunSink(_folder(ctx, "rerun") / "run.rrd", ctx.logging)
 
@@ -116,7 +118,7 @@ def _rerun(cfg: RerunSinkConfig, ctx: SinkContext) -> Sink:
 def _figures(cfg: FiguresSinkConfig, ctx: SinkContext) -> Sink:
     """A started `FigureWorker` (it gets the records as a sink; `rodctl.simulate` saves the
     figures it draws and stops it)."""
-    from rodctl.figure_worker import FigureWorker
+    from rodctl.figure_worker import FigureWorker  # noqa: PLC0415 (lazily: `_mcap`)
 
     return FigureWorker.start()
 
@@ -166,7 +168,7 @@ class _ServedView:
 @SINKS.register(LiveSinkConfig)
 def _live(cfg: LiveSinkConfig, ctx: SinkContext) -> Sink:
     """A started `LiveView` on 127.0.0.1:`port`, stopped when the run closes its sinks."""
-    from rodctl.logs.live import LiveView
+    from rodctl.logs.live import LiveView  # noqa: PLC0415 (the server, lazily: `_mcap`)
 
     arms = ctx.experiment.rod.arms if ctx.experiment is not None else 1
     view = LiveView(ctx.logging, port=cfg.port, grace_s=cfg.grace_s, arms=arms).start()

@@ -20,11 +20,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from rodctl import fixedla as fla
+from rodctl.config.loading import format_validation_error, read_yaml
 from rodctl.errors import UserError
+from rodctl.recordings.mapping import _tidy
 from rodctl.vision.camera import Camera
 
 
@@ -134,8 +137,6 @@ class Calibration:
         Raises:
             UserError: marked points that give no homography (collinear, repeated).
         """
-        import cv2
-
         if self.rotation is not None:
             R, t = self.rotation, self.translation
             H = np.asarray(K, float) @ np.column_stack([R[:, 0], R[:, 1], t])
@@ -195,8 +196,6 @@ class Calibration:
 
 
 def _rotation(rvec: list[float]) -> np.ndarray:
-    import cv2
-
     R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=float).reshape(3, 1))
     return R
 
@@ -208,9 +207,6 @@ def load_calibration(path: str | Path) -> Calibration:
         UserError: an unreadable file, an unknown or missing key, a matrix that is not a
             rotation, fewer than 4 marked points; exit 2 naming the key.
     """
-    from rodctl.config.loading import format_validation_error, read_yaml
-    from rodctl.recordings.mapping import _tidy
-
     p = Path(path)
     data = read_yaml(p)
     try:

@@ -2,7 +2,7 @@
 
 An imported run (or any rodctl run) holds the extracted pixel centerline of every frame
 (`/camera/centerline.extracted`). Its good frames become the centerline dataset the encoder
-trains on (`rodctl.features.collection.CenterlineDataset`): the frames in time order, cut into
+trains on (`rodctl.training.collection.CenterlineDataset`): the frames in time order, cut into
 `CHUNKS` consecutive pieces that play the part of the simulator's collection walks, so the
 validation hold-out (`split_by_chunk`) is whole stretches of the recording, not frames next to
 training frames. docs/recordings.md ("An autoencoder trained on a recording") has the steps.
@@ -15,7 +15,11 @@ from typing import Any
 
 import numpy as np
 
+from rodctl.config import ExperimentConfig
 from rodctl.errors import UserError
+from rodctl.features.autoencoder import encoder_fingerprint
+from rodctl.features.autoencoder_config import AutoencoderFeatureConfig
+from rodctl.training.collection import CenterlineDataset
 
 #: Consecutive pieces a recording's frames are cut into (the held-out unit of validation).
 CHUNKS = 10
@@ -33,8 +37,9 @@ def run_dataset(path: str | Path) -> Any:
     Raises:
         UserError: not a readable run, or fewer than 2 good frames.
     """
-    from rodctl.features.collection import CenterlineDataset
-    from rodctl.replay import read_run
+    # Lazy: the run reader brings OpenCV and the MCAP reader, and `train-encoder` imports this
+    # module to ask `is_run` of every --dataset, a dataset.npz included.
+    from rodctl.replay import read_run  # noqa: PLC0415
 
     run = read_run(path, images=False)
     good = [r for r in run.records if r.extraction_ok]
@@ -48,8 +53,6 @@ def run_dataset(path: str | Path) -> Any:
 
 def with_points(cfg: Any, points: int) -> Any:
     """`cfg` with camera.points = `points` (the recording's N decides the encoder's input)."""
-    from rodctl.config import ExperimentConfig
-
     data = cfg.model_dump(mode="json")
     data["camera"]["points"] = int(points)
     return ExperimentConfig.model_validate(data)
@@ -61,9 +64,6 @@ def write_run_dataset(data: Any, cfg: Any, dest: Path) -> Path:
     Raises:
         UserError: the config's feature is not an autoencoder.
     """
-    from rodctl.features.autoencoder import encoder_fingerprint
-    from rodctl.features.autoencoder_config import AutoencoderFeatureConfig
-
     if not isinstance(cfg.feature, AutoencoderFeatureConfig):
         raise UserError(
             f"train-encoder trains the autoencoder feature, but feature.type is "

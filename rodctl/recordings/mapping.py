@@ -22,6 +22,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from rodctl.config.loading import format_validation_error, read_yaml
 from rodctl.errors import UserError
 
 
@@ -104,8 +105,6 @@ def load_mapping(path: str | Path) -> TopicMapping:
         UserError: an unreadable file, not a mapping, an unknown key, a value of the wrong
             type, too many end effectors; the message names the file and the key (exit 2).
     """
-    from rodctl.config.loading import format_validation_error, read_yaml
-
     p = Path(path)
     data = read_yaml(p)
     try:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from rodctl.errors import UserError
+from rodctl.recordings.folder import _number, _table
 
 #: File suffixes `rodctl import` treats as a video.
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".m4v", ".webm", ".mjpeg", ".mjpg")
@@ -31,7 +32,9 @@ class _Decoder:
         self.last: tuple[int, np.ndarray] | None = None
 
     def _open(self) -> None:
-        import cv2
+        # Lazy: `rodctl import` loads this module for VIDEO_SUFFIXES whatever it imports; only
+        # a video needs OpenCV.
+        import cv2  # noqa: PLC0415
 
         if self.cap is not None:
             self.cap.release()
@@ -41,7 +44,7 @@ class _Decoder:
             raise UserError(f"{self.path}: not a video OpenCV can read")
 
     def frame(self, k: int) -> np.ndarray:
-        import cv2
+        import cv2  # noqa: PLC0415 (lazy, as in `_open`)
 
         if self.last is not None and self.last[0] == k:
             return self.last[1]
@@ -61,7 +64,7 @@ class _Decoder:
 
     def count(self) -> tuple[int, float]:
         """(frames, the container's fps) by decoding through the video once."""
-        import cv2
+        import cv2  # noqa: PLC0415 (lazy, as in `_open`)
 
         self._open()
         fps = float(self.cap.get(cv2.CAP_PROP_FPS) or 0.0)
@@ -92,8 +95,6 @@ def read_video(
             count differs from the frame count or whose times do not increase, the poses CSV's
             errors (`folder.read_folder`).
     """
-    from rodctl.recordings.folder import _number, _table
-
     path = Path(video)
     if not path.is_file():
         raise UserError(f"{path}: no such file")

@@ -63,7 +63,7 @@ def _gtsv():  # noqa: ANN202 (an f2py function)
     solve of `scipy.linalg.solve_banded` with one sub- and super-diagonal, without its per-call
     overhead. Imported on first use, not when `rodctl.sim` registers this engine: scipy.linalg
     costs ~0.27 s of CPU at start-up, which runs on the default pymunk engine never need."""
-    from scipy.linalg import get_lapack_funcs
+    from scipy.linalg import get_lapack_funcs  # noqa: PLC0415 (on first use: see the docstring)
 
     return get_lapack_funcs("gtsv", dtype=np.float64)
 

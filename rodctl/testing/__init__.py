@@ -23,7 +23,17 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel
 
-from rodctl.registry import KINDS, STAGES, BuildContext, load_plugins
+from rodctl.config import ExperimentConfig
+from rodctl.config.camera import CameraConfig
+from rodctl.config.logging import LoggingConfig
+from rodctl.config.rod import RodConfig
+from rodctl.executors.base import ExecutorContext
+from rodctl.logs.sinks import SinkContext
+from rodctl.logs.synthetic import SyntheticRun
+from rodctl.records import RunSummary
+from rodctl.registry import EVENTS, EXECUTORS, KINDS, SINKS, STAGES, BuildContext, load_plugins
+from rodctl.sim import RodSim
+from rodctl.vision.camera import Camera
 
 __all__ = [
     "StageCheckFailed",
@@ -133,8 +143,6 @@ def check_stage(
     cfg = _config(kind, config)
     name = str(cfg.type)  # type: ignore[attr-defined]
     if experiment is None:
-        from rodctl.config import ExperimentConfig
-
         experiment = ExperimentConfig()
     rng = np.random.default_rng(seed)
     j_true = rng.normal(0.0, 30.0, (p, q))
@@ -236,12 +244,6 @@ def check_event(config: Any, *, segments: int = 20) -> str:
     Raises:
         StageCheckFailed: the apply function raised, returned no line, or broke the rod.
     """
-    from rodctl.config.camera import CameraConfig
-    from rodctl.config.rod import RodConfig
-    from rodctl.registry import EVENTS
-    from rodctl.sim import RodSim
-    from rodctl.vision.camera import Camera
-
     cfg = _config("event", config)
     name = str(cfg.type)  # type: ignore[attr-defined]
     sim = RodSim(RodConfig(segments=segments))
@@ -265,12 +267,6 @@ def check_sink(config: Any, folder: str | Path, *, steps: int = 6) -> list[Path]
     Raises:
         StageCheckFailed: the sink raised, or left no file in `folder`.
     """
-    from rodctl.config.logging import LoggingConfig
-    from rodctl.logs.sinks import SinkContext
-    from rodctl.logs.synthetic import SyntheticRun
-    from rodctl.records import RunSummary
-    from rodctl.registry import SINKS
-
     cfg = _config("sink", config)
     name = str(cfg.type)  # type: ignore[attr-defined]
     folder = Path(folder)
@@ -316,9 +312,6 @@ def check_executor(config: Any, *, workers: int = 1, tasks: int = 3) -> None:
     Raises:
         StageCheckFailed: a result is missing, wrong, or the executor raised.
     """
-    from rodctl.executors.base import ExecutorContext
-    from rodctl.registry import EXECUTORS
-
     cfg = _config("executor", config)
     name = str(cfg.type)  # type: ignore[attr-defined]
     values = [float(i) + 0.5 for i in range(tasks)]

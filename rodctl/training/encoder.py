@@ -40,8 +40,8 @@ from rodctl.features.autoencoder import (
     require_torch,
 )
 from rodctl.features.autoencoder_config import AutoencoderFeatureConfig, EncoderTrainingConfig
-from rodctl.features.collection import CenterlineDataset, collect_dataset
 from rodctl.runs import RunDir, rng, torch_seed, write_json_atomic
+from rodctl.training.collection import CenterlineDataset, collect_dataset
 
 
 @contextmanager

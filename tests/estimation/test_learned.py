@@ -12,7 +12,7 @@ from rodctl.estimation.learned import (
     RbfJacobianModel,
     state_vector,
 )
-from rodctl.estimation.learned_training import fit_rbf
+from rodctl.training.learned import fit_rbf
 
 R_SCALE = np.array([0.01, 0.01, 0.05])
 

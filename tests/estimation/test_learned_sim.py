@@ -13,13 +13,13 @@ import pytest
 from rodctl.config import load_config
 from rodctl.estimation import AdaptiveKalmanJacobian
 from rodctl.estimation.learned import LearnedJacobian
-from rodctl.estimation.learned_training import (
+from rodctl.registry import FEATURES, BuildContext, load_plugins
+from rodctl.training.learned import (
     collect_walk,
     collect_walks,
     one_step_errors,
     train_model_from_walks,
 )
-from rodctl.registry import FEATURES, BuildContext, load_plugins
 from rodctl.vision import Camera
 
 SMALL = [

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 from rodctl.cli import app
 from rodctl.config import load_config
 from rodctl.features.autoencoder import EncoderCheckpoint, encoder_fingerprint
-from rodctl.features.collection import CenterlineDataset
+from rodctl.training.collection import CenterlineDataset
 
 DEFAULT = str(REPO / "configs/default.yaml")
 QUICK = ["--set", "logging.rerun=false", "--set", "logging.figures=false"]

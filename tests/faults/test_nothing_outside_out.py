@@ -56,7 +56,7 @@ def test_training_leaves_nothing_in_the_temp_folder(tmp_path):
     """torch.optim imports torch._dynamo, which makes `torchinductor_<user>` in TMPDIR."""
     from rodctl.config import ExperimentConfig
     from rodctl.features.autoencoder import encoder_fingerprint
-    from rodctl.features.collection import CenterlineDataset
+    from rodctl.training.collection import CenterlineDataset
 
     cfg = ExperimentConfig()
     n = cfg.camera.points

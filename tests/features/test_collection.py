@@ -12,8 +12,8 @@ from rodctl.config import ExperimentConfig
 from rodctl.errors import UserError
 from rodctl.features import make_feature_map
 from rodctl.features.autoencoder import encoder_fingerprint
-from rodctl.features.collection import CenterlineDataset, chunk_sizes, collect_dataset
 from rodctl.runs import RunDir
+from rodctl.training.collection import CenterlineDataset, chunk_sizes, collect_dataset
 from rodctl.training.encoder import train_encoder
 
 SMALL = {

@@ -13,7 +13,7 @@ import pytest
 from rodctl.config import ExperimentConfig
 from rodctl.features import make_feature_map
 from rodctl.features.autoencoder import DEFAULT_CHECKPOINT, EncoderCheckpoint, torch_encode
-from rodctl.features.collection import collect_dataset
+from rodctl.training.collection import collect_dataset
 
 HELD_OUT_SEED = 9_001  # the committed checkpoint was trained with seed 0
 

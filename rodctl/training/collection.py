@@ -17,6 +17,7 @@ split (consecutive shapes of one walk are near-duplicates).
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,7 @@ import numpy as np
 from rodctl.config import ExperimentConfig
 from rodctl.display import task_progress
 from rodctl.errors import UserError
+from rodctl.features.autoencoder import fingerprint_differences
 from rodctl.runs import seed_sequence
 
 #: A walk gives up after this many control steps per wanted sample (a broken setup, not bad luck).
@@ -57,8 +59,6 @@ class CenterlineDataset:
 
     def save(self, path: str | Path, *, fingerprint: dict[str, Any]) -> None:
         """Write an .npz (no pickles) holding the arrays and the setup they were collected for."""
-        import json
-
         path = Path(path)
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez(
@@ -84,10 +84,6 @@ class CenterlineDataset:
             UserError: missing or unreadable file, missing arrays, or another setup; the message
                 names the file.
         """
-        import json
-
-        from rodctl.features.autoencoder import fingerprint_differences
-
         path = Path(path)
         if not path.is_file():
             raise UserError(f"{path}: dataset not found")
@@ -177,8 +173,10 @@ def random_walk_start(cfg_json: str, seed: np.random.SeedSequence) -> tuple:
     """What a random-motion walk through the camera starts from (encoder data and the learned
     model's walks alike): (config, the walk's generator, a camera with its own noise stream, the
     extractor, the speed limit, a rod at home, the first goal pose), all from `seed`."""
-    from rodctl.sim import RodSim
-    from rodctl.vision import Camera, CenterlineExtractor
+    # Lazy: the simulator (pymunk) and the camera (OpenCV) only to collect; `train-encoder`
+    # imports this module to read a dataset file too.
+    from rodctl.sim import RodSim  # noqa: PLC0415
+    from rodctl.vision import Camera, CenterlineExtractor  # noqa: PLC0415
 
     cfg = ExperimentConfig.model_validate_json(cfg_json)
     walk_seed, camera_seed = seed.spawn(2)
@@ -205,7 +203,8 @@ def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> di
     Raises:
         RuntimeError: the walk needed more than 20 control steps per sample.
     """
-    from rodctl.sim import RodSim
+    from rodctl.sim import RodSim  # noqa: PLC0415 (lazily: `random_walk_start`)
+    from rodctl.vision import CenterlineExtractor  # noqa: PLC0415 (lazily: `random_walk_start`)
 
     cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
     clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
@@ -244,8 +243,6 @@ def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> di
             continue
         pose = np.asarray(sim.gripper_pose, dtype=float)
         if dual:  # the extractor starts at the x0 end, wherever it is now
-            from rodctl.vision import CenterlineExtractor
-
             clamp = sim.clamp_pose
             extractor = CenterlineExtractor(cfg.camera, camera, clamp)
         image = camera.render(sim.centerline(), pose, clamp)
@@ -269,7 +266,8 @@ def _start_method() -> str:
     re-imported by the workers, as for the CLI, pytest or a script; "fork" otherwise (code fed on
     stdin or typed interactively), where spawned workers would fail to start.
     """
-    import __main__
+    # The main module of the moment, read at the call (runpy swaps it in `python -m`).
+    import __main__  # noqa: PLC0415
 
     main_file = getattr(__main__, "__file__", None)
     if main_file is None or not Path(main_file).is_file():

@@ -35,7 +35,18 @@ from rodctl.estimation.learned import (
     rbf_features,
     state_vector,
 )
+from rodctl.estimation.probing import fit_jacobian
+from rodctl.registry import FEATURES, BuildContext, load_plugins
 from rodctl.runs import RunDir, rng, seed_sequence, write_json_atomic
+from rodctl.sim import RodSim
+from rodctl.training.collection import (
+    chunk_sizes,
+    map_chunks,
+    random_walk_start,
+    sample_end_goals,
+    sample_goal,
+)
+from rodctl.vision import Camera, CenterlineExtractor
 
 _MAX_ATTEMPTS_PER_SAMPLE = 20
 
@@ -47,9 +58,6 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
         {"pixels": (F, N, 2), "poses": (F, q) (q = 6 dual-arm: both ends), "segment": (F,) int
         (a new segment after the simulator was rebuilt: no pair spans two), "attempts": int}.
     """
-    from rodctl.features.collection import random_walk_start, sample_end_goals, sample_goal
-    from rodctl.sim import RodSim
-
     cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
     clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
     jitter = float(cfg.estimator.data.jitter)  # type: ignore[union-attr]
@@ -72,8 +80,6 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
         return bool(ext.ok)
 
     def _look_dual() -> bool:
-        from rodctl.vision import CenterlineExtractor
-
         grip, at = sim.gripper_pose, sim.clamp_pose
         ext = CenterlineExtractor(cfg.camera, camera, at).extract(
             camera.render(sim.centerline(), grip, at), grip
@@ -129,8 +135,6 @@ def _collect_task(args: tuple[str, int, np.random.SeedSequence]) -> dict[str, An
 
 def collect_walks(cfg: ExperimentConfig, *, progress: bool = True) -> list[dict[str, Any]]:
     """The random walks `cfg.estimator.data` describes, in order (see the module docstring)."""
-    from rodctl.features.collection import chunk_sizes, map_chunks
-
     data = cfg.estimator.data  # type: ignore[union-attr]
     sizes = chunk_sizes(data.samples, data.chunk)
     seeds = seed_sequence(cfg.seed, "model-data").spawn(len(sizes))
@@ -279,9 +283,6 @@ def _stack(pairs: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
 
 def train_model_from_walks(cfg: ExperimentConfig, walks: list[dict[str, Any]]) -> RbfJacobianModel:
     """Encode the walks with the experiment's feature, hold out walks, fit, measure."""
-    from rodctl.registry import FEATURES, BuildContext, load_plugins
-    from rodctl.vision import Camera
-
     load_plugins()
     est: LearnedEstimatorConfig = cfg.estimator  # type: ignore[assignment]
     tcfg = est.training
@@ -375,8 +376,6 @@ def one_step_errors(
     Returns:
         (M,) errors in feature units.
     """
-    from rodctl.estimation.probing import fit_jacobian
-
     seg = np.asarray(walk["segment"])
     n = int(np.sum(seg == seg[0]))
     pixels = np.asarray(walk["pixels"], dtype=float)[:n]
