@@ -312,6 +312,11 @@ class ShapeServoEnv(gym.Env):
         cfg = self.cfg
         if options.get("start_pose") is not None:
             start = tuple(map(float, options["start_pose"]))
+            if len(start) not in (3, self.q):
+                raise ValueError(
+                    f"reset: start_pose has {len(start)} values; it takes 3 (the gripper's)"
+                    + (" or 6 (both ends')" if self.dual_arm else "")
+                )
             update: dict[str, Any] = {"home_pose": start[:3]}
             if self.dual_arm and len(start) == 6:  # both ends' start poses
                 update["clamp_pose"] = start[3:]

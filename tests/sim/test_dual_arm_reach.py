@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from rodctl.config.rod import RodConfig
+from rodctl.env import ShapeServoEnv
 from rodctl.sim import RodSim
 
 
@@ -24,3 +25,9 @@ def test_a_six_value_pose_beyond_the_reach_is_clipped():
     out, changed = sim.clip_pose(pose)
     assert changed
     assert float(np.hypot(*(out[:2] - out[3:5]))) <= sim._reach() + 1e-12
+
+
+def test_a_start_pose_of_the_wrong_length_is_refused():
+    env = ShapeServoEnv({"rod": {"segments": 20, "engine": "quasistatic"}})
+    with pytest.raises(ValueError, match="start_pose has 6 values"):
+        env.reset(options={"start_pose": [0.4, 0.0, 0.0, -0.1, 0.0, 0.0]})
