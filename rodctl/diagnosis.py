@@ -74,10 +74,11 @@ def diagnose(
         return "workspace"
     # No mid-run event fires while diagnosing: the state being examined is the episode's.
     env.cfg = env.cfg.model_copy(update={"run": env.cfg.run.model_copy(update={"events": []})})
-    snap = env.sim.snapshot()
+    sim = env._episode()[0]
+    snap = sim.snapshot()
     if true_jacobian_converges(env, cfg, estimator_steps):
         return "estimator"
-    env.sim.restore(snap)
+    sim.restore(snap)
     best, clipped, capped = pose_search(env, search_iterations)
     if best < cfg.run.pixel_tolerance:
         return "other"
@@ -93,6 +94,7 @@ def true_jacobian_converges(env: ShapeServoEnv, cfg: ExperimentConfig, steps: in
     from rodctl.method import Method
 
     method = Method(cfg.feature, OracleEstimatorConfig(), cfg.controller, experiment=cfg)
+    assert env.task is not None  # the episode's reset set it
     method.start(env.task)
     obs: dict[str, Any] = env._observation(np.zeros(Q))
     if not obs["extraction_ok"]:
@@ -115,9 +117,10 @@ def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool, bool]
     """(best clean pixel error reached, whether the workspace clipped a move, whether it ran out
     of iterations while still improving): Gauss-Newton over gripper poses on the simulated rod,
     from its current state, towards the target."""
-    sim, camera = env.sim, env.camera
+    sim, _, episode_target = env._episode()
+    camera = env.camera
     n = env.cfg.camera.points
-    target = np.asarray(env.target.pixels, dtype=float)
+    target = np.asarray(episode_target.pixels, dtype=float)
     max_step = np.asarray(env.max_step, dtype=float)
     tol = env.cfg.run.pixel_tolerance
 

@@ -7,7 +7,7 @@ validates on assignment, so a config mutated after loading cannot drift out of r
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Union, get_args
+from typing import TYPE_CHECKING, Annotated, Any, Union, get_args
 
 from pydantic import (
     BaseModel,
@@ -16,6 +16,19 @@ from pydantic import (
     GetCoreSchemaHandler,
     model_validator,
 )
+
+if TYPE_CHECKING:
+
+    class StageConfig(BaseModel):
+        """What the checker knows of the config of a registered type (a stage, an event, a
+        sink, an executor): a model with a `type` name (`Registry.register` refuses one
+        without). At run time it is `BaseModel`: the union of the registered models is built
+        by `StageSlot`."""
+
+        type: str
+
+else:
+    StageConfig = BaseModel
 
 
 class StrictModel(BaseModel):

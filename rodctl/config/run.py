@@ -8,7 +8,6 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 from pydantic import (
-    BaseModel,
     BeforeValidator,
     ConfigDict,
     Field,
@@ -18,7 +17,7 @@ from pydantic import (
     model_validator,
 )
 
-from rodctl.config.base import Angle, Coordinate, Pose, StageSlot, StrictModel
+from rodctl.config.base import Angle, Coordinate, Pose, StageConfig, StageSlot, StrictModel
 from rodctl.outcome import EXPECTABLE, Outcome
 from rodctl.registry import depends_on_stages
 
@@ -28,7 +27,7 @@ _ProbeRadians = Annotated[float, Field(gt=0, le=1.0)]
 
 #: One mid-run event, chosen by `type` among every type registered in `rodctl.registry.EVENTS`
 #: (the built-ins are in rodctl/events.py; a plug-in adds more). An unknown `type` is refused.
-Event = Annotated[BaseModel, StageSlot("event")]
+Event = Annotated[StageConfig, StageSlot("event")]
 
 
 def _expectable(value: object) -> object:

@@ -489,6 +489,7 @@ def rod_state_message(r: StepRecord) -> dict[str, Any]:
 
 def clamp_state_message(r: StepRecord) -> dict[str, Any]:
     """/rod/clamp (dual-arm): `step, sim_time, clamp` (the x0 end's pose)."""
+    assert r.clamp is not None, "a dual-arm step has the x0 end's pose"
     e = Encoder()
     return {
         "step": int(r.step),

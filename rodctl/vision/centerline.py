@@ -339,7 +339,9 @@ class CenterlineExtractor:
             rows = np.zeros((-(-n // _REMAP_ROW), _REMAP_ROW, 2), dtype=np.float32)
             rows.reshape(-1, 2)[:n] = flat[0]
             flat = rows
-        rgb = cv2.remap(  # one two-channel map: the same samples as two maps, one copy fewer
+        # One two-channel map: the same samples as two maps, one copy fewer. (cv2's stubs want
+        # an array for map2; a two-channel map takes None.)
+        rgb = cv2.remap(  # type: ignore[call-overload]
             image,
             flat,
             None,
@@ -670,6 +672,7 @@ class CenterlineExtractor:
                 break  # nothing more to see; the length check below reports it
             if found is None:
                 # the hidden stretch runs to the gripper: bridge onto its pose, if short enough
+                assert grip_px is not None and grip_dir is not None  # projected together
                 gap = float(np.hypot(*(grip_px - end)))
                 if gap > self.cfg.extract.max_gap_px:
                     return None, widths, gaps, f"the rod is lost {gap:.0f} px before the gripper"
