@@ -139,6 +139,12 @@ class _BatchSize(Protocol):
     batch_size: int
 
 
+class _DataSpec(Protocol):
+    samples: int
+    chunk: int
+    workers: int
+
+
 class AutoencoderSpec(Architecture, Protocol):
     """What the cache and the fingerprint read of an autoencoder feature config (its `type` is
     "autoencoder")."""
@@ -146,6 +152,7 @@ class AutoencoderSpec(Architecture, Protocol):
     type: str
     checkpoint: str | None
     training: _BatchSize
+    data: _DataSpec
 
 
 def is_autoencoder(feature: object) -> TypeGuard[AutoencoderSpec]:
