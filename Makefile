@@ -54,6 +54,7 @@ lint: $(STAMP)
 	$(BIN)/ruff check rodctl tests benchmarks examples
 	$(BIN)/ruff format --check rodctl tests benchmarks examples
 	$(BIN)/lint-imports --no-cache
+	$(BIN)/mypy
 
 clean-venv:
 	rm -rf $(VENV)

@@ -38,8 +38,9 @@ def _plain_help() -> None:
     def flag_type(self: Any, ctx: Any) -> str | None:
         return None if self.is_flag and self.metavar is None else option_type(self, ctx)
 
-    core.TyperArgument._usage_display_name = usage_name
-    core.TyperOption.display_type_rich = flag_type
+    # typer's own classes, patched on purpose (the usage line and the flags' help)
+    core.TyperArgument._usage_display_name = usage_name  # type: ignore[method-assign]
+    core.TyperOption.display_type_rich = flag_type  # type: ignore[method-assign]
 
 
 _plain_help()
@@ -1110,4 +1111,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    main()

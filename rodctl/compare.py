@@ -32,17 +32,23 @@ import os
 import sys
 import time
 import traceback
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from pydantic import ValidationError
 
 from rodctl import journal
 from rodctl.config import ExperimentConfig, dump_config
-from rodctl.config.compare import CompareConfig, check_pose_lengths, pose_kind
+from rodctl.config.compare import (
+    CompareConfig,
+    CompareTargetsConfig,
+    MethodConfig,
+    check_pose_lengths,
+    pose_kind,
+)
 from rodctl.config.loading import (
     ConfigError,
     config_source,
@@ -141,14 +147,38 @@ def load_compare_config(path: str | Path, overrides: Sequence[str] | None = None
     return cfg
 
 
+class MethodsSpec(Protocol):
+    """What `method_config` reads of a compare, sweep or suite config."""
+
+    @property
+    def base(self) -> ExperimentConfig: ...
+
+    @property
+    def methods(self) -> Mapping[str, MethodConfig] | None: ...
+
+
+class TargetSpec(Protocol):
+    """What target making reads of a compare config (a sweep gives one per seed)."""
+
+    @property
+    def seed(self) -> int: ...
+
+    @property
+    def base(self) -> ExperimentConfig: ...
+
+    @property
+    def targets(self) -> CompareTargetsConfig: ...
+
+
 def method_config(
-    cfg: CompareConfig, name: str, *, source: str = "compare config"
+    cfg: MethodsSpec, name: str, *, source: str = "compare config"
 ) -> ExperimentConfig:
     """The `ExperimentConfig` of one method: the shared base with the method's three stages.
 
     Raises:
         ConfigError: the combination does not validate (names `methods.<name>`).
     """
+    assert cfg.methods is not None, "method_config needs a config with methods"
     method = cfg.methods[name]
     data = cfg.base.model_dump(mode="json")
     data.update(
@@ -241,7 +271,7 @@ def read_target_file(path: str | Path, arms: int = 1) -> list[list[float]]:
     return poses
 
 
-def _check_config(cfg: CompareConfig) -> ExperimentConfig:
+def _check_config(cfg: TargetSpec) -> ExperimentConfig:
     """The base with cheap stages: target checks need the rod and camera, not a method."""
     data = cfg.base.model_dump(mode="json")
     data.update(feature={"type": "nodes"}, estimator={"type": "akf"}, controller={"type": "mfac"})
@@ -289,7 +319,7 @@ def _settle_target(task: dict[str, Any]) -> dict[str, Any]:
     return {"error": why}
 
 
-def given_target_poses(cfg: CompareConfig, config_dir: Path) -> list[list[float]] | None:
+def given_target_poses(cfg: TargetSpec, config_dir: Path) -> list[list[float]] | None:
     """The target poses from `targets.file` (relative to `config_dir`) or `targets.poses`."""
     tc = cfg.targets
     if tc.file is not None:
@@ -305,7 +335,7 @@ def given_target_poses(cfg: CompareConfig, config_dir: Path) -> list[list[float]
 
 
 def make_targets(
-    cfg: CompareConfig,
+    cfg: TargetSpec,
     given: list[list[float]] | None,
     run_tasks: Callable[[list[dict], Callable[[dict], Any]], list[Any]],
 ) -> list[CompareTarget]:
@@ -320,6 +350,7 @@ def make_targets(
     """
     tc = cfg.targets
     base = _check_config(cfg).model_dump(mode="json")
+    tasks: list[dict[str, Any]]
     if given is not None:
         tasks = [{"config": base, "pose": p} for p in given]
     else:
@@ -906,8 +937,8 @@ def run_compare(
             new = stream_episodes(pool, todo, log, progress=progress, done_before=len(kept))
             reason = stop_reason()
         got = {_row_key(r): r for r in new if r is not None and r["outcome"] != "interrupted"}
-        rows = [kept.get(_row_key(t)) or got.get(_row_key(t)) for t in tasks]
-        rows = [r for r in rows if r is not None]
+        found = [kept.get(_row_key(t)) or got.get(_row_key(t)) for t in tasks]
+        rows = [r for r in found if r is not None]
         partial = len(rows) < total
         _report(cfg, run.path, targets, rows, fig_target, wall0, pool, progress, partial)
         status = "interrupted" if reason else "completed"
@@ -1209,7 +1240,7 @@ def terminal_table(summary: dict, title: str) -> Any:
     from rich.table import Table
 
     table = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
-    for name, justify in (
+    justifications: tuple[tuple[str, Literal["left", "right"]], ...] = (
         ("method", "left"),
         ("success", "right"),
         ("steps [IQR]", "right"),
@@ -1217,7 +1248,8 @@ def terminal_table(summary: dict, title: str) -> Any:
         ("smooth", "right"),
         ("px", "right"),
         ("st/pin/lim/fail", "right"),
-    ):
+    )
+    for name, justify in justifications:
         table.add_column(name, justify=justify, no_wrap=True, min_width=len(name))
     for m, st in summary["methods"].items():
         rate = st["success_rate"]

@@ -13,7 +13,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 from rodctl.report import markdown_table, verdict_lines, write_report_html
 from rodctl.statistics import PairedDifference, adjust, paired_difference
@@ -53,7 +53,7 @@ def pair_key(row: dict[str, Any]) -> tuple[Any, int]:
     return (row.get("seed"), row["target"])
 
 
-def _usable(row: dict[str, Any] | None) -> bool:
+def _usable(row: dict[str, Any] | None) -> TypeGuard[dict[str, Any]]:
     """An episode that counts in the paired comparisons: it exists and, in a scenario with a
     mid-run event, the event reached it (one that ended first is reported apart)."""
     return row is not None and not row.get("finished_before_event")

@@ -80,10 +80,11 @@ def diagnose(
         return "workspace"
     # No mid-run event fires while diagnosing: the state being examined is the episode's.
     env.cfg = env.cfg.model_copy(update={"run": env.cfg.run.model_copy(update={"events": []})})
-    snap = env.sim.snapshot()
+    sim = env._episode()[0]
+    snap = sim.snapshot()
     if true_jacobian_converges(env, cfg, estimator_steps):
         return "estimator"
-    env.sim.restore(snap)
+    sim.restore(snap)
     best, clipped, capped = pose_search(env, search_iterations)
     if best < cfg.run.pixel_tolerance:
         return "other"
@@ -99,6 +100,7 @@ def true_jacobian_converges(env: ShapeServoEnv, cfg: ExperimentConfig, steps: in
     from rodctl.method import Method
 
     method = Method(cfg.feature, OracleEstimatorConfig(), cfg.controller, experiment=cfg)
+    assert env.task is not None  # the episode's reset set it
     method.start(env.task)
     obs: dict[str, Any] = env._observation(np.zeros(env.q))
     if not obs["extraction_ok"]:
@@ -158,10 +160,11 @@ def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool, bool]
     gripper's; dual-arm: the x0 end's too, q = 6) on the simulated rod, from its current state,
     towards the target. Each move is within every axis's speed limit (`env.max_step`: the
     gripper's, then the x0 end's), and "clipped" counts either end's workspace."""
-    sim, camera = env.sim, env.camera
+    sim, _, episode_target = env._episode()
+    camera = env.camera
     n = env.cfg.camera.points
     q = env.q
-    target = np.asarray(env.target.pixels, dtype=float)
+    target = np.asarray(episode_target.pixels, dtype=float)
     max_step = np.asarray(env.max_step, dtype=float)  # (q,)
     fd = np.tile(_FD, q // 3)
     lo, hi = workspace_box(env.cfg, q)

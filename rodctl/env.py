@@ -74,6 +74,19 @@ Q = 3
 TARGET_TRIES = 20
 
 
+@runtime_checkable
+class _AnalyticSim(Protocol):
+    """An engine with d(centerline)/dr in closed form (the quasi-static one), exact where its
+    chain is at an equilibrium (`_at_equilibrium`)."""
+
+    def centerline_jacobian(self) -> np.ndarray: ...
+
+
+def _at_equilibrium(sim: RodSim) -> bool:
+    """The quasi-static chain's last solve converged (a pymunk chain has no such flag)."""
+    return bool(getattr(sim.chain, "converged", False))
+
+
 def pixel_error(extracted: np.ndarray, target: np.ndarray) -> float:
     """Mean distance (px) between corresponding points of two (N, 2) clamp-first centerlines."""
     return float(np.mean(np.linalg.norm(extracted - target, axis=1)))
@@ -396,6 +409,12 @@ class ShapeServoEnv(gym.Env):
             return None
         return self.frame.image
 
+    def _episode(self) -> tuple[RodSim, Frame, Target]:
+        """The current episode's simulator, last frame and target (`reset` sets them)."""
+        if self.sim is None or self.frame is None or self.target is None:
+            raise RuntimeError("call reset() first")
+        return self.sim, self.frame, self.target
+
     def true_jacobian(
         self, encode: Any, steps: tuple[float, float, float] = (1e-3, 1e-3, 5e-3)
     ) -> np.ndarray:
@@ -441,8 +460,8 @@ class ShapeServoEnv(gym.Env):
         if mode == "auto":
             cheap = (  # analytic: the quasi-static engine at an equilibrium, one arm
                 not self.dual_arm
-                and hasattr(self.sim, "centerline_jacobian")
-                and self.sim.chain.converged
+                and isinstance(self.sim, _AnalyticSim)
+                and _at_equilibrium(self.sim)
             )
             cached = self._true_jacobian_cache
             key = self._state_key()
@@ -454,32 +473,33 @@ class ShapeServoEnv(gym.Env):
         """What identifies the state a true Jacobian was evaluated at: the episode, the step,
         the rod and its exact shape and gripper pose (a snapshot restored and moved again, as
         the diagnosis does, reaches other states at the same step counts)."""
-        sim = self.sim
+        sim = self._episode()[0]
         shape = sim.centerline().tobytes() + sim.gripper_pose.tobytes()
         return (self._resets, self.steps, id(sim), sim.chain.steps, shape)
 
-    def _true_jacobian(self, encode: Any, steps: tuple[float, float, float]) -> np.ndarray:
+    def _true_jacobian(self, encode: Any, steps: tuple[float, ...]) -> np.ndarray:
         n = self.cfg.camera.points
+        sim = self._episode()[0]
         if self.dual_arm:  # the x0 end's columns by the same central differences
             steps = (*steps, *steps)
-        elif hasattr(self.sim, "centerline_jacobian") and self.sim.chain.converged:
+        elif isinstance(sim, _AnalyticSim) and _at_equilibrium(sim):
             # Exact only at an equilibrium; after a solve that did not converge, differences.
             return self._analytic_jacobian(encode, steps)
-        snap = self.sim.snapshot()
+        snap = sim.snapshot()
         cols = []
         for axis, h in enumerate(steps):
             values = []
             for sign in (1.0, -1.0):
                 du = np.zeros(self.q)
                 du[axis] = sign * h
-                self.sim.apply(du)
-                pixels = self.camera.project(resample_polyline(self.sim.centerline(), n))
+                sim.apply(du)
+                pixels = self.camera.project(resample_polyline(sim.centerline(), n))
                 values.append(np.asarray(encode(pixels), dtype=float))
-                self.sim.restore(snap)
+                sim.restore(snap)
             cols.append((values[0] - values[1]) / (2.0 * h))
         return np.stack(cols, axis=1)
 
-    def _analytic_jacobian(self, encode: Any, steps: tuple[float, float, float]) -> np.ndarray:
+    def _analytic_jacobian(self, encode: Any, steps: tuple[float, ...]) -> np.ndarray:
         """`true_jacobian` on the quasi-static engine: d(centerline)/dr exactly, by the
         implicit-function theorem on the equilibrium's KKT system (`rodctl/sim/quasistatic.py`),
         through the arc-length resampling (a fixed linear map for an inextensible chain) and the
@@ -488,9 +508,11 @@ class ShapeServoEnv(gym.Env):
         from rodctl.sim.quasistatic import resample_matrix
 
         n = self.cfg.camera.points
-        w = resample_matrix(self.sim.chain.segments, n)
-        points = np.einsum("ij,jk->ik", w, self.sim.centerline())  # no BLAS: kernel-independent
-        dpoints = np.einsum("ij,jkq->ikq", w, self.sim.centerline_jacobian())
+        sim = self._episode()[0]
+        assert isinstance(sim, _AnalyticSim)  # `_true_jacobian` calls it on such an engine only
+        w = resample_matrix(sim.chain.segments, n)
+        points = np.einsum("ij,jk->ik", w, sim.centerline())  # no BLAS: kernel-independent
+        dpoints = np.einsum("ij,jkq->ikq", w, sim.centerline_jacobian())
         dpix = np.einsum("ikl,ilq->ikq", self.camera.projection_jacobian(points), dpoints)
         pixels = self.camera.project(points)
         cols = []
@@ -553,19 +575,20 @@ class ShapeServoEnv(gym.Env):
             return []
         from rodctl.events import due
 
+        sim = self._episode()[0]
         lines = []
         for event in due(list(self.cfg.run.events), step):
-            lines.append(event.apply(self.sim, self.camera))
+            lines.append(event.apply(sim, self.camera))
             if "extractor" in event.refresh:
                 self.extractor = CenterlineExtractor(
                     self.camera.cfg,
                     self.camera,
-                    self.sim.clamp_pose,
-                    rod_length=self.sim.held_length,
+                    sim.clamp_pose,
+                    rod_length=sim.held_length,
                 )
             if "target_pixels" in event.refresh:
                 self._clean_camera(self.camera.cfg)
-                t = self.target
+                t = self._episode()[2]
                 clamp = t.pose[3:] if self.dual_arm else self.clamp_pose
                 frame = self._see(t.centerline, t.pose[:3], clamp, clean=True)
                 if frame.ok:
@@ -577,6 +600,8 @@ class ShapeServoEnv(gym.Env):
     def _look(self, sim: RodSim | None = None, *, clean: bool = False) -> Frame:
         """Render the rod as the camera sees it (`clean`: without nuisances) and extract it."""
         sim = sim or self.sim
+        if sim is None:
+            raise RuntimeError("call reset() first")
         return self._see(sim.centerline(), sim.gripper_pose, sim.clamp_pose, clean=clean)
 
     def _see(
@@ -597,24 +622,24 @@ class ShapeServoEnv(gym.Env):
         return Frame(truth, projected, image, ext.points, ext.ok, ext.note)
 
     def _observation(self, applied: np.ndarray) -> dict[str, Any]:
-        f = self.frame
+        sim, f, target = self._episode()
         pts = f.extracted if f.ok else np.zeros_like(f.extracted)
         return {
             "centerline": np.array(pts, dtype=np.float64),
-            "gripper": np.asarray(self.sim.end_poses, dtype=np.float64),
+            "gripper": np.asarray(sim.end_poses, dtype=np.float64),
             "applied": np.array(applied, dtype=np.float64),
             "extraction_ok": int(f.ok),
-            "target": np.array(self.target.pixels, dtype=np.float64),
+            "target": np.array(target.pixels, dtype=np.float64),
         }
 
     def _info(self, res: Any) -> dict[str, Any]:
         """What the simulator knows and a real robot would not, plus the settle result."""
-        f = self.frame
-        health = self.sim.health()
+        sim, f, target = self._episode()
+        health = sim.health()
         return {
             "step": self.steps,
-            "sim_time": float(self.sim.sim_time),
-            "pixel_error": pixel_error(f.extracted, self.target.pixels),
+            "sim_time": float(sim.sim_time),
+            "pixel_error": pixel_error(f.extracted, target.pixels),
             "extracted": f.extracted,
             "extraction_note": f.note,
             "ground_truth": f.centerline,
@@ -627,11 +652,11 @@ class ShapeServoEnv(gym.Env):
             "diverged": False if res is None else bool(res.diverged),
             "max_joint_gap": float(health.max_joint_gap),
             "kinetic_energy": float(health.kinetic_energy),
-            "gripper": np.array(self.sim.gripper_pose, dtype=float),
+            "gripper": np.array(sim.gripper_pose, dtype=float),
             "extraction_ok": bool(f.ok),
             "image": f.image,
             # dual-arm: the x0 end's pose (the second gripper); absent with one arm
-            **({"clamp": np.array(self.sim.clamp_pose, dtype=float)} if self.dual_arm else {}),
+            **({"clamp": np.array(sim.clamp_pose, dtype=float)} if self.dual_arm else {}),
         }
 
     def _make_target(self, pose: Any, seed: int) -> Target:

@@ -388,6 +388,7 @@ class _Loop:
     ) -> StepRecord:
         """The record of the current step from the env's info and the method's state."""
         m = self.method
+        assert m.s is not None, "recorded after the method's first act()"
         self.info = info
         k = len(self.records)
         J = np.array(m.J, dtype=float)

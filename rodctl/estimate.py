@@ -519,12 +519,12 @@ def write_results(result: EstimateResult, out: Path) -> list[Path]:
             w.writerow(r)
     steps = out / "steps.csv"
     with steps.open("w", newline="") as fh:
-        w = csv.writer(fh)
+        rows = csv.writer(fh)
         names = ["zero_motion", "hindsight_ls", *(r.name for r in result.runs)]
-        w.writerow(["step", *names])
+        rows.writerow(["step", *names])
         series = [result.zero, result.hindsight, *(r.errors for r in result.runs)]
         for k, step in enumerate(result.pairs.steps):
-            w.writerow([int(step), *(repr(float(e[k])) for e in series)])
+            rows.writerow([int(step), *(repr(float(e[k])) for e in series)])
     return [res, steps]
 
 
@@ -551,7 +551,10 @@ def write_plots(result: EstimateResult, out: Path) -> list[Path]:
         good = np.isfinite(e) & (e > 0)
         if not good.any():
             continue
-        style = {"color": "0.4" if k < 2 else f"C{k - 2}", "ls": "--" if k < 2 else "-"}
+        style: dict[str, Any] = {
+            "color": "0.4" if k < 2 else f"C{k - 2}",
+            "ls": "--" if k < 2 else "-",
+        }
         ax.plot(steps[good], e[good], lw=0.5, alpha=0.25, color=style["color"])
         run = np.array(
             [np.nanmedian(e[max(0, i - win) : i + win + 1]) for i in range(len(e))]

@@ -82,7 +82,7 @@ class FigureWorker:
         """Start the helper (it begins importing at once). Never raises: a helper that cannot
         be started is reported by `result()`."""
         cmd = [sys.executable, "-P", "-c", _BOOT, _PACKAGE, str(os.getpid())]
-        own_group = {"process_group": 0} if os.name == "posix" else {}
+        own_group: dict[str, Any] = {"process_group": 0} if os.name == "posix" else {}
         try:
             proc = subprocess.Popen(
                 cmd,
@@ -122,6 +122,7 @@ class FigureWorker:
             self.failure = f"the run could not be handed to the figure process: {exc!r}"
             return
         stdin, self.proc.stdin = self.proc.stdin, None  # ours now; communicate() leaves it
+        assert stdin is not None  # started with stdin=PIPE
 
         def send() -> None:
             try:

@@ -189,6 +189,7 @@ class Method:
         if model is not None:
             self.J = np.array(model, dtype=float)
         elif not self.open_loop:
+            assert self.task is not None  # start() set it
             self._probes = list(probe_moves(self.q, self.task.probe_size))
             self._probing_left = len(self._probes)
 
@@ -247,6 +248,7 @@ class Method:
             return np.array(self._probes.pop(0), dtype=float)
         self.phase = CONTROL
         t = time.perf_counter()
+        assert self.task is not None and self.s is not None  # start() and _first() set them
         r = np.asarray(obs["gripper"], dtype=float) - self.task.home_pose
         u = np.asarray(self.controller.command(self.s, self.s_target, self.J, r), dtype=float)
         self.times.control += time.perf_counter() - t

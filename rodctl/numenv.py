@@ -96,9 +96,10 @@ def _numpy() -> dict[str, Any]:
 
     out: dict[str, Any] = {"version": np.__version__}
     try:
-        from numpy._core import _multiarray_umath as mu  # numpy >= 2
+        # a private module, absent from numpy's stubs
+        from numpy._core import _multiarray_umath as mu  # type: ignore[attr-defined]
     except ImportError:  # pragma: no cover - numpy 1.x
-        from numpy.core import _multiarray_umath as mu  # type: ignore[no-redef]
+        from numpy.core import _multiarray_umath as mu
     out["simd_baseline"] = list(getattr(mu, "__cpu_baseline__", []))
     features = getattr(mu, "__cpu_features__", {})
     dispatch = getattr(mu, "__cpu_dispatch__", [])

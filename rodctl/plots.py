@@ -23,13 +23,14 @@ from __future__ import annotations
 import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullLocator
+from matplotlib.ticker import FuncFormatter, Locator, LogLocator, MaxNLocator, NullLocator
 
 from rodctl.records import RunHeader, StepRecord
 
@@ -88,6 +89,7 @@ def _log_axis(ax: Axes, values: np.ndarray) -> None:
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v) & (v > 0)]
     decades = float(np.log10(v.max() / v.min())) if v.size else 0.0
+    locator: Locator
     if decades > 4:
         locator = LogLocator(base=10, numticks=8)
     elif decades > 0.7:
@@ -122,7 +124,7 @@ def speed_limits(header: RunHeader) -> np.ndarray | None:
 
 #: savefig arguments; zlib level 1: a third of the default level's encoding time, files ~30 %
 #: larger.
-_SAVE = {"dpi": DPI, "pil_kwargs": {"compress_level": 1}}
+_SAVE: dict[str, Any] = {"dpi": DPI, "pil_kwargs": {"compress_level": 1}}
 
 #: The file names of one run's figures, in the order `write_figures` returns them.
 RUN_FIGURES = ("shapes.png", "t1.png", "commands.png")

@@ -32,6 +32,7 @@ The six kinds and what their registered function is called with:
 
 from __future__ import annotations
 
+import builtins
 import hashlib
 import importlib
 import os
@@ -40,7 +41,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, Concatenate, Generic, ParamSpec, Protocol, TypeVar
 
 import numpy as np
 from pydantic import BaseModel
@@ -57,6 +58,9 @@ _PACKAGE_DIR = Path(__file__).resolve().parent
 
 C = TypeVar("C", bound=BaseModel)
 T = TypeVar("T")
+#: What a factory takes after its config: a `BuildContext` for the stages, a `SinkContext` or an
+#: `ExecutorContext` for sinks and executors, `(sim, camera)` for events.
+P = ParamSpec("P")
 
 
 class ExperimentSpec(Protocol):
@@ -111,8 +115,9 @@ class Registration(Generic[C]):
 
     kind: str
     type: str
-    config: type[C]
-    factory: Callable[[C, BuildContext], Any]
+    # `builtins.type`: the field `type` above shadows the builtin in the class body.
+    config: builtins.type[C]
+    factory: Callable[..., Any]
     source: str
     summary: str = ""
 
@@ -129,7 +134,7 @@ class Registry(Generic[T]):
 
     def register(
         self, config: type[C], *, replace: bool = False
-    ) -> Callable[[Callable[[C, BuildContext], T]], Callable[[C, BuildContext], T]]:
+    ) -> Callable[[Callable[Concatenate[C, P], T]], Callable[Concatenate[C, P], T]]:
         """Decorator registering `factory(cfg, ctx)` for the config model `config`.
 
         The type name is the default of the model's `type` field (a `Literal`).
@@ -140,7 +145,7 @@ class Registry(Generic[T]):
         """
         name = _type_name(config)
 
-        def decorator(factory: Callable[[C, BuildContext], T]) -> Callable[[C, BuildContext], T]:
+        def decorator(factory: Callable[Concatenate[C, P], T]) -> Callable[Concatenate[C, P], T]:
             if name in self._entries and not replace:
                 raise ValueError(
                     f"{self.kind} type {name!r} is already registered by "

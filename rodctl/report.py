@@ -81,6 +81,7 @@ def verdict(method: str, ref: str, d: PairedDifference, unit: str = "steps") -> 
     for every paired metric."""
     if d.n == 0 or d.mean is None:
         return f"{method}: no target that both it and {ref} converged on, nothing to compare"
+    assert d.ci_low is not None and d.ci_high is not None  # set with the mean (statistics.py)
     head = f"{method} {_signed(d.mean)} {unit} [{_signed(d.ci_low)}, {_signed(d.ci_high)}]"
     n = f"{d.n} paired target{'s' if d.n != 1 else ''}"
     if d.p_value is None:

@@ -104,13 +104,14 @@ class ShapeServoRLEnv(gym.Env):
         self._tolerance = float(cfg.run.pixel_tolerance)
         n = cfg.camera.points
         src = core.observation_space
+        assert isinstance(src, spaces.Dict)  # ShapeServoEnv's observations are a Dict
         if self.normalize_observations:
             # (2M - c) / S < 4 and (-M - c) / S > -4 for M = max(width, height) = 2 S.
             pixels = spaces.Box(-4.0, 4.0, (2 * n,), dtype=F32)
         else:
-            box = src["centerline"]
+            box = _box(src["centerline"])
             pixels = spaces.Box(float(box.low.min()), float(box.high.max()), (2 * n,), dtype=F32)
-        g, a = src["gripper"], src["applied"]
+        g, a = _box(src["gripper"]), _box(src["applied"])
         self._spaces = {
             "centerline": pixels,
             "target": pixels,
@@ -212,7 +213,7 @@ class ShapeServoGoalEnv(ShapeServoRLEnv):
 
     def _set_spaces(self) -> None:
         super()._set_spaces()
-        parts = [self._spaces[k] for k in ("centerline", "gripper", "applied")]
+        parts = [_box(self._spaces[k]) for k in ("centerline", "gripper", "applied")]
         low = min(float(p.low.min()) for p in parts + [spaces.Box(0.0, 1.0)])
         high = max(float(p.high.max()) for p in parts + [spaces.Box(0.0, 1.0)])
         size = sum(p.shape[0] for p in parts) + 1
@@ -257,6 +258,12 @@ class ShapeServoGoalEnv(ShapeServoRLEnv):
         ok = np.broadcast_to(_frames_seen(info), np.shape(dist))
         reward = np.where(ok, reward, -self._lost_frame_cost)
         return float(reward) if np.ndim(reward) == 0 else reward
+
+
+def _box(space: spaces.Space) -> spaces.Box:
+    """A part of the observation space that is a Box (the pixels, the gripper, the moves)."""
+    assert isinstance(space, spaces.Box)
+    return space
 
 
 def _frames_seen(info: Any) -> np.ndarray | bool:

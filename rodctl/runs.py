@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from pydantic import BaseModel
@@ -210,6 +210,17 @@ def _out_error(parent: Path, what: str, exc: OSError) -> Exception:
     return UserError(message) if exc.errno in _BAD_PATH else RunFailed(message)
 
 
+class NamedConfig(Protocol):
+    """A config a run directory is made for (an experiment, compare, sweep or suite config: a
+    pydantic model with these fields)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def seed(self) -> int: ...
+
+
 @dataclass
 class RunDir:
     """One run's output folder and its meta.json."""
@@ -224,7 +235,7 @@ class RunDir:
 
     @classmethod
     def create(
-        cls, parent: str | Path, cfg: BaseModel, command: str, argv: list[str] | None = None
+        cls, parent: str | Path, cfg: NamedConfig, command: str, argv: list[str] | None = None
     ) -> RunDir:
         """Make a new, unique run directory under `parent` and write config.yaml and meta.json.
 
@@ -264,6 +275,7 @@ class RunDir:
             "started_at": _now(),
             "ended_at": None,
         }
+        assert isinstance(cfg, BaseModel)  # every config is a pydantic model
         try:
             run.write_meta()
             (path / "config.yaml").write_text(dump_config(cfg), encoding="utf-8")

@@ -140,7 +140,8 @@ def simulate(
             )
         )
         if result.reason and not result.error:  # diverged: no traceback, the reason says it
-            _best_effort(lambda: (run.path / "error.txt").write_text(result.reason + "\n"))
+            text = result.reason + "\n"
+            _best_effort(lambda: (run.path / "error.txt").write_text(text))
         summary = result.summary
         problems = [write_json_best_effort(run.path / "summary.json", summary.to_json())]
         shown: Exception | None = None  # a display error waits until meta.json is final
@@ -157,7 +158,7 @@ def simulate(
             # The run itself may have been fine; what it could not write makes it a failure.
             error = "; ".join(filter(None, [error, *lost]))
             status = "failed" if status == "completed" else status
-        extra = {"error": error} if error else {}
+        extra: dict[str, Any] = {"error": error} if error else {}
         if result.header is not None:
             extra["numeric_env"] = result.header.numeric_env
         meta_error = run.finish(status, outcome=summary.outcome, **extra)

@@ -22,8 +22,8 @@ import json
 import math
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -91,7 +91,8 @@ def sweep_points(cfg: SweepConfig) -> list[dict[str, Any]]:
     """
     keys = list(cfg.parameters)
     if cfg.search == "grid":
-        combos = itertools.product(*(cfg.parameters[k].values for k in keys))
+        # a grid parameter has its values (`SweepConfig` checks it)
+        combos = itertools.product(*(cfg.parameters[k].values or [] for k in keys))
         return [dict(zip(keys, c, strict=True)) for c in combos]
     from rodctl.runs import rng
 
@@ -104,6 +105,7 @@ def sweep_points(cfg: SweepConfig) -> list[dict[str, Any]]:
             if p.values is not None:
                 point[k] = p.values[int(gen.integers(len(p.values)))]
                 continue
+            assert p.low is not None and p.high is not None  # `ParameterConfig` checks it
             if p.log:
                 v = float(math.exp(gen.uniform(math.log(p.low), math.log(p.high))))
             else:
@@ -194,8 +196,10 @@ def rank_groups(groups: list[dict[str, Any]], rank_by: list[str]) -> list[dict[s
         out = []
         for m in rank_by:
             v = g.get(m)
-            missing = v is None or (isinstance(v, float) and math.isnan(v))
-            out.append((missing, 0.0 if missing else (-v if METRICS[m] else v)))
+            if v is None or (isinstance(v, float) and math.isnan(v)):
+                out.append((True, 0.0))
+            else:
+                out.append((False, -v if METRICS[m] else v))
         return tuple(out)
 
     ranked = sorted(groups, key=key)
@@ -242,12 +246,12 @@ def run_sweep(
         with stop_handlers(), pool, stop_handlers():  # as in run_compare
             targets = {}
             for s in cfg.seeds:
-                spec = SimpleNamespace(seed=s, targets=cfg.targets, base=cfg.base)
-                targets[s] = make_targets(
-                    spec,
-                    given,
-                    lambda ts, fn, s=s: run_tasks(pool, ts, fn, f"targets s{s}", progress),
-                )
+                spec = cfg.model_copy(update={"seed": s})  # what make_targets reads: this seed
+
+                def fan_out(ts: list[dict], fn: Callable[[dict], Any], s: int = s) -> list[Any]:
+                    return run_tasks(pool, ts, fn, f"targets s{s}", progress)
+
+                targets[s] = make_targets(spec, given, fan_out)
                 write_targets(targets[s], run.path / f"targets_seed{s}.yaml")
             tasks = _tasks(cfg, points, methods, targets, run.path, source)
             total = len(tasks)
@@ -256,8 +260,8 @@ def run_sweep(
             new = stream_episodes(pool, todo, log, progress=progress, done_before=len(kept))
             reason = stop_reason()
         got = {_row_key(r): r for r in new if r is not None and r["outcome"] != "interrupted"}
-        rows = [kept.get(_row_key(t)) or got.get(_row_key(t)) for t in tasks]
-        rows = [r for r in rows if r is not None]
+        found = [kept.get(_row_key(t)) or got.get(_row_key(t)) for t in tasks]
+        rows = [r for r in found if r is not None]
         _report(
             cfg, run.path, points, targets, rows, total, time.perf_counter() - wall0, pool, progress
         )
@@ -467,7 +471,7 @@ def metric_figure(
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    values = []
+    values: list[Any] = []
     for r in rows:
         v = r.get(key)
         if v not in values:

@@ -59,7 +59,7 @@ def sample_target_pose(
     q = np.asarray(home).shape[0]  # 3, or 6 in dual-arm: both ends' offsets drawn together
     scale = _scale(rod_length, q)
     for _ in range(max_tries):
-        direction = rng.normal(size=q)
+        direction = rng.normal(size=(q,))
         direction /= fla.norm(direction)
         radius = rng.uniform(min_offset, max_offset)
         pose = np.asarray(home, dtype=float) + radius * direction * scale

@@ -7,7 +7,7 @@ validates on assignment, so a config mutated after loading cannot drift out of r
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Union, get_args
+from typing import TYPE_CHECKING, Annotated, Any, Union, get_args
 
 from pydantic import (
     BaseModel,
@@ -16,6 +16,19 @@ from pydantic import (
     GetCoreSchemaHandler,
     model_validator,
 )
+
+if TYPE_CHECKING:
+
+    class StageConfig(BaseModel):
+        """What the checker knows of the config of a registered type (a stage, an event, a
+        sink, an executor): a model with a `type` name (`Registry.register` refuses one
+        without). At run time it is `BaseModel`: the union of the registered models is built
+        by `StageSlot`."""
+
+        type: str
+
+else:
+    StageConfig = BaseModel
 
 
 class StrictModel(BaseModel):
@@ -70,11 +83,6 @@ Pose = Annotated[
 Point2 = tuple[Coordinate, Coordinate]
 
 
-def bounded(lo: float, hi: float, *, strict_lo: bool = False) -> Any:
-    """A float type in [lo, hi] ((lo, hi] with `strict_lo`), for tuple items."""
-    return Annotated[float, Field(gt=lo, le=hi) if strict_lo else Field(ge=lo, le=hi)]
-
-
 class StageSlot:
     """The config of one pluggable stage (or event, sink, executor): a union of every registered
     type of that kind, keyed by `type`.
@@ -94,7 +102,8 @@ class StageSlot:
         models = KINDS[self.kind].config_models()
         if len(models) == 1:
             return handler.generate_schema(models[0])
-        union = Annotated[Union[tuple(models)], Field(discriminator="type")]  # noqa: UP007
+        # A union built at run time from the registry: it has no static type to check.
+        union = Annotated[Union[tuple(models)], Field(discriminator="type")]  # type: ignore[valid-type]  # noqa: E501, UP007
         return handler.generate_schema(union)
 
     def __repr__(self) -> str:
@@ -109,6 +118,7 @@ def stage_field(kind: str, description: str) -> Any:
 
         load_builtins()
         reg = STAGES[kind]
+        assert reg.default is not None, f"the {kind} kind has no default type"
         return reg.get(reg.default).config()
 
     return Field(default_factory=default, description=description)

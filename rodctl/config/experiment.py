@@ -5,9 +5,9 @@ from __future__ import annotations
 import os
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
-from rodctl.config.base import StageSlot, StrictModel, default_stage_types, stage_field
+from rodctl.config.base import StageConfig, StageSlot, StrictModel, default_stage_types, stage_field
 from rodctl.config.camera import CameraConfig
 from rodctl.config.events import validate_events
 from rodctl.config.logging import LoggingConfig
@@ -17,9 +17,9 @@ from rodctl.errors import UserError
 from rodctl.registry import depends_on_stages
 
 #: The config of each pluggable stage: every type registered in `rodctl.registry`, by `type`.
-FeatureConfig = Annotated[BaseModel, StageSlot("feature")]
-EstimatorConfig = Annotated[BaseModel, StageSlot("estimator")]
-ControllerConfig = Annotated[BaseModel, StageSlot("controller")]
+FeatureConfig = Annotated[StageConfig, StageSlot("feature")]
+EstimatorConfig = Annotated[StageConfig, StageSlot("estimator")]
+ControllerConfig = Annotated[StageConfig, StageSlot("controller")]
 
 #: The sections that hold a method's stages.
 STAGE_SECTIONS = ("feature", "estimator", "controller")

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
-from rodctl.config.base import StageSlot, StrictModel
+from rodctl.config.base import StageConfig, StageSlot, StrictModel
 from rodctl.registry import depends_on_stages
 
 #: One output sink, chosen by `type` among every type registered in `rodctl.registry.SINKS`.
-SinkSlot = Annotated[BaseModel, StageSlot("sink")]
+SinkSlot = Annotated[StageConfig, StageSlot("sink")]
 
 
 @depends_on_stages
@@ -68,7 +68,7 @@ class LoggingConfig(StrictModel):
         """A built-in sink with its own switch (`mcap: true`) is not listed in `sinks` too."""
         for i, sink in enumerate(self.sinks):
             switch: Any = getattr(sink, "switch", None)
-            name = sink.type  # type: ignore[attr-defined]
+            name = sink.type
             if switch:
                 raise ValueError(
                     f"sinks[{i}]: the {name!r} sink is switched by logging.{switch}: true, not "

@@ -14,7 +14,7 @@ heavy elastica to ~0.05 % of L up to q L^3/EI = 100.
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     Field,
@@ -25,7 +25,11 @@ from pydantic import (
     model_validator,
 )
 
-from rodctl.config.base import Angle, Coordinate, Point2, Pose, StrictModel, bounded
+from rodctl.config.base import Angle, Coordinate, Point2, Pose, StrictModel
+
+#: Tuple items of a per-axis step limit, in (0, hi]: metres (x, y) and radians (theta).
+_StepMetres = Annotated[float, Field(gt=0, le=1.0)]
+_StepRadians = Annotated[float, Field(gt=0, le=3.2)]
 
 #: Standard gravity (m/s²): the weight pressing a rod on the table (`table_friction`).
 STANDARD_GRAVITY = 9.80665
@@ -136,11 +140,7 @@ class ClampArmConfig(StrictModel):
     """The second arm of a dual-arm set-up (`rod.arms: 2`): it holds the x0 end (the clamp) and
     moves it in (x, y, theta) like the gripper, with its own speed limit and workspace."""
 
-    max_step: tuple[
-        bounded(0, 1.0, strict_lo=True),
-        bounded(0, 1.0, strict_lo=True),
-        bounded(0, 3.2, strict_lo=True),
-    ] = Field(
+    max_step: tuple[_StepMetres, _StepMetres, _StepRadians] = Field(
         (0.01, 0.01, 0.05),
         description="Per-axis limit [dx, dy, dtheta] (m, m, rad) on one step of the x0 end.",
     )
@@ -254,11 +254,7 @@ class RodConfig(StrictModel):
         le=10.0,
         description="Simulated time (s) over which one control step moves the gripper.",
     )
-    max_step: tuple[
-        bounded(0, 1.0, strict_lo=True),
-        bounded(0, 1.0, strict_lo=True),
-        bounded(0, 3.2, strict_lo=True),
-    ] = Field(  # noqa: E501
+    max_step: tuple[_StepMetres, _StepMetres, _StepRadians] = Field(  # noqa: E501
         (0.01, 0.01, 0.05),
         description="Per-axis limit [dx, dy, dtheta] (m, m, rad) on one control step's move.",
     )

@@ -8,7 +8,6 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 from pydantic import (
-    BaseModel,
     BeforeValidator,
     ConfigDict,
     Field,
@@ -18,13 +17,17 @@ from pydantic import (
     model_validator,
 )
 
-from rodctl.config.base import Angle, Coordinate, Pose, StageSlot, StrictModel, bounded
+from rodctl.config.base import Angle, Coordinate, Pose, StageConfig, StageSlot, StrictModel
 from rodctl.outcome import EXPECTABLE, Outcome
 from rodctl.registry import depends_on_stages
 
+#: Tuple items of a probing move, in (0, hi]: metres (x, y) and radians (theta).
+_ProbeMetres = Annotated[float, Field(gt=0, le=0.1)]
+_ProbeRadians = Annotated[float, Field(gt=0, le=1.0)]
+
 #: One mid-run event, chosen by `type` among every type registered in `rodctl.registry.EVENTS`
 #: (the built-ins are in rodctl/events.py; a plug-in adds more). An unknown `type` is refused.
-Event = Annotated[BaseModel, StageSlot("event")]
+Event = Annotated[StageConfig, StageSlot("event")]
 
 
 def _expectable(value: object) -> object:
@@ -89,11 +92,7 @@ class RunConfig(StrictModel):
         200, le=1_000_000, description="Step limit, probing steps included."
     )
     target: TargetConfig = TargetConfig()
-    probe_size: tuple[
-        bounded(0, 0.1, strict_lo=True),
-        bounded(0, 0.1, strict_lo=True),
-        bounded(0, 1.0, strict_lo=True),
-    ] = Field(  # noqa: E501
+    probe_size: tuple[_ProbeMetres, _ProbeMetres, _ProbeRadians] = Field(  # noqa: E501
         (0.005, 0.005, 0.03),
         description="Size of the q + 1 probing moves that initialise J: [dx m, dy m, dtheta rad].",
     )

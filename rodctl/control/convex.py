@@ -131,4 +131,5 @@ class YuConvexControllerConfig(StrictModel):
 
 @CONTROLLERS.register(YuConvexControllerConfig)
 def _build(cfg: YuConvexControllerConfig, ctx: BuildContext) -> ConvexController:
+    assert ctx.max_step is not None, "a controller is built with the task's max_step"
     return ConvexController(ctx.max_step, **cfg.model_dump(exclude={"type"}))

@@ -46,7 +46,7 @@ def mfac_cost(
     s: np.ndarray,
     r: np.ndarray,
     u_prev: np.ndarray,
-    weights: Sequence[float],
+    weights: Sequence[float] | np.ndarray,
 ) -> float:
     """The cost Q(u) of paper eq. 22 (docs/method.md §5).
 
@@ -85,7 +85,7 @@ def mfac_step(
     s: np.ndarray,
     r: np.ndarray,
     u_prev: np.ndarray,
-    weights: Sequence[float],
+    weights: Sequence[float] | np.ndarray,
 ) -> np.ndarray:
     """Closed-form minimiser of `mfac_cost` (paper eq. 24; I is the q x q identity).
 

@@ -153,4 +153,5 @@ class QpControllerConfig(StrictModel):
 
 @CONTROLLERS.register(QpControllerConfig)
 def _build(cfg: QpControllerConfig, ctx: BuildContext) -> QpController:
+    assert ctx.max_step is not None, "a controller is built with the task's max_step"
     return QpController(ctx.max_step, **cfg.model_dump(exclude={"type"}))

@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
+import numpy.typing as npt
 from pydantic import Field
 
 from rodctl.config.base import Angle, Coordinate, Pose, StrictModel
@@ -27,11 +28,11 @@ class ScriptedController:
 
     def __init__(
         self,
-        waypoints: np.ndarray,
+        waypoints: npt.ArrayLike,
         *,
-        home_pose: np.ndarray,
-        max_step: np.ndarray,
-        tolerance: np.ndarray = (1e-4, 1e-4, 1e-3),
+        home_pose: npt.ArrayLike,
+        max_step: npt.ArrayLike,
+        tolerance: npt.ArrayLike = (1e-4, 1e-4, 1e-3),
     ) -> None:
         """Args:
         waypoints: (n, 3) absolute gripper poses [x, y, theta], world frame.
@@ -113,6 +114,7 @@ class ScriptedControllerConfig(StrictModel):
 
 @CONTROLLERS.register(ScriptedControllerConfig)
 def _build(cfg: ScriptedControllerConfig, ctx: BuildContext) -> ScriptedController:
+    assert ctx.home_pose is not None and ctx.max_step is not None, "built for a task"
     return ScriptedController(
         cfg.waypoints, home_pose=ctx.home_pose, max_step=ctx.max_step, tolerance=cfg.tolerance
     )

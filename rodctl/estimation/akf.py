@@ -208,10 +208,10 @@ class AdaptiveKalmanJacobian:
         inv_a = 1.0 / alpha
 
         S = inv_a * G + self._R  # eq. 13; symmetric positive definite (R is clipped to r_min)
-        Li = fixedla.cholesky_inverse_factor(0.5 * (S + S.T))  # S^-1 = Li^T Li
-        if Li is None:  # only if P lost definiteness to rounding: make S PD again
-            Li = fixedla.cholesky_inverse_factor(clip_psd(S, self._r_min, test_first=False))
-        Li = np.array(Li)
+        factor = fixedla.cholesky_inverse_factor(0.5 * (S + S.T))  # S^-1 = Li^T Li
+        if factor is None:  # only if P lost definiteness to rounding: make S PD again
+            factor = fixedla.cholesky_inverse_factor(clip_psd(S, self._r_min, test_first=False))
+        Li = np.array(factor)
         W = np.einsum("ik,jk->ij", Li, PMt)  # (p, n) = L^-1 M P-
         Keps = inv_a * np.einsum("ki,k->i", W, fixedla.matvec(Li, eps))  # K eps (eq. 13)
         self._J = self._J + Keps.reshape(p, q)

@@ -421,11 +421,11 @@ class LearnedJacobian:
         ds = np.asarray(ds, dtype=float)
         dr = np.asarray(dr, dtype=float)
         phi_old, phi_new = self._phi, self._phi_new
-        if phi_new is None:
-            phi_new = phi_old
         if phi_old is None:  # no state given yet: nothing to learn from
             self._info = {"skipped": 1.0, "residual": 0.0, "weight_change": 0.0}
             return self.J
+        if phi_new is None:
+            phi_new = phi_old
         resid = ds - fla.matvec(self._jacobian(phi_old), dr)
         skipped = fla.norm(dr) < self._dead_zone
         change = 0.0

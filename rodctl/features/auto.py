@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rodctl.errors import UserError
-from rodctl.features.autoencoder import VERSION, encoder_fingerprint
+from rodctl.features.autoencoder import VERSION, encoder_fingerprint, is_autoencoder
 
 if TYPE_CHECKING:
     from rodctl.config.experiment import ExperimentConfig
@@ -50,11 +50,13 @@ def cache_dir() -> Path:
 
 def cache_path(cfg: ExperimentConfig) -> Path:
     """The cache file of the quick encoder for `cfg`'s rod, camera, N and architecture."""
+    feature = cfg.feature
+    assert is_autoencoder(feature), "the quick encoder is an autoencoder's"
     key = {
         "fingerprint": encoder_fingerprint(cfg),
         "samples": QUICK_SAMPLES,
         "epochs": QUICK_EPOCHS,
-        "batch": min(cfg.feature.training.batch_size, QUICK_BATCH),  # type: ignore[union-attr]
+        "batch": min(feature.training.batch_size, QUICK_BATCH),
         "seed": QUICK_SEED,
         "format": VERSION,
     }

@@ -36,7 +36,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypeGuard
 
 import numpy as np
 import yaml
@@ -135,6 +135,31 @@ class Architecture(Protocol):
     latent_dim: int
 
 
+class _BatchSize(Protocol):
+    batch_size: int
+
+
+class _DataSpec(Protocol):
+    samples: int
+    chunk: int
+    workers: int
+
+
+class AutoencoderSpec(Architecture, Protocol):
+    """What the cache and the fingerprint read of an autoencoder feature config (its `type` is
+    "autoencoder")."""
+
+    type: str
+    checkpoint: str | None
+    training: _BatchSize
+    data: _DataSpec
+
+
+def is_autoencoder(feature: object) -> TypeGuard[AutoencoderSpec]:
+    """`feature` is an autoencoder feature config (its `type` says so)."""
+    return getattr(feature, "type", None) == "autoencoder"
+
+
 def architecture_of(feature: Architecture, points: int) -> dict[str, Any]:
     """The architecture record of a checkpoint for `feature` on N = `points` centerlines."""
     return {
@@ -161,7 +186,7 @@ def encoder_fingerprint(cfg: ExperimentConfig) -> dict[str, Any]:
     # (that loads every feature's registration) does not need.
     from rodctl.vision.camera import Camera  # noqa: PLC0415
 
-    if getattr(cfg.feature, "type", None) != "autoencoder":
+    if not is_autoencoder(cfg.feature):
         raise ValueError(f"feature.type is {cfg.feature.type!r}, not 'autoencoder'")
     camera = Camera(cfg.camera, None)
     return {
@@ -385,7 +410,9 @@ class EncoderCheckpoint:
         path = Path(path)
         tmp = path.with_name(path.name + ".tmp")
         if path.suffix == ".npz":
-            arrays = {f"w/{k}": np.asarray(v, dtype=np.float32) for k, v in self.state_dict.items()}
+            arrays: dict[str, Any] = {
+                f"w/{k}": np.asarray(v, dtype=np.float32) for k, v in self.state_dict.items()
+            }
             with open(tmp, "wb") as f:
                 np.savez(
                     f,
@@ -664,5 +691,5 @@ def torch_encode(checkpoint: EncoderCheckpoint, centerlines_px: np.ndarray) -> n
     x = (arr.reshape(arr.shape[0], -1) - checkpoint.input_mean) / checkpoint.input_scale
     net = checkpoint.network()
     with torch.no_grad():
-        z = net.encoder(torch.as_tensor(x, dtype=torch.float32))
+        z = net.get_submodule("encoder")(torch.as_tensor(x, dtype=torch.float32))
     return z.double().numpy()

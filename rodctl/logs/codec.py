@@ -31,7 +31,7 @@ from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -230,6 +230,16 @@ def foxglove_time(t_ns: int) -> dict[str, int]:
     return {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000}
 
 
+class _Frame(Protocol):
+    """What the schedule reads of a step: its camera frame and its time."""
+
+    @property
+    def image(self) -> np.ndarray | None: ...
+
+    @property
+    def sim_time(self) -> float: ...
+
+
 class FrameSchedule:
     """Which camera frames a sink logs: at most `rate_hz` frames per second of simulated time.
 
@@ -254,7 +264,7 @@ class FrameSchedule:
             return False
         return time_ns(record.sim_time) >= self._next_ns
 
-    def take(self, record: StepRecord) -> bool:
+    def take(self, record: _Frame) -> bool:
         """Whether to log `record.image`; advances the schedule when it does."""
         if record.image is None or self.period_ns <= 0:
             return False
@@ -491,6 +501,7 @@ def rod_state_message(r: StepRecord) -> dict[str, Any]:
 
 def clamp_state_message(r: StepRecord) -> dict[str, Any]:
     """/rod/clamp (dual-arm): `step, sim_time, clamp` (the x0 end's pose)."""
+    assert r.clamp is not None, "a dual-arm step has the x0 end's pose"
     e = Encoder()
     return {
         "step": int(r.step),

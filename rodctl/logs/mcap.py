@@ -781,13 +781,14 @@ def check_sizes(f: IO[bytes], path: Path, size: int) -> None:
 def _read_indexed(f: IO[bytes]) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
     """Messages (file order) and metadata of a finished file, via its summary and indexes."""
     reader = make_reader(f, validate_crcs=True)
-    if reader.get_summary() is None:
+    summary = reader.get_summary()
+    if summary is None:
         raise McapError("no summary section")
     raw = [
         (ch.topic, m.sequence, m.log_time, m.data)
         for _, ch, m in reader.iter_messages(log_time_order=False)
     ]
-    stats = reader.get_summary().statistics
+    stats = summary.statistics
     if stats is not None and stats.message_count != len(raw):
         # A chunk written without its index: the indexes cannot be trusted to be complete.
         raise McapError(
@@ -972,7 +973,8 @@ def _assemble(
             except (KeyError, ValueError) as exc:
                 notes.append(f"step {step}: camera frame unreadable ({exc}); left out")
         try:
-            records.append(codec.record_from_messages(*(slot[t] for t in wanted), image))
+            rod, cam, ctl = (slot[t] for t in wanted)
+            records.append(codec.record_from_messages(rod, cam, ctl, image))
         except (KeyError, TypeError, ValueError) as exc:
             raise UserError(f"{path}: malformed step {step}: {exc!r}") from None
         records[-1].clamp = clamps.get(step)

@@ -37,6 +37,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -185,6 +186,11 @@ def _empty_buffer() -> dict[str, list]:
 FLUSH_TIMEOUT_S = 10.0
 
 
+def _scalars(data: dict[str, Any]) -> dict[str, Any]:
+    """The entries of `data` that Rerun's `AnyValues` shows: numbers, strings and booleans."""
+    return {k: v for k, v in data.items() if isinstance(v, (int, float, str, bool))}
+
+
 def _bounded(call: Callable[[], object], timeout: float) -> BaseException | None:
     """Run `call()` on a helper thread for at most `timeout` seconds; its error, or a
     TimeoutError when it did not return (Rerun's file writer waits for ever on a full disk).
@@ -232,7 +238,7 @@ class RerunSink:
         self._prev: StepRecord | None = None
         self._steps = 0
         self._last_step = 0
-        self._last_time = np.timedelta64(0, "ns")
+        self._last_time: np.timedelta64 = np.timedelta64(0, "ns")
         self._closed = False
         self._buf = _empty_buffer()
         self._frames = codec.FrameSchedule(self.cfg.image_rate_hz)
@@ -555,13 +561,7 @@ class RerunSink:
             if summary is not None:
                 rec.send_property(
                     "summary",
-                    rr.AnyValues(
-                        **{
-                            k: v
-                            for k, v in codec.sanitize(summary.to_log_json()).items()
-                            if isinstance(v, (int, float, str, bool))
-                        }
-                    ),
+                    rr.AnyValues(**_scalars(codec.sanitize(summary.to_log_json()))),
                 )
         except Exception as exc:  # noqa: BLE001 - collected, see docstring
             errors.append(exc)

@@ -139,6 +139,7 @@ class Calibration:
         """
         if self.rotation is not None:
             R, t = self.rotation, self.translation
+            assert t is not None  # an extrinsic has both
             H = np.asarray(K, float) @ np.column_stack([R[:, 0], R[:, 1], t])
             if abs(H[2, 2]) < 1e-12:
                 raise UserError(f"{self.source}: the extrinsic puts the plane's origin at infinity")
@@ -171,6 +172,7 @@ class Calibration:
         cam = PlaneCamera(cfg, H, self.rotation, self.translation)
         if rms is None:
             return cam, f"camera pose from the extrinsic of {self.source}"
+        assert self.plane is not None  # not an extrinsic: marked points
         return cam, (
             f"camera pose from {len(self.plane)} marked points of {self.source} (homography, "
             f"RMS reprojection {rms:.3f} px)"
@@ -185,6 +187,7 @@ class Calibration:
                 "rotation": np.asarray(self.rotation).tolist(),
                 "translation": np.asarray(self.translation).tolist(),
             }
+        assert self.pixels is not None and self.plane is not None  # not an extrinsic
         return {
             "kind": "plane_points",
             "from": self.source,

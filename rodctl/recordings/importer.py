@@ -40,7 +40,10 @@ def _views(rec: PointsRecording) -> tuple[np.ndarray, np.ndarray, tuple[int, int
         lo = np.zeros(2)
         size = (int(np.ceil(px[..., 0].max())) + 1, int(np.ceil(px[..., 1].max())) + 1)
         world = np.stack([px[..., 0], -px[..., 1]], axis=-1) / NOMINAL_PX_PER_M
-        view = {"points_are": "pixels", "world": f"x / {NOMINAL_PX_PER_M:g}, -y / same"}
+        view: dict[str, Any] = {
+            "points_are": "pixels",
+            "world": f"x / {NOMINAL_PX_PER_M:g}, -y / same",
+        }
     else:
         world = pts
         lo = world.reshape(-1, 2).min(axis=0) - 0.05
@@ -170,7 +173,7 @@ def import_bag_images(
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
         mask_topic=mask_topic,
     )  # fmt: skip
-    source = {
+    source: dict[str, Any] = {
         "kind": "ros2_bag_images",
         "image_topic": image_topic,
         "camera_info_topic": info_topic,
@@ -215,12 +218,11 @@ def import_image_folder(
         None,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
     )  # fmt: skip
-    source = {"kind": "image_folder", "poses": str(poses)}
+    source: dict[str, Any] = {"kind": "image_folder", "poses": str(poses)}
     if calibration is not None:
         source["calibration"] = calibration.describe()
-    frames = (rec, world, used, notes)
     return _write_frames_run(
-        frames, src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
+        (rec, world, used, notes), src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
     )
 
 
@@ -253,12 +255,11 @@ def import_video(
         None,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
     )  # fmt: skip
-    source = {"kind": "video", "poses": str(poses), **used_times}
+    source: dict[str, Any] = {"kind": "video", "poses": str(poses), **used_times}
     if calibration is not None:
         source["calibration"] = calibration.describe()
-    frames = (rec, world, used, notes)
     return _write_frames_run(
-        frames, src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
+        (rec, world, used, notes), src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
     )
 
 

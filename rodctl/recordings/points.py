@@ -111,10 +111,10 @@ def _read_csv(path: Path) -> PointsRecording:
                 raise UserError(f"{path}: no column {axis}{k} (points are numbered 0..{n - 1})")
     if 0 not in ends:
         raise UserError(f"{path}: no columns e0_x, e0_y, e0_theta (end effector 0's pose)")
-    for e, cols in ends.items():
+    for end, cols in ends.items():
         for f in ("x", "y", "theta"):
             if f not in cols:
-                raise UserError(f"{path}: no column e{e}_{f}")
+                raise UserError(f"{path}: no column e{end}_{f}")
     try:
         data = np.array([[float(v) for v in row] for row in rows], dtype=float)
     except ValueError as exc:

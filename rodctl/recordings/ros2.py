@@ -126,7 +126,8 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
     run = read_run(run_path, images=True)
     ts = get_typestore(Stores.ROS2_HUMBLE)
     T = ts.types
-    K = _intrinsics(run.header.config_yaml, tuple(run.header.image_size))
+    width, height = run.header.image_size
+    K = _intrinsics(run.header.config_yaml, (width, height))
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     counts = {TOPIC_IMAGE: 0, TOPIC_INFO: 0, TOPIC_POSE: 0, TOPIC_CENTERLINE: 0}
 
@@ -605,10 +606,10 @@ def read_bag_points(
         )
     pts = np.stack([f[1] for f in frames])[mask]
     pose_arr = np.stack(synced, axis=1)[mask]
-    t = frame_t[mask]
-    if len(t) < 3:
-        raise UserError(f"{path}: only {len(t)} frames overlap the poses; need at least 3")
-    return PointsRecording(t=t, points=pts, poses=pose_arr, units="m"), notes
+    times = frame_t[mask]
+    if len(times) < 3:
+        raise UserError(f"{path}: only {len(times)} frames overlap the poses; need at least 3")
+    return PointsRecording(t=times, points=pts, poses=pose_arr, units="m"), notes
 
 
 # --- camera images from a bag ---------------------------------------------------------------
@@ -717,9 +718,8 @@ def read_bag_images(
             segmentation finds no rod or the extractor loses it (topic and time named).
     """
     path = Path(bag)
-    if isinstance(pose_topic, str | PoseSource):
-        pose_topic = [pose_topic]
-    srcs = [p if isinstance(p, PoseSource) else PoseSource(p) for p in pose_topic]
+    topics = [pose_topic] if isinstance(pose_topic, str | PoseSource) else pose_topic
+    srcs = [p if isinstance(p, PoseSource) else PoseSource(p) for p in topics]
     poses = _Poses(srcs)
     frames: list[tuple[int, Any]] = []
     masks: list[tuple[int, Any]] = []
@@ -948,7 +948,7 @@ def extract_frames(
     fixed = None if two else CenterlineExtractor(camera, cam, np.asarray(clamp_pose, float))
     rod, bg = camera.render.rod_color, camera.render.background_color
     pts = []
-    undistort = None if D is None else undistorter(K, D, model, (w, h))
+    undistort = None if K is None or D is None else undistorter(K, D, model, (w, h))
     chosen = np.flatnonzero(inside)
     given = None
     if masks is not None:
@@ -968,6 +968,7 @@ def extract_frames(
                 img = undistort(img)
             keep = img if take else None
             if given is not None:
+                assert masks is not None  # `given` is matched from them
                 mask = given[i].astype(np.uint8) * 255
                 if undistort is not None:
                     mask = np.where(undistort(mask) >= 128, 255, 0).astype(np.uint8)
@@ -981,6 +982,7 @@ def extract_frames(
                     )
             # two moving ends: the walk starts at end effector 0's pose of this frame
             extractor = CenterlineExtractor(camera, cam, g[0]) if two else fixed
+            assert extractor is not None  # one fixed extractor unless both ends move
             ex = extractor.extract(mask_image(mask, rod, bg), g[-1])
             if not ex.ok:
                 raise UserError(f"{where}: the centerline was not extracted: {ex.note}")

@@ -29,7 +29,9 @@ def hsv_mask(rgb: np.ndarray, low: Sequence[int], high: Sequence[int]) -> np.nda
     hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV)
     lo, hi = tuple(int(v) for v in low), tuple(int(v) for v in high)
     if lo[0] > hi[0]:  # the hue range wraps through 0
-        m = cv2.inRange(hsv, lo, (180, hi[1], hi[2])) | cv2.inRange(hsv, (0, lo[1], lo[2]), hi)
+        m = np.bitwise_or(
+            cv2.inRange(hsv, lo, (180, hi[1], hi[2])), cv2.inRange(hsv, (0, lo[1], lo[2]), hi)
+        )
     else:
         m = cv2.inRange(hsv, lo, hi)
     m = cv2.morphologyEx(m, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))

@@ -167,7 +167,8 @@ class TfTree:
         ft = (np.asarray(frame_ns, dtype=np.int64) - t0) / 1e9
         links = self.chain(child, world)
         inside = np.ones(len(ft), dtype=bool)
-        parts = []
+        #: per link, from the child up: (None: static, else its bracket of the frames, values)
+        parts: list[tuple[tuple | None, np.ndarray]] = []
         for name, link in links:
             vals = np.asarray(link.values, dtype=float)
             if link.static:

@@ -11,11 +11,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rodctl.errors import UserError
 from rodctl.recordings.folder import _number, _table
+
+if TYPE_CHECKING:
+    import cv2
 
 #: File suffixes `rodctl import` treats as a video.
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".m4v", ".webm", ".mjpeg", ".mjpg")
@@ -27,34 +31,34 @@ class _Decoder:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.cap = None
+        self.cap: cv2.VideoCapture | None = None
         self.pos = 0
         self.last: tuple[int, np.ndarray] | None = None
 
-    def _open(self) -> None:
+    def _open(self) -> cv2.VideoCapture:
         # Lazy: `rodctl import` loads this module for VIDEO_SUFFIXES whatever it imports; only
         # a video needs OpenCV.
         import cv2  # noqa: PLC0415
 
         if self.cap is not None:
             self.cap.release()
-        self.cap = cv2.VideoCapture(str(self.path))
+        cap = self.cap = cv2.VideoCapture(str(self.path))
         self.pos = 0
-        if not self.cap.isOpened():
+        if not cap.isOpened():
             raise UserError(f"{self.path}: not a video OpenCV can read")
+        return cap
 
     def frame(self, k: int) -> np.ndarray:
         import cv2  # noqa: PLC0415 (lazy, as in `_open`)
 
         if self.last is not None and self.last[0] == k:
             return self.last[1]
-        if self.cap is None or k < self.pos:
-            self._open()
+        cap = self._open() if self.cap is None or k < self.pos else self.cap
         while self.pos < k:
-            if not self.cap.grab():
+            if not cap.grab():
                 raise UserError(f"{self.path}: frame {k}: the video ends at frame {self.pos}")
             self.pos += 1
-        ok, img = self.cap.read()
+        ok, img = cap.read()
         if not ok or img is None:
             raise UserError(f"{self.path}: frame {k} does not decode")
         self.pos += 1
@@ -66,10 +70,10 @@ class _Decoder:
         """(frames, the container's fps) by decoding through the video once."""
         import cv2  # noqa: PLC0415 (lazy, as in `_open`)
 
-        self._open()
-        fps = float(self.cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        cap = self._open()
+        fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
         n = 0
-        while self.cap.grab():
+        while cap.grab():
             n += 1
         self._open()
         return n, fps

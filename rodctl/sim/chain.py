@@ -106,7 +106,7 @@ def first_mode_rate(
     return wavenumber * math.sqrt(bending_stiffness / j_per_length)
 
 
-def _drive(body: pymunk.Body, target: Sequence[float] | None, dt: float) -> None:
+def _drive(body: pymunk.Body, target: Sequence[float] | np.ndarray | None, dt: float) -> None:
     """Set a kinematic body's velocity so that it lands exactly on `target` [x, y, theta] at
     the end of a time step of `dt` (None: hold it still)."""
     if target is None:
@@ -194,7 +194,7 @@ class RodChain:
         bending_stiffness: float,
         mass_per_length: float,
         segments: int,
-        clamp_pose: Sequence[float],
+        clamp_pose: Sequence[float] | np.ndarray,
         dt: float,
         iterations: int,
         damping_rate: float,
@@ -483,7 +483,9 @@ class RodChain:
         p = self.clamp_body.position
         return np.array([p.x, p.y, self.clamp_body.angle])
 
-    def place(self, states: np.ndarray, gripper_pose: Sequence[float] | None = None) -> None:
+    def place(
+        self, states: np.ndarray, gripper_pose: Sequence[float] | np.ndarray | None = None
+    ) -> None:
         """Put a freshly built chain into a given shape, at rest (used to rebuild a chain).
 
         Args:

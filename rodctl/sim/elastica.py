@@ -27,8 +27,8 @@ from scipy.optimize import brentq
 
 
 def _frame(pose: Sequence[float]) -> tuple[np.ndarray, float]:
-    pose = np.asarray(pose, dtype=float)
-    return pose[:2], float(pose[2])
+    p = np.asarray(pose, dtype=float)
+    return p[:2], float(p[2])
 
 
 def _guess_profile(guess: np.ndarray, start_pose, end_pose, length: float) -> tuple:

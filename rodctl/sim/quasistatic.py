@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -674,6 +674,7 @@ class QuasiStaticChain:
         rhs_h[0, 0] = 1.0
         rhs_h[1, 1] = 1.0
         dth, dlam, _ = self._kkt_solve(diag, a, rhs_t, rhs_h)
+        assert dlam is not None  # a gripped chain has its multipliers
         return dth, dlam
 
     def joint_points_jacobian(self) -> np.ndarray:
@@ -802,13 +803,15 @@ class QuasiStaticSim(RodSim):
     reach a stable equilibrium; a snap-through is counted in `ApplyResult.snaps` with a note.
     """
 
-    _chain_type = QuasiStaticChain
+    # The quasi-static chain stands in for pymunk's `RodChain` (it has every member that
+    # RodSim's shared code uses) without being a subclass: `_qs` is it, typed.
+    _chain_type = QuasiStaticChain  # type: ignore[assignment]
 
     def _build_chain(self, cfg: RodConfig) -> None:
         self.dt = float(cfg.control_period)
         self.omega1 = math.nan
         self._damping_rate = 0.0
-        self.chain = QuasiStaticChain(
+        self.chain = QuasiStaticChain(  # type: ignore[assignment]  # see _chain_type
             length=cfg.length,
             bending_stiffness=cfg.bending_stiffness,
             mass_per_length=cfg.mass_per_length,
@@ -821,24 +824,31 @@ class QuasiStaticSim(RodSim):
         self._snap_seen = 0
 
     @property
+    def _qs(self) -> QuasiStaticChain:
+        """The chain this engine builds (`_build_chain`, `_rebuild`), as its own type."""
+        chain = self.chain
+        assert isinstance(chain, QuasiStaticChain)
+        return chain
+
+    @property
     def _move_steps(self) -> int:
         return 1
 
     def _is_slow(self) -> bool:
         """Settled means solved: a quasi-static state has no speed to wait on."""
-        return bool(self.chain.converged)
+        return bool(self._qs.converged)
 
     def _settle(self, target: np.ndarray) -> tuple[bool, bool]:
         """Nothing to wait for: the step's solve already is the settled state."""
-        if not self.chain._finite():
+        if not self._qs._finite():
             return False, True
-        return bool(self.chain.converged), False
+        return bool(self._qs.converged), False
 
     def _hold(self) -> ApplyResult:
         """After a change of the rod itself: re-solve at the same end poses."""
         if self._diverged:
             return ApplyResult(False, False, False, True, np.zeros(3), 0.0)
-        self.chain.step(None)
+        self._qs.step(None)
         settled, diverged = self._settle(self.gripper_pose)
         diverged = diverged or self._gaps_too_wide()
         if diverged:
@@ -847,7 +857,7 @@ class QuasiStaticSim(RodSim):
         return ApplyResult(settled, False, False, diverged, np.zeros(3), 0.0, sim_steps=1)
 
     def snapshot(self) -> dict:
-        c = self.chain
+        c = self._qs
         return {
             "chain": c,
             "state": (c.theta.copy(), c.lam.copy(), c._grip.copy(), c._clamp.copy()),
@@ -860,7 +870,7 @@ class QuasiStaticSim(RodSim):
     def restore(self, snap: dict) -> None:
         if snap["chain"] is not self.chain:
             raise RuntimeError("restore: the chain was rebuilt since the snapshot")
-        c = self.chain
+        c = self._qs
         theta, lam, grip, clamp = snap["state"]
         c.theta, c.lam, c._grip, c._clamp = theta.copy(), lam.copy(), grip.copy(), clamp.copy()
         c.steps = snap["steps"]
@@ -871,14 +881,14 @@ class QuasiStaticSim(RodSim):
         self._diverged = snap["diverged"]
 
     def _rebuild(self, held: int, movable_clamp: bool) -> None:
-        notes, snaps = self.chain.snap_notes, self.chain.snaps
+        notes, snaps = self._qs.snap_notes, self._qs.snaps
         super()._rebuild(held, movable_clamp)
-        self.chain.snap_notes, self.chain.snaps = notes, snaps
+        self._qs.snap_notes, self._qs.snaps = notes, snaps
 
-    def _counted(self, run: object, *args: object) -> ApplyResult:
-        before = self.chain.snaps
+    def _counted(self, run: Callable[..., ApplyResult], *args: object) -> ApplyResult:
+        before = self._qs.snaps
         result = run(*args)
-        result.snaps = self.chain.snaps - before
+        result.snaps = self._qs.snaps - before
         return result
 
     def apply(self, u: np.ndarray) -> ApplyResult:
@@ -900,7 +910,7 @@ class QuasiStaticSim(RodSim):
         return self._counted(super().set_mass_per_length, mass_per_length)
 
     def _home_state(self) -> dict:
-        c = self.chain
+        c = self._qs
         return {
             "home": self._home.copy(),
             "state": (c.theta.copy(), c.lam.copy(), c._grip.copy()),
@@ -910,18 +920,18 @@ class QuasiStaticSim(RodSim):
     def _put_home_state(self, state: dict) -> None:
         self._home = state["home"].copy()
         theta, lam, grip = state["state"]
-        self.chain.theta, self.chain.lam, self.chain._grip = theta.copy(), lam.copy(), grip.copy()
-        self.chain.steps = state["steps"]
+        self._qs.theta, self._qs.lam, self._qs._grip = theta.copy(), lam.copy(), grip.copy()
+        self._qs.steps = state["steps"]
 
     def take_snap_notes(self) -> list[str]:
         """The snap notes since the last call (the env logs them with the step)."""
-        notes = self.chain.snap_notes[self._snap_seen :]
-        self._snap_seen = len(self.chain.snap_notes)
+        notes = self._qs.snap_notes[self._snap_seen :]
+        self._snap_seen = len(self._qs.snap_notes)
         return list(notes)
 
     def centerline_jacobian(self) -> np.ndarray:
         """(N+1, 2, 3) d(joint points)/d(gripper pose [x, y, θ]) at the current equilibrium."""
-        return self.chain.joint_points_jacobian()
+        return self._qs.joint_points_jacobian()
 
 
 class _Model:
@@ -952,7 +962,7 @@ class _Model:
         # Body loads as complex weights: gravity at the centres (segment j's angle moves the
         # centres of j, by l/2, and of all after it) and a dead tip load.
         gx, gy = chain.gravity
-        wg = None
+        wg: np.ndarray | None = None
         if gx or gy:
             wg = ((chain.segment_mass * seg) * chain._weights) * complex(gx, -gy)
         if chain.tip_force is not None:

@@ -91,7 +91,9 @@ def synthetic_centerlines(points: int, count: int, seed: int = 0) -> np.ndarray:
     return out
 
 
-def _finite(kind: str, name: str, what: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
+def _finite(
+    kind: str, name: str, what: str, value: Any, shape: tuple[int | np.integer, ...]
+) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
     if arr.shape != shape:
         raise _fail(kind, name, f"{what} has shape {arr.shape}, expected {shape}")
@@ -194,6 +196,7 @@ def _run_feature(cfg: Any, ctx: BuildContext, report: StageReport, steps: int, s
 def _run_estimator(cfg: Any, ctx: BuildContext, report: StageReport, steps: int, seed: int):
     obj = _build("estimator", cfg, ctx)
     name, shape = cfg.type, (ctx.p, ctx.q)
+    assert ctx.max_step is not None  # `check_stage` gives one
     rng = np.random.default_rng(seed + 1)
     j_true = np.asarray(ctx.oracle(), dtype=float)
     j0 = j_true + rng.normal(0.0, 10.0, shape)
@@ -217,6 +220,7 @@ def _run_estimator(cfg: Any, ctx: BuildContext, report: StageReport, steps: int,
 def _run_controller(cfg: Any, ctx: BuildContext, report: StageReport, steps: int, seed: int):
     obj = _build("controller", cfg, ctx)
     name = cfg.type
+    assert ctx.max_step is not None  # `check_stage` gives one
     rng = np.random.default_rng(seed + 2)
     j = rng.normal(0.0, 30.0, (ctx.p, ctx.q))
     obj.reset()

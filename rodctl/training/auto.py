@@ -14,7 +14,7 @@ from typing import Any
 
 from rodctl.config.experiment import ExperimentConfig
 from rodctl.features import auto as quick
-from rodctl.features.autoencoder import require_torch
+from rodctl.features.autoencoder import is_autoencoder, require_torch
 
 
 def auto_checkpoint(cfg: ExperimentConfig) -> Path:
@@ -58,5 +58,5 @@ def prepare_feature(cfg: Any) -> None:
     method, so that the feature factory finds the file (`rodctl.features.auto`).
     """
     feature = getattr(cfg, "feature", None)
-    if getattr(feature, "type", None) == "autoencoder" and feature.checkpoint == "auto":
+    if is_autoencoder(feature) and feature.checkpoint == "auto":
         auto_checkpoint(cfg)

@@ -28,7 +28,7 @@ import numpy as np
 from rodctl.config import ExperimentConfig
 from rodctl.display import task_progress
 from rodctl.errors import UserError
-from rodctl.features.autoencoder import fingerprint_differences
+from rodctl.features.autoencoder import fingerprint_differences, is_autoencoder
 from rodctl.runs import seed_sequence
 
 #: A walk gives up after this many control steps per wanted sample (a broken setup, not bad luck).
@@ -312,7 +312,9 @@ def collect_dataset(
     Returns:
         The dataset, chunks in order.
     """
-    data_cfg = cfg.feature.data  # type: ignore[union-attr]
+    feature = cfg.feature
+    assert is_autoencoder(feature), "the training data of an autoencoder feature"
+    data_cfg = feature.data
     sizes = chunk_sizes(data_cfg.samples, data_cfg.chunk)
     seeds = seed_sequence(cfg.seed, "data").spawn(len(sizes))
     cfg_json = cfg.model_dump_json()

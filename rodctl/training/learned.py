@@ -60,7 +60,7 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
     """
     cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
     clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
-    jitter = float(cfg.estimator.data.jitter)  # type: ignore[union-attr]
+    jitter = float(cfg.estimator.data.jitter)
     frames, poses, segments = [], [], []
     segment = attempts = 0
     dual = cfg.rod.arms == 2  # dual-arm: both ends walk, poses and moves are (6,)
@@ -135,7 +135,8 @@ def _collect_task(args: tuple[str, int, np.random.SeedSequence]) -> dict[str, An
 
 def collect_walks(cfg: ExperimentConfig, *, progress: bool = True) -> list[dict[str, Any]]:
     """The random walks `cfg.estimator.data` describes, in order (see the module docstring)."""
-    data = cfg.estimator.data  # type: ignore[union-attr]
+    assert isinstance(cfg.estimator, LearnedEstimatorConfig), "the learned Jacobian's walks"
+    data = cfg.estimator.data
     sizes = chunk_sizes(data.samples, data.chunk)
     seeds = seed_sequence(cfg.seed, "model-data").spawn(len(sizes))
     cfg_json = cfg.model_dump_json()

@@ -488,7 +488,8 @@ class Camera:
         if self._noise_key != (std, size):
             cv2.setRNGSeed(draw)
             pool = np.empty((_NOISE_POOL_FRAMES * size, 1), np.int16)
-            cv2.randn(pool, 0.0, std)
+            # cv2's stubs type mean and stddev as arrays; scalars are what it takes
+            cv2.randn(pool, 0.0, std)  # type: ignore[call-overload]
             self._noise_pool = pool.ravel()
             self._noise_key = (std, size)
         offset = draw % (len(self._noise_pool) - size + 1)

@@ -51,6 +51,9 @@ from rodctl.errors import UserError
 from rodctl.geometry import polyline_length, resample_polyline
 from rodctl.vision.camera import Camera
 
+#: One point of a traced path, pixels: an array, or a walk step's (x, y).
+_Pixel = np.ndarray | tuple[float, float]
+
 # Cross-section sample spacing (px) and the status codes of `_cross_sections`.
 _DT = 0.5
 # Walk: steps predicted per vectorised call, the largest correction (px) after which points
@@ -339,7 +342,9 @@ class CenterlineExtractor:
             rows = np.zeros((-(-n // _REMAP_ROW), _REMAP_ROW, 2), dtype=np.float32)
             rows.reshape(-1, 2)[:n] = flat[0]
             flat = rows
-        rgb = cv2.remap(  # one two-channel map: the same samples as two maps, one copy fewer
+        # One two-channel map: the same samples as two maps, one copy fewer. (cv2's stubs want
+        # an array for map2; a two-channel map takes None.)
+        rgb = cv2.remap(  # type: ignore[call-overload]
             image,
             flat,
             None,
@@ -625,7 +630,7 @@ class CenterlineExtractor:
         """
         # --- walk from the clamp, bridging gaps while the rod keeps reappearing
         p, d, turn = self._start.copy(), self._start_dir.copy(), 0.0
-        path = [p]
+        path: list[_Pixel] = [p]
         widths: list[float] = []
         gaps: list[float] = []
         # Is the rod visible right at the clamp? If not, the start itself is hidden.
@@ -670,6 +675,7 @@ class CenterlineExtractor:
                 break  # nothing more to see; the length check below reports it
             if found is None:
                 # the hidden stretch runs to the gripper: bridge onto its pose, if short enough
+                assert grip_px is not None and grip_dir is not None  # projected together
                 gap = float(np.hypot(*(grip_px - end)))
                 if gap > self.cfg.extract.max_gap_px:
                     return None, widths, gaps, f"the rod is lost {gap:.0f} px before the gripper"
@@ -725,7 +731,7 @@ class CenterlineExtractor:
         return Extraction(out, True)
 
     @staticmethod
-    def _trim_after(path: list[np.ndarray], end: np.ndarray, d: np.ndarray) -> list[np.ndarray]:
+    def _trim_after(path: list[_Pixel], end: np.ndarray, d: np.ndarray) -> list[_Pixel]:
         """Drop the walk's last points that lie beyond `end` (they sat inside the rod's cap)."""
         dx, dy = float(d[0]), float(d[1])
         while len(path) > 1 and (
