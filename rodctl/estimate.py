@@ -257,10 +257,7 @@ def pairs_from_recording(
     q = r.shape[1]
     n0 = 10 * q if init is None else int(init)
     if n0 < q or n0 >= len(ds):
-        raise UserError(
-            f"--init {n0}: J_0 needs at least q = {q} pairs and the recording has "
-            f"{len(ds)} pairs in all"
-        )
+        raise UserError(_init_refusal(n0, q, len(ds), given=init is not None))
     return Pairs(
         init_ds=np.array(ds[:n0]),
         init_dr=np.array(dr[:n0]),
@@ -269,6 +266,20 @@ def pairs_from_recording(
         steps=np.array(at[n0:]),
         feature=feature,
     )
+
+
+def _init_refusal(n0: int, q: int, pairs: int, *, given: bool) -> str:
+    """Why a recording's J_0 cannot be fitted from `n0` of its `pairs`, and what to do."""
+    what = f"--init {n0}" if given else f"J_0 from the first 10 q = {n0} pairs (the default --init)"
+    have = f"the recording has {pairs + 1} frames, {pairs} pairs (Delta s, Delta r) in all"
+    if n0 < q:
+        return f"{what}: J_0 needs at least q = {q} pairs; {have}"
+    need = f"J_0 needs {n0} pairs and at least one pair after them to predict"
+    if pairs > q:
+        fix = f"record more frames (at least {n0 + 2}), or pass --init N with {q} <= N < {pairs}"
+    else:
+        fix = f"record more frames (at least {q + 2} with --init {q}, {10 * q + 2} by default)"
+    return f"{what}: {need}; {have}: {fix}"
 
 
 def noise_level(ds: np.ndarray) -> float:
@@ -506,6 +517,16 @@ def format_table(result: EstimateResult) -> str:
     lines = ["  ".join(c.ljust(w) for c, w in zip(cols, width, strict=True))]
     lines += ["  ".join(v.ljust(w) for v, w in zip(r, width, strict=True)) for r in rows]
     return "\n".join(lines)
+
+
+#: The files `estimate` writes in its folder (`write_results`, `write_plots`).
+RESULT_FILES = ("results.csv", "steps.csv", "errors.png", "medians.png")
+
+
+def result_files(out: Path) -> list[Path]:
+    """The paths `estimate` writes in `out`; the command refuses a folder holding any of them
+    unless told --force (a second estimate of a run would otherwise overwrite the first)."""
+    return [Path(out) / name for name in RESULT_FILES]
 
 
 def write_results(result: EstimateResult, out: Path) -> list[Path]:
