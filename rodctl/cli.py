@@ -853,7 +853,11 @@ def estimate(
         from rodctl.recordings.points import read_points
 
         pairs = est.pairs_from_recording(
-            read_points(src), init=init, feature=feature or "points", checkpoint=checkpoint
+            read_points(src),
+            init=init,
+            feature=feature or "points",
+            checkpoint=checkpoint,
+            source=str(src),
         )
     else:
         from rodctl.replay import read_run

@@ -235,9 +235,15 @@ def _encode_ok(fmap: Any, recs: Sequence[Any]) -> np.ndarray:
 
 
 def pairs_from_recording(
-    rec: Any, *, init: int | None = None, feature: str = "points", checkpoint: str | None = None
+    rec: Any,
+    *,
+    init: int | None = None,
+    feature: str = "points",
+    checkpoint: str | None = None,
+    source: str | None = None,
 ) -> Pairs:
-    """The pairs of a points recording (`rodctl.recordings.points.read_points`).
+    """The pairs of a points recording (`rodctl.recordings.points.read_points`); `source` (its
+    file) names it in a refusal.
 
     Every frame is good; pair k is (points_k - points_{k-1}, pose_k - pose_{k-1}) with the
     pose angles unwrapped. J_0 is fitted from the first `init` pairs (default 10 q: smooth
@@ -257,7 +263,7 @@ def pairs_from_recording(
     q = r.shape[1]
     n0 = 10 * q if init is None else int(init)
     if n0 < q or n0 >= len(ds):
-        raise UserError(_init_refusal(n0, q, len(ds), given=init is not None))
+        raise UserError(_init_refusal(n0, q, len(ds), given=init is not None, source=source))
     return Pairs(
         init_ds=np.array(ds[:n0]),
         init_dr=np.array(dr[:n0]),
@@ -268,18 +274,20 @@ def pairs_from_recording(
     )
 
 
-def _init_refusal(n0: int, q: int, pairs: int, *, given: bool) -> str:
+def _init_refusal(n0: int, q: int, pairs: int, *, given: bool, source: str | None) -> str:
     """Why a recording's J_0 cannot be fitted from `n0` of its `pairs`, and what to do."""
-    what = f"--init {n0}" if given else f"J_0 from the first 10 q = {n0} pairs (the default --init)"
-    have = f"the recording has {pairs + 1} frames, {pairs} pairs (Delta s, Delta r) in all"
+    where = f"{source}: " if source else ""
+    what = f"--init {n0}" if given else f"--init (not given) defaults to 10 q = {n0} pairs"
+    have = f"the recording has {pairs + 1} frames, i.e. {pairs} pairs (Delta s, Delta r)"
     if n0 < q:
-        return f"{what}: J_0 needs at least q = {q} pairs; {have}"
-    need = f"J_0 needs {n0} pairs and at least one pair after them to predict"
+        need = f"J_0 needs at least q = {q} pairs"
+    else:
+        need = f"J_0 is fitted from the first {n0} pairs and at least one pair must follow them"
     if pairs > q:
         fix = f"record more frames (at least {n0 + 2}), or pass --init N with {q} <= N < {pairs}"
     else:
-        fix = f"record more frames (at least {q + 2} with --init {q}, {10 * q + 2} by default)"
-    return f"{what}: {need}; {have}: {fix}"
+        fix = f"record more frames: at least {q + 2} with --init {q}, {10 * q + 2} without --init"
+    return f"{where}{what}: {need}; {have}: {fix}"
 
 
 def noise_level(ds: np.ndarray) -> float:

@@ -522,8 +522,9 @@ def test_a_recording_too_short_for_the_default_init_names_the_default_and_the_fi
     res = CliRunner().invoke(app, ["estimate", str(path)])
     assert res.exit_code == 2 and "Traceback" not in res.output
     msg = " ".join(res.output.split())
-    assert "10 q = 60 pairs (the default --init)" in msg
-    assert "3 frames, 2 pairs" in msg and "at least 8 with --init 6, 62 by default" in msg
+    assert "three.csv: --init (not given) defaults to 10 q = 60 pairs" in msg
+    assert "3 frames, i.e. 2 pairs" in msg
+    assert "at least 8 with --init 6, 62 without --init" in msg
 
 
 def test_a_second_estimate_in_one_folder_is_refused_unless_forced(tmp_path):
