@@ -843,11 +843,13 @@ def estimate(
         dest = src.with_name(src.stem + "-estimate")
     else:
         dest = (src if src.is_dir() else src.parent) / "estimate"
+    if not out and not force:
+        dest = est.free_folder(dest)  # a second estimate: estimate-2/, never over the first
     earlier = [p.name for p in est.result_files(dest) if p.exists()]
     if earlier and not force:
         raise UserError(
-            f"{dest}: holds an earlier estimate ({', '.join(earlier)}); "
-            "choose another folder with --out DIR, or overwrite it with --force"
+            f"--out {dest}: holds an earlier estimate ({', '.join(earlier)}); "
+            "choose another folder, or overwrite it with --force"
         )
     if recording:
         from rodctl.recordings.points import read_points

@@ -532,9 +532,20 @@ RESULT_FILES = ("results.csv", "steps.csv", "errors.png", "medians.png")
 
 
 def result_files(out: Path) -> list[Path]:
-    """The paths `estimate` writes in `out`; the command refuses a folder holding any of them
-    unless told --force (a second estimate of a run would otherwise overwrite the first)."""
+    """The paths `estimate` writes in `out`; the command never writes over any of them unless
+    told --force (a second estimate of a run would otherwise overwrite the first)."""
     return [Path(out) / name for name in RESULT_FILES]
+
+
+def free_folder(base: Path) -> Path:
+    """`base`, or `base-2`, `base-3`, ...: the first that holds none of an estimate's files."""
+    base = Path(base)
+    k = 1
+    while True:
+        path = base if k == 1 else base.with_name(f"{base.name}-{k}")
+        if not any(p.exists() for p in result_files(path)):
+            return path
+        k += 1
 
 
 def write_results(result: EstimateResult, out: Path) -> list[Path]:

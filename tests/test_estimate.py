@@ -527,17 +527,24 @@ def test_a_recording_too_short_for_the_default_init_names_the_default_and_the_fi
     assert "at least 8 with --init 6, 62 without --init" in msg
 
 
-def test_a_second_estimate_in_one_folder_is_refused_unless_forced(tmp_path):
+def test_a_second_estimate_never_overwrites_the_first(tmp_path):
     path = write_points_csv(dual_arm_recording(70, seed=3, points=4), tmp_path / "rec.csv")
-    out = tmp_path / "est"
-    args = ["estimate", str(path), "-e", "broyden", "-o", str(out), "--no-plots"]
     runner = CliRunner()
-    assert runner.invoke(app, args).exit_code == 0
-    (out / "errors.png").write_bytes(b"an earlier estimate's plot")
-    first = (out / "results.csv").read_bytes()
+    args = ["estimate", str(path), "-e", "broyden", "--no-plots"]
+    # The default folder: a second estimate goes to the next numbered one.
     res = runner.invoke(app, args)
+    assert res.exit_code == 0 and res.stdout.splitlines()[-1] == str(tmp_path / "rec-estimate")
+    first = (tmp_path / "rec-estimate" / "results.csv").read_bytes()
+    res = runner.invoke(app, [*args, "-e", "windowed_ls"])
+    assert res.exit_code == 0 and res.stdout.splitlines()[-1] == str(tmp_path / "rec-estimate-2")
+    assert (tmp_path / "rec-estimate" / "results.csv").read_bytes() == first
+    assert "windowed_ls" in (tmp_path / "rec-estimate-2" / "results.csv").read_text()
+    # A folder named by --out: refused (exit 2) unless --force, which leaves no earlier plot.
+    out = tmp_path / "rec-estimate"
+    (out / "errors.png").write_bytes(b"an earlier estimate's plot")
+    res = runner.invoke(app, [*args, "-o", str(out)])
     assert res.exit_code == 2 and "--force" in res.output and "--out" in res.output
     assert (out / "results.csv").read_bytes() == first
-    res = runner.invoke(app, [*args, "--force"])
+    res = runner.invoke(app, [*args, "-o", str(out), "--force"])
     assert res.exit_code == 0, res.output
     assert (out / "results.csv").is_file() and not (out / "errors.png").exists()
