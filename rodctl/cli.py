@@ -820,6 +820,10 @@ def estimate(
             "--checkpoint", help="--feature autoencoder: the encoder.npz (train-encoder's)."
         ),
     ] = None,
+    force: Annotated[
+        bool,
+        typer.Option("--force", help="Overwrite the results of an earlier estimate in the folder."),
+    ] = False,
 ) -> None:
     """Run the online Jacobian estimators over a recorded (Delta s, Delta r), offline.
 
@@ -833,13 +837,31 @@ def estimate(
     from rodctl import estimate as est
 
     src = Path(path)
-    if src.suffix.lower() in (".csv", ".npz"):
+    recording = src.suffix.lower() in (".csv", ".npz")
+    if out:
+        dest = Path(out)
+    elif recording:
+        dest = src.with_name(src.stem + "-estimate")
+    else:
+        dest = (src if src.is_dir() else src.parent) / "estimate"
+    if not out and not force:
+        dest = est.free_folder(dest)  # a second estimate: estimate-2/, never over the first
+    earlier = [p.name for p in est.result_files(dest) if p.exists()]
+    if earlier and not force:
+        raise UserError(
+            f"--out {dest}: holds an earlier estimate ({', '.join(earlier)}); "
+            "choose another folder, or overwrite it with --force"
+        )
+    if recording:
         from rodctl.recordings.points import read_points
 
         pairs = est.pairs_from_recording(
-            read_points(src), init=init, feature=feature or "points", checkpoint=checkpoint
+            read_points(src),
+            init=init,
+            feature=feature or "points",
+            checkpoint=checkpoint,
+            source=str(src),
         )
-        dest = Path(out) if out else src.with_name(src.stem + "-estimate")
     else:
         from rodctl.replay import read_run
 
@@ -847,9 +869,10 @@ def estimate(
         pairs = est.pairs_from_run(
             run, feature=feature or "logged", init=init, checkpoint=checkpoint
         )
-        dest = Path(out) if out else (src if src.is_dir() else src.parent) / "estimate"
     result = est.estimate(pairs, estimator or None, scaled=scaled)
     try:
+        for stale in est.result_files(dest) if earlier else ():
+            stale.unlink(missing_ok=True)  # --force: no plot of the earlier estimate left beside
         est.write_results(result, dest)
         if plots:
             est.write_plots(result, dest)

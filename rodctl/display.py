@@ -84,15 +84,24 @@ def step_progress(total: int, enabled: bool = True) -> Iterator[StepProgress]:
 
 
 class RateColumn(ProgressColumn):
-    """Units of work per second (rich's own speed estimate), e.g. "3.2 episodes/s"."""
+    """Units of work per second since the bar started, e.g. "3.2 episodes/s".
+
+    Work done in this process (the units a resumed run started with excluded, the `done_before`
+    field of the task) over the time elapsed. Not rich's own speed, which divides by the time
+    between the first and last update it sampled: two episodes that finish together, 3 ms
+    apart after 1 s, made it "313 episodes/s".
+    """
 
     def __init__(self, unit: str) -> None:
         super().__init__()
         self.unit = unit
 
     def render(self, task) -> Text:  # noqa: ANN001 - rich's Task
-        speed = task.finished_speed or task.speed
-        return Text("-" if speed is None else f"{speed:.2f} {self.unit}/s")
+        done = task.completed - task.fields.get("done_before", 0)
+        elapsed = task.finished_time if task.finished_time is not None else task.elapsed
+        if not done or not elapsed:
+            return Text("-")
+        return Text(f"{done / elapsed:.2f} {self.unit}/s")
 
 
 #: Seconds between two plain progress lines when stderr is not a terminal (`task_progress`).
@@ -166,7 +175,9 @@ def task_progress(
         disable=not enabled,
     )
     with progress:
-        task = progress.add_task(label, total=total, note="", completed=completed)
+        task = progress.add_task(
+            label, total=total, note="", completed=completed, done_before=completed
+        )
 
         def advance(note: str = "", n: int = 1) -> None:
             progress.update(task, advance=n, note=note)

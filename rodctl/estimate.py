@@ -235,9 +235,15 @@ def _encode_ok(fmap: Any, recs: Sequence[Any]) -> np.ndarray:
 
 
 def pairs_from_recording(
-    rec: Any, *, init: int | None = None, feature: str = "points", checkpoint: str | None = None
+    rec: Any,
+    *,
+    init: int | None = None,
+    feature: str = "points",
+    checkpoint: str | None = None,
+    source: str | None = None,
 ) -> Pairs:
-    """The pairs of a points recording (`rodctl.recordings.points.read_points`).
+    """The pairs of a points recording (`rodctl.recordings.points.read_points`); `source` (its
+    file) names it in a refusal.
 
     Every frame is good; pair k is (points_k - points_{k-1}, pose_k - pose_{k-1}) with the
     pose angles unwrapped. J_0 is fitted from the first `init` pairs (default 10 q: smooth
@@ -257,10 +263,7 @@ def pairs_from_recording(
     q = r.shape[1]
     n0 = 10 * q if init is None else int(init)
     if n0 < q or n0 >= len(ds):
-        raise UserError(
-            f"--init {n0}: J_0 needs at least q = {q} pairs and the recording has "
-            f"{len(ds)} pairs in all"
-        )
+        raise UserError(_init_refusal(n0, q, len(ds), given=init is not None, source=source))
     return Pairs(
         init_ds=np.array(ds[:n0]),
         init_dr=np.array(dr[:n0]),
@@ -269,6 +272,22 @@ def pairs_from_recording(
         steps=np.array(at[n0:]),
         feature=feature,
     )
+
+
+def _init_refusal(n0: int, q: int, pairs: int, *, given: bool, source: str | None) -> str:
+    """Why a recording's J_0 cannot be fitted from `n0` of its `pairs`, and what to do."""
+    where = f"{source}: " if source else ""
+    what = f"--init {n0}" if given else f"--init (not given) defaults to 10 q = {n0} pairs"
+    have = f"the recording has {pairs + 1} frames, i.e. {pairs} pairs (Delta s, Delta r)"
+    if n0 < q:
+        need = f"J_0 needs at least q = {q} pairs"
+    else:
+        need = f"J_0 is fitted from the first {n0} pairs and at least one pair must follow them"
+    if pairs > q:
+        fix = f"record more frames (at least {n0 + 2}), or pass --init N with {q} <= N < {pairs}"
+    else:
+        fix = f"record more frames: at least {q + 2} with --init {q}, {10 * q + 2} without --init"
+    return f"{where}{what}: {need}; {have}: {fix}"
 
 
 def noise_level(ds: np.ndarray) -> float:
@@ -506,6 +525,27 @@ def format_table(result: EstimateResult) -> str:
     lines = ["  ".join(c.ljust(w) for c, w in zip(cols, width, strict=True))]
     lines += ["  ".join(v.ljust(w) for v, w in zip(r, width, strict=True)) for r in rows]
     return "\n".join(lines)
+
+
+#: The files `estimate` writes in its folder (`write_results`, `write_plots`).
+RESULT_FILES = ("results.csv", "steps.csv", "errors.png", "medians.png")
+
+
+def result_files(out: Path) -> list[Path]:
+    """The paths `estimate` writes in `out`; the command never writes over any of them unless
+    told --force (a second estimate of a run would otherwise overwrite the first)."""
+    return [Path(out) / name for name in RESULT_FILES]
+
+
+def free_folder(base: Path) -> Path:
+    """`base`, or `base-2`, `base-3`, ...: the first that holds none of an estimate's files."""
+    base = Path(base)
+    k = 1
+    while True:
+        path = base if k == 1 else base.with_name(f"{base.name}-{k}")
+        if not any(p.exists() for p in result_files(path)):
+            return path
+        k += 1
 
 
 def write_results(result: EstimateResult, out: Path) -> list[Path]:

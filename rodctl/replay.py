@@ -333,7 +333,8 @@ class VerifyResult:
     Attributes:
         verdict: "identical" (every compared value bit for bit), "within_tolerance" (some values
             differ, all by at most the tolerance) or "mismatch".
-        steps: steps compared (the shorter of the two runs).
+        steps: records compared (the shorter of the two runs): the initial frame (k = 0) and the
+            steps after it, so one more than the run's `steps` in summary.json.
         tolerance: the agreement rule: |logged - fresh| <= tolerance * max(1, |logged|), i.e.
             absolute for values up to 1 in magnitude and relative above.
         differences: every (step, field) that is not bit-identical, as "step k: FIELD differs".
@@ -360,6 +361,21 @@ class VerifyResult:
         """0 when identical or within the tolerance, 1 on a real mismatch."""
         return 1 if self.verdict == "mismatch" else 0
 
+    def records_phrase(self) -> str:
+        """The records compared, e.g. "12 records (the initial frame and 11 steps)".
+
+        Record 0 is the initial observation, so N records are the initial frame and N - 1
+        control steps (the `steps` of summary.json).
+        """
+        n = self.steps
+        if n == 0:
+            return "0 records"
+        after = n - 1
+        return (
+            f"{n} record{'s' if n != 1 else ''} (the initial frame and "
+            f"{after} step{'s' if after != 1 else ''})"
+        )
+
     def environment_rows(self) -> list[tuple[str, Any, Any]]:
         """(key, logged, rerun) where the two numeric environments differ."""
         from rodctl.numenv import environment_differences
@@ -371,7 +387,7 @@ class VerifyResult:
     def report(self) -> list[str]:
         """The verdict as lines of text: first line the verdict, then the details."""
         if self.verdict == "identical":
-            return [f"verify: OK, {self.steps} steps identical"]
+            return [f"verify: OK, {self.records_phrase()} identical"]
         lines: list[str] = []
         if self.verdict == "mismatch":
             lines.append(
@@ -380,7 +396,7 @@ class VerifyResult:
             )
         else:
             lines.append(
-                f"verify: OK within tolerance {self.tolerance:g}: {self.steps} steps, "
+                f"verify: OK within tolerance {self.tolerance:g}: {self.records_phrase()}, "
                 f"{len(self.differences)} (step, field) pairs not bit-identical"
             )
         if self.deviations:

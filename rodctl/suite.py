@@ -41,7 +41,7 @@ from rodctl.comparisons import (
     suite_comparisons,
 )
 from rodctl.config.compare import CompareConfig
-from rodctl.config.loading import ConfigError, apply_override, validate_config
+from rodctl.config.loading import ConfigError, apply_override, config_source, validate_config
 from rodctl.errors import UserError
 from rodctl.journal import lock_run_folder
 from rodctl.report import markdown_table, write_report_html
@@ -155,7 +155,7 @@ def run_suite(
 
     wall0 = time.perf_counter()
     cfg = load_compare_config(config_path, overrides)
-    source = config_path + (" with --set " + " ".join(overrides) if overrides else "")
+    source = config_source(config_path, overrides)
     scenarios = scenario_configs(cfg, Path(config_path).resolve().parent, source)
     if resume is not None:
         run = _reopen(resume)

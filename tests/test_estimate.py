@@ -505,3 +505,46 @@ def test_an_image_folder_missing_a_frame_file_exits_2_naming_it(sim_run, tmp_pat
     _, _, args = _folder(tmp_path, sim_run, missing_at=1)
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 2 and "f001.png" in res.output and "frames.csv" in res.output
+
+
+DOCS_CSV = """# units: m
+t,x0,y0,x1,y1,x2,y2,e0_x,e0_y,e0_theta,e1_x,e1_y,e1_theta
+0.0,0.000,0.000,0.280,0.011,0.560,0.000,0.000,0.000,0.00,0.560,0.000,0.00
+0.1,0.004,0.002,0.283,0.015,0.566,0.001,0.004,0.002,0.01,0.566,0.001,-0.02
+0.2,0.008,0.004,0.286,0.019,0.571,0.002,0.008,0.004,0.02,0.571,0.002,-0.04
+"""
+
+
+def test_a_recording_too_short_for_the_default_init_names_the_default_and_the_fix(tmp_path):
+    # docs/recordings.md's 3-frame example: the user passed no --init.
+    path = tmp_path / "three.csv"
+    path.write_text(DOCS_CSV)
+    res = CliRunner().invoke(app, ["estimate", str(path)])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    msg = " ".join(res.output.split())
+    assert "three.csv: --init (not given) defaults to 10 q = 60 pairs" in msg
+    assert "3 frames, i.e. 2 pairs" in msg
+    assert "at least 8 with --init 6, 62 without --init" in msg
+
+
+def test_a_second_estimate_never_overwrites_the_first(tmp_path):
+    path = write_points_csv(dual_arm_recording(70, seed=3, points=4), tmp_path / "rec.csv")
+    runner = CliRunner()
+    args = ["estimate", str(path), "-e", "broyden", "--no-plots"]
+    # The default folder: a second estimate goes to the next numbered one.
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0 and res.stdout.splitlines()[-1] == str(tmp_path / "rec-estimate")
+    first = (tmp_path / "rec-estimate" / "results.csv").read_bytes()
+    res = runner.invoke(app, [*args, "-e", "windowed_ls"])
+    assert res.exit_code == 0 and res.stdout.splitlines()[-1] == str(tmp_path / "rec-estimate-2")
+    assert (tmp_path / "rec-estimate" / "results.csv").read_bytes() == first
+    assert "windowed_ls" in (tmp_path / "rec-estimate-2" / "results.csv").read_text()
+    # A folder named by --out: refused (exit 2) unless --force, which leaves no earlier plot.
+    out = tmp_path / "rec-estimate"
+    (out / "errors.png").write_bytes(b"an earlier estimate's plot")
+    res = runner.invoke(app, [*args, "-o", str(out)])
+    assert res.exit_code == 2 and "--force" in res.output and "--out" in res.output
+    assert (out / "results.csv").read_bytes() == first
+    res = runner.invoke(app, [*args, "-o", str(out), "--force"])
+    assert res.exit_code == 0, res.output
+    assert (out / "results.csv").is_file() and not (out / "errors.png").exists()

@@ -17,7 +17,10 @@ from rodctl.cli import app
 
 README = (REPO / "README.md").read_text(encoding="utf-8")
 #: The Python examples moved from the README to these pages (issue 23): section -> page.
-PAGES = {"## Use it from Python": "docs/python-api.md", "# Write a plug-in": "docs/plugins.md"}
+PAGES = {
+    "## The environment, the method and the loop": "docs/python-api.md",
+    "# Write a plug-in": "docs/plugins.md",
+}
 PLACEHOLDER = "runs/20261123-225358_default"
 #: Extra arguments that keep the long examples short; the command itself is run as written.
 SHORTEN = {

@@ -311,7 +311,7 @@ def config_source(path: str | Path | None, overrides: Sequence[str] | None) -> s
     """How error messages name a config: its file, plus the overrides applied to it."""
     source = str(path) if path is not None else "(defaults)"
     if overrides:
-        source += " with --set " + " ".join(overrides)
+        source += " with " + " ".join(f"--set {o}" for o in overrides)
     return source
 
 
