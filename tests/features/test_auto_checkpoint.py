@@ -118,6 +118,58 @@ def test_simulate_trains_the_quick_encoder_before_the_run(tiny_quick, tmp_path):
     assert cache_path(tiny_quick[0]).is_file()
 
 
+def test_a_failing_quick_training_is_one_line_and_exit_1(tiny_quick, tmp_path, monkeypatch):
+    """A collection walk that gives too few centerlines (here: the extractor sees no rod in any
+    frame) stops `simulate` with one line naming it, exit 1, no traceback, nothing cached."""
+    from rodctl.training import collection
+    from rodctl.vision import CenterlineExtractor
+    from rodctl.vision.centerline import Extraction
+
+    def blind(self, image, gripper_pose=None):
+        return Extraction(np.full((self.points, 2), np.nan), False, "hidden by the test")
+
+    monkeypatch.setattr(CenterlineExtractor, "extract", blind)
+    monkeypatch.setattr(collection, "_MAX_ATTEMPTS_PER_SAMPLE", 1)  # give up after a few steps
+    monkeypatch.setattr(collection, "_MAX_ATTEMPTS_SLACK", 2)
+    out = tmp_path / "runs"
+    res = runner.invoke(
+        app,
+        [
+            "simulate",
+            str(REPO / "configs/default.yaml"),
+            "--out",
+            str(out),
+            "--set",
+            "feature.checkpoint=auto",
+            "--set",
+            "feature.data.workers=1",
+            "--set",
+            "rod.segments=20",
+            "--set",
+            "camera.points=20",
+        ],
+    )
+    assert res.exit_code == 1, res.output
+    assert isinstance(res.exception, SystemExit), res.exception  # not the RuntimeError
+    assert "Traceback" not in res.output
+    errors = [line for line in res.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1, res.output
+    assert "training the quick encoder" in errors[0] and "data collection" in errors[0]
+    assert "not extracted" in errors[0] and "hidden by the test" in errors[0]
+    assert not cache_path(tiny_quick[0]).exists()
+
+
+def test_the_cache_key_holds_the_code_versions(monkeypatch):
+    """An encoder cached by older collection or training code (another QUICK_CODE_VERSION or
+    rodctl version) is not found, so it is trained again rather than reused."""
+    cfg = _cfg()
+    now = cache_path(cfg)
+    monkeypatch.setattr(auto, "QUICK_CODE_VERSION", auto.QUICK_CODE_VERSION + 1)
+    bumped = cache_path(cfg)
+    monkeypatch.setattr(auto, "__version__", "0.0.0")
+    assert len({now, bumped, cache_path(cfg)}) == 3
+
+
 def test_auto_needs_the_experiment():
     cfg = _cfg()
     with pytest.raises(UserError, match="auto"):
