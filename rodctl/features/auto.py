@@ -26,7 +26,6 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from rodctl import __version__
 from rodctl.errors import UserError
 from rodctl.features.autoencoder import VERSION, encoder_fingerprint
 
@@ -69,7 +68,9 @@ def cache_path(cfg: ExperimentConfig) -> Path:
         "seed": QUICK_SEED,
         "format": VERSION,
         "code": QUICK_CODE_VERSION,
-        "rodctl": __version__,
+        # The package is imported before any of its modules; read, not imported, here (an
+        # import of `rodctl` would make the feature stage import everything it re-exports).
+        "rodctl": sys.modules["rodctl"].__version__,
     }
     digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
     return cache_dir() / f"quick-{digest}.npz"

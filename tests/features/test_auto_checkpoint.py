@@ -200,7 +200,7 @@ def test_the_cache_key_holds_the_code_versions(monkeypatch):
     now = cache_path(cfg)
     monkeypatch.setattr(auto, "QUICK_CODE_VERSION", auto.QUICK_CODE_VERSION + 1)
     bumped = cache_path(cfg)
-    monkeypatch.setattr(auto, "__version__", "0.0.0")
+    monkeypatch.setattr("rodctl.__version__", "0.0.0")
     assert len({now, bumped, cache_path(cfg)}) == 3
 
 
