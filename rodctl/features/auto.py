@@ -11,7 +11,9 @@ training code: the training is done beforehand by the command that runs the expe
 (`rodctl.training.auto.prepare_feature`, called by simulate, compare, sweep and replay).
 
 The quick encoder is always trained with seed 0, whatever the run's seed, so the cached file does
-not depend on which run happened to create it. Cache folder: `$XDG_CACHE_HOME/rodctl/encoders`
+not depend on which run happened to create it. The cache key also holds rodctl's version and
+`QUICK_CODE_VERSION`, so that an encoder trained by older collection or training code is not
+reused. Cache folder: `$XDG_CACHE_HOME/rodctl/encoders`
 (default `~/.cache/rodctl/encoders`).
 """
 
@@ -41,6 +43,14 @@ QUICK_SAMPLES = 3_000
 QUICK_EPOCHS = 300
 QUICK_BATCH = 500
 
+#: The version of the code that makes a quick encoder's data and training (the collection walks
+#: of `rodctl/training/collection.py`, the workspace clipping they go through, the quick sizes
+#: and `rodctl/training/encoder.py`'s fit). It is part of the cache key with rodctl's version:
+#: bump it whenever a change makes the same config collect other shapes or train another
+#: encoder, so that a quick encoder cached by older code is trained again instead of reused.
+#: 2 (2026-12-02): dual-arm walks after the reach check against the x0 end's new position.
+QUICK_CODE_VERSION = 2
+
 
 def cache_dir() -> Path:
     """Where quick encoders are cached: $XDG_CACHE_HOME/rodctl/encoders (~/.cache by default)."""
@@ -59,6 +69,10 @@ def cache_path(cfg: ExperimentConfig) -> Path:
         "batch": min(feature.training.batch_size, QUICK_BATCH),
         "seed": QUICK_SEED,
         "format": VERSION,
+        "code": QUICK_CODE_VERSION,
+        # The package is imported before any of its modules; read, not imported, here (an
+        # import of `rodctl` would make the feature stage import everything it re-exports).
+        "rodctl": sys.modules["rodctl"].__version__,
     }
     digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
     return cache_dir() / f"quick-{digest}.npz"

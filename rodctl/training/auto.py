@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from rodctl.config.experiment import ExperimentConfig
+from rodctl.errors import RunFailed, UserError
 from rodctl.features import auto as quick
 from rodctl.features.autoencoder import is_autoencoder, require_torch
 
@@ -25,6 +26,11 @@ def auto_checkpoint(cfg: ExperimentConfig) -> Path:
 
     Returns:
         The path of the cached `.npz` checkpoint.
+
+    Raises:
+        RunFailed: the training failed (a collection walk that gave too few centerlines, a
+            numerical error): one line naming it, no traceback (the commands exit 1).
+        UserError: the config cannot be trained (exit 2).
     """
     path = quick.cache_path(cfg)
     if path.is_file():
@@ -43,7 +49,16 @@ def auto_checkpoint(cfg: ExperimentConfig) -> Path:
     data["feature"]["checkpoint"] = None
     if multiprocessing.current_process().daemon:  # a pool worker cannot start its own workers
         data["feature"]["data"]["workers"] = 1
-    ckpt = train_checkpoint(ExperimentConfig.model_validate(data), progress=sys.stderr.isatty())
+    try:
+        ckpt = train_checkpoint(ExperimentConfig.model_validate(data), progress=sys.stderr.isatty())
+    except (UserError, RunFailed):
+        raise  # already one line: the config (exit 2) or the machine (exit 1)
+    except Exception as exc:  # noqa: BLE001 (the system failed: one line, exit 1, no traceback)
+        raise RunFailed(
+            f"feature.checkpoint=auto: training the quick encoder for this rod and camera failed "
+            f"({type(exc).__name__}: {exc}); nothing was cached. "
+            "`rodctl train-encoder CONFIG --quick` runs the same training on its own"
+        ) from exc
     path.parent.mkdir(parents=True, exist_ok=True)
     ckpt.save(path)  # atomic: a concurrent run sees no file or the whole file
     val = (ckpt.metrics.get("validation") or ckpt.metrics["train"])["mean_px"]

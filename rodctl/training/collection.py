@@ -31,11 +31,20 @@ from rodctl.errors import UserError
 from rodctl.features.autoencoder import fingerprint_differences, is_autoencoder
 from rodctl.runs import seed_sequence
 
-#: A walk gives up after this many control steps per wanted sample (a broken setup, not bad luck).
+#: A walk gives up after this many control steps per wanted sample, plus `_MAX_ATTEMPTS_SLACK`
+#: (a broken setup, not bad luck).
 _MAX_ATTEMPTS_PER_SAMPLE = 20
+_MAX_ATTEMPTS_SLACK = 100
 #: The walk has arrived when every axis is within this fraction of `rod.max_step` of its goal
 #: (the gripper pose is read back from the rod, so an exact match never comes).
 _ARRIVED = 0.5
+
+
+class CollectionFailed(RuntimeError):
+    """A collection walk gave up: too few of its control steps gave a usable centerline. The
+    message says how many steps were skipped for each reason (the simulator diverged or did not
+    settle, a move was refused, the extractor did not see the whole rod, with its most common
+    note), so that a failure names what failed."""
 
 
 @dataclass
@@ -201,7 +210,8 @@ def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> di
         {"centerlines": (count, N, 2) float32, "poses": (count, 3), "attempts": int}.
 
     Raises:
-        RuntimeError: the walk needed more than 20 control steps per sample.
+        CollectionFailed: the walk needed more than 20 control steps per sample (plus 100); the
+            message counts the skipped steps by reason.
     """
     from rodctl.sim import RodSim  # noqa: PLC0415 (lazily: `random_walk_start`)
     from rodctl.vision import CenterlineExtractor  # noqa: PLC0415 (lazily: `random_walk_start`)
@@ -220,26 +230,29 @@ def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> di
     points = np.empty((count, cfg.camera.points, 2), dtype=np.float32)
     poses = np.empty((count, 3))
     n = attempts = 0
+    skipped = {"goal reached": 0, "diverged": 0, "refused": 0, "unsettled": 0, "not extracted": 0}
+    notes: dict[str, int] = {}
     while n < count:
         attempts += 1
-        if attempts > _MAX_ATTEMPTS_PER_SAMPLE * count + 100:
-            raise RuntimeError(
-                f"data collection: {attempts} control steps gave only {n} usable centerlines; "
-                "the simulator or the extractor fails on most shapes"
-            )
+        if attempts > _MAX_ATTEMPTS_PER_SAMPLE * count + _MAX_ATTEMPTS_SLACK:
+            raise CollectionFailed(_failure_message(attempts - 1, n, skipped, notes))
         delta = goal - np.asarray(sim.end_poses if dual else sim.gripper_pose, dtype=float)
         if np.max(np.abs(delta) / max_step) < _ARRIVED:
+            skipped["goal reached"] += 1
             goal = new_goal()
             continue
         res = sim.apply(np.clip(delta, -max_step, max_step))
         if res.diverged:
+            skipped["diverged"] += 1
             sim = RodSim(cfg.rod)
             goal = new_goal()
             continue
         if res.refused:
+            skipped["refused"] += 1
             goal = new_goal()
             continue
         if not res.settled:
+            skipped["unsettled"] += 1
             continue
         pose = np.asarray(sim.gripper_pose, dtype=float)
         if dual:  # the extractor starts at the x0 end, wherever it is now
@@ -248,11 +261,26 @@ def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> di
         image = camera.render(sim.centerline(), pose, clamp)
         ext = extractor.extract(image, pose)
         if not ext.ok:
+            skipped["not extracted"] += 1
+            note = ext.note or "no note"
+            notes[note] = notes.get(note, 0) + 1
             continue
         points[n] = ext.points
         poses[n] = pose
         n += 1
     return {"centerlines": points, "poses": poses, "attempts": attempts}
+
+
+def _failure_message(steps: int, n: int, skipped: dict[str, int], notes: dict[str, int]) -> str:
+    """One line: how many steps gave how few centerlines, and why the others were skipped."""
+    why = ", ".join(f"{k} {v}" for k, v in skipped.items() if v)
+    if notes:
+        note, times = max(notes.items(), key=lambda kv: kv[1])
+        why += f" (the extractor's most common note, {times} times: {note!r})"
+    return (
+        f"data collection: {steps} control steps of a walk gave only {n} usable centerlines "
+        f"(skipped: {why or 'none'}); the simulator or the extractor fails on most shapes"
+    )
 
 
 def _collect_task(args: tuple[str, int, np.random.SeedSequence]) -> dict[str, Any]:

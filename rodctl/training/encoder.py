@@ -30,7 +30,7 @@ import numpy as np
 
 from rodctl.config import ExperimentConfig, dump_config
 from rodctl.display import task_progress
-from rodctl.errors import UserError
+from rodctl.errors import RunFailed, UserError
 from rodctl.features import auto as quick
 from rodctl.features.autoencoder import (
     AutoencoderNet,
@@ -41,7 +41,7 @@ from rodctl.features.autoencoder import (
 )
 from rodctl.features.autoencoder_config import AutoencoderFeatureConfig, EncoderTrainingConfig
 from rodctl.runs import RunDir, rng, torch_seed, write_json_atomic
-from rodctl.training.collection import CenterlineDataset, collect_dataset
+from rodctl.training.collection import CenterlineDataset, CollectionFailed, collect_dataset
 
 
 @contextmanager
@@ -226,6 +226,7 @@ def train_encoder(
     Raises:
         UserError: the feature is not an autoencoder, or `dataset` is unreadable or was collected
             for another setup.
+        RunFailed: a collection walk gave too few usable centerlines (`CollectionFailed`).
     """
     if not isinstance(cfg.feature, AutoencoderFeatureConfig):
         raise UserError(
@@ -237,9 +238,12 @@ def train_encoder(
     if dataset is None:
         dataset_path = run.path / "dataset.npz"
         # Interrupted, the chunks collected so far are kept there (reuse with --dataset).
-        data = collect_dataset(
-            cfg, progress=progress, keep_partial=dataset_path, fingerprint=fingerprint
-        )
+        try:
+            data = collect_dataset(
+                cfg, progress=progress, keep_partial=dataset_path, fingerprint=fingerprint
+            )
+        except CollectionFailed as exc:  # the system failed: one line, exit 1, the run kept
+            raise RunFailed(f"train-encoder ({run.path}): {exc}") from None
         data.save(dataset_path, fingerprint=fingerprint)
         collected = True
     else:

@@ -118,6 +118,92 @@ def test_simulate_trains_the_quick_encoder_before_the_run(tiny_quick, tmp_path):
     assert cache_path(tiny_quick[0]).is_file()
 
 
+@pytest.fixture
+def blind_collection(monkeypatch):
+    """A collection walk that gives too few centerlines: the extractor sees no rod in any
+    frame, and a walk gives up after a few steps."""
+    from rodctl.training import collection
+    from rodctl.vision import CenterlineExtractor
+    from rodctl.vision.centerline import Extraction
+
+    def blind(self, image, gripper_pose=None):
+        return Extraction(np.full((self.points, 2), np.nan), False, "hidden by the test")
+
+    monkeypatch.setattr(CenterlineExtractor, "extract", blind)
+    monkeypatch.setattr(collection, "_MAX_ATTEMPTS_PER_SAMPLE", 1)
+    monkeypatch.setattr(collection, "_MAX_ATTEMPTS_SLACK", 2)
+
+
+def _one_error_line(res) -> str:
+    """The failed command's single `error:` line (exit 1, no traceback)."""
+    assert res.exit_code == 1, res.output
+    assert isinstance(res.exception, SystemExit), res.exception  # not the RuntimeError
+    assert "Traceback" not in res.output
+    errors = [line for line in res.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1, res.output
+    assert "data collection" in errors[0] and "not extracted" in errors[0]
+    assert "hidden by the test" in errors[0]
+    return errors[0]
+
+
+def test_a_failing_quick_training_is_one_line_and_exit_1(tiny_quick, blind_collection, tmp_path):
+    """`simulate` stops before the run with one line naming the failed quick training, exit 1,
+    no traceback, nothing cached."""
+    out = tmp_path / "runs"
+    res = runner.invoke(
+        app,
+        [
+            "simulate",
+            str(REPO / "configs/default.yaml"),
+            "--out",
+            str(out),
+            "--set",
+            "feature.checkpoint=auto",
+            "--set",
+            "feature.data.workers=1",
+            "--set",
+            "rod.segments=20",
+            "--set",
+            "camera.points=20",
+        ],
+    )
+    assert "training the quick encoder" in _one_error_line(res)
+    assert not cache_path(tiny_quick[0]).exists()
+
+
+def test_train_encoder_says_a_failed_collection_in_one_line(blind_collection, tmp_path):
+    res = runner.invoke(
+        app,
+        [
+            "train-encoder",
+            str(REPO / "configs/default.yaml"),
+            "-q",
+            "--out",
+            str(tmp_path),
+            "--set",
+            "feature.data.samples=8",
+            "--set",
+            "feature.data.workers=1",
+            "--set",
+            "rod.segments=20",
+            "--set",
+            "camera.points=20",
+        ],
+    )
+    assert "train-encoder" in _one_error_line(res)
+
+
+def test_the_cache_key_holds_the_code_versions(monkeypatch):
+    """An encoder cached by older collection or training code (another QUICK_CODE_VERSION or
+    rodctl version) is not found, so it is trained again rather than reused."""
+    cfg = _cfg()
+    now = cache_path(cfg)
+    monkeypatch.setattr(auto, "QUICK_CODE_VERSION", auto.QUICK_CODE_VERSION + 1)
+    bumped = cache_path(cfg)
+    monkeypatch.setattr("rodctl.__version__", "0.0.0")
+    assert len({now, bumped, cache_path(cfg)}) == 3
+
+
 def test_auto_needs_the_experiment():
     cfg = _cfg()
     with pytest.raises(UserError, match="auto"):
