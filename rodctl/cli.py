@@ -475,53 +475,27 @@ def _open_rerun(rrd) -> None:
     subprocess.Popen([exe, str(rrd)], start_new_session=True)
 
 
-@app.command("train-encoder")
-@user_errors
-def train_encoder(
-    config: ConfigArg,
-    set_: SetOpt = None,
-    out: OutOpt = "runs",
-    dataset: Annotated[
-        str | None,
-        typer.Option(
-            "--dataset",
-            help="Train on a dataset.npz from an earlier run, or a run folder (a recording).",
-        ),
-    ] = None,
-    quick: Annotated[
-        bool,
-        typer.Option(
-            "--quick",
-            help="A quick encoder: 3,000 samples, 300 epochs, batches of 500 (about 30 s on "
-            "2 cores), enough for a new rod or camera.",
-        ),
-    ] = False,
-    quiet: QuietOpt = False,
-) -> None:
-    """Collect rod centerlines through the camera and train the autoencoder feature.
+_DatasetOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--dataset",
+        help="Train on a dataset.npz from an earlier run, or a run folder (a recording).",
+    ),
+]
+_QuickOpt = Annotated[
+    bool,
+    typer.Option(
+        "--quick",
+        help="A quick encoder: 3,000 samples, 300 epochs, batches of 500 (about 30 s on "
+        "2 cores), enough for a new rod or camera.",
+    ),
+]
 
-    Writes dataset.npz, encoder.npz and encoder.pt (the same weights, normalisation, config
-    and metrics, for numpy and for torch) and metrics.json into a new run directory; prints it
-    as the last line. Use the checkpoint with --set feature.checkpoint=RUN_DIR/encoder.npz.
-    --dataset also takes a recording's run folder (`rodctl import`; docs/recordings.md).
-    Needs torch: pip install -e ".[train]" (docs/install.md).
 
-    Examples:
-
-        rodctl train-encoder configs/default.yaml --quick
-        rodctl train-encoder configs/default.yaml --dataset runs/20261201-120000_default/dataset.npz
-    """
+def _training_recording(cfg: ExperimentConfig, dataset: str | None) -> tuple[ExperimentConfig, Any]:
+    """--dataset: a recording's run folder (its points count goes into `cfg`), or a file."""
     from pathlib import Path
 
-    from rodctl.features.autoencoder import require_torch
-    from rodctl.runs import RunDir
-    from rodctl.training.encoder import quick_config
-    from rodctl.training.encoder import train_encoder as train
-
-    require_torch("rodctl train-encoder")  # before anything is collected or written
-    cfg = load_config(config, set_ or [])
-    if quick:
-        cfg = quick_config(cfg)
     from rodctl.recordings.dataset import is_run
 
     recording = None
@@ -532,15 +506,15 @@ def train_encoder(
         cfg = with_points(cfg, recording.centerlines.shape[1])
     elif dataset is not None and not Path(dataset).is_file():
         raise UserError(f"--dataset {dataset}: no such file")
-    run = RunDir.create(out, cfg, command="train-encoder", argv=sys.argv)
-    if recording is not None:
-        from rodctl.recordings.dataset import write_run_dataset
+    return cfg, recording
 
-        try:
-            dataset = str(write_run_dataset(recording, cfg, run.path / "dataset.npz"))
-        except UserError:
-            run.discard_if_empty()
-            raise
+
+def _train_in_run(cfg: ExperimentConfig, run: Any, dataset: str | None, quiet: bool) -> dict:
+    """Train the encoder in `run` and finish the run: completed, interrupted (exit 1), failed."""
+    from pathlib import Path
+
+    from rodctl.training.encoder import train_encoder as train
+
     try:
         with sigterm_as_interrupt():
             metrics = train(
@@ -561,6 +535,51 @@ def train_encoder(
         run.finish("failed", error=f"{type(exc).__name__}: {exc}")
         raise
     run.finish("completed")
+    return metrics
+
+
+@app.command("train-encoder")
+@user_errors
+def train_encoder(
+    config: ConfigArg,
+    set_: SetOpt = None,
+    out: OutOpt = "runs",
+    dataset: _DatasetOpt = None,
+    quick: _QuickOpt = False,
+    quiet: QuietOpt = False,
+) -> None:
+    """Collect rod centerlines through the camera and train the autoencoder feature.
+
+    Writes dataset.npz, encoder.npz and encoder.pt (the same weights, normalisation, config
+    and metrics, for numpy and for torch) and metrics.json into a new run directory; prints it
+    as the last line. Use the checkpoint with --set feature.checkpoint=RUN_DIR/encoder.npz.
+    --dataset also takes a recording's run folder (`rodctl import`; docs/recordings.md).
+    Needs torch: pip install -e ".[train]" (docs/install.md).
+
+    Examples:
+
+        rodctl train-encoder configs/default.yaml --quick
+        rodctl train-encoder configs/default.yaml --dataset runs/20261201-120000_default/dataset.npz
+    """
+    from rodctl.features.autoencoder import require_torch
+    from rodctl.runs import RunDir
+    from rodctl.training.encoder import quick_config
+
+    require_torch("rodctl train-encoder")  # before anything is collected or written
+    cfg = load_config(config, set_ or [])
+    if quick:
+        cfg = quick_config(cfg)
+    cfg, recording = _training_recording(cfg, dataset)
+    run = RunDir.create(out, cfg, command="train-encoder", argv=sys.argv)
+    if recording is not None:
+        from rodctl.recordings.dataset import write_run_dataset
+
+        try:
+            dataset = str(write_run_dataset(recording, cfg, run.path / "dataset.npz"))
+        except UserError:
+            run.discard_if_empty()
+            raise
+    metrics = _train_in_run(cfg, run, dataset, quiet)
     if not quiet:
         keys = [k for k in metrics if "px" in k or k.endswith("_s")]
         for k in keys:
@@ -773,71 +792,55 @@ def sweep(
     )  # fmt: skip
 
 
-@app.command()
-@user_errors
-def estimate(
-    path: Annotated[
-        str,
-        typer.Argument(help="A run directory, its run.mcap, or a points recording (.csv/.npz)."),
-    ],
-    estimator: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--estimator", "-e", help="Registered estimator to run (repeat); default all."
-        ),
-    ] = None,
-    feature: Annotated[
-        str,
-        typer.Option(
-            "--feature",
-            help="Feature space: logged (a run's own s), points, or a registered feature type "
-            "(bezier, fourier, ...). Default: logged for a run, points for a recording.",
-        ),
-    ] = "",
-    init: Annotated[
-        int | None,
-        typer.Option("--init", min=1, help="Recording pairs J_0 is fitted from (default 10 q)."),
-    ] = None,
-    scaled: Annotated[
-        bool,
-        typer.Option(
-            "--scaled/--defaults",
-            help="Dead zones, Broyden's step and the ridge scaled to the data's motion and noise "
-            "(docs/recordings.md), or every estimator's config defaults.",
-        ),
-    ] = False,
-    out: Annotated[
-        str | None,
-        typer.Option("--out", "-o", help="Folder for results.csv and steps.csv."),
-    ] = None,
-    plots: Annotated[
-        bool,
-        typer.Option("--plots/--no-plots", help="Write errors.png and medians.png (matplotlib)."),
-    ] = True,
-    checkpoint: Annotated[
-        str | None,
-        typer.Option(
-            "--checkpoint", help="--feature autoencoder: the encoder.npz (train-encoder's)."
-        ),
-    ] = None,
-    force: Annotated[
-        bool,
-        typer.Option("--force", help="Overwrite the results of an earlier estimate in the folder."),
-    ] = False,
-) -> None:
-    """Run the online Jacobian estimators over a recorded (Delta s, Delta r), offline.
+_EstimatePathArg = Annotated[
+    str, typer.Argument(help="A run directory, its run.mcap, or a points recording (.csv/.npz).")
+]
+_EstimatorOpt = Annotated[
+    list[str] | None,
+    typer.Option("--estimator", "-e", help="Registered estimator to run (repeat); default all."),
+]
+_FeatureOpt = Annotated[
+    str,
+    typer.Option(
+        "--feature",
+        help="Feature space: logged (a run's own s), points, or a registered feature type "
+        "(bezier, fourier, ...). Default: logged for a run, points for a recording.",
+    ),
+]
+_InitOpt = Annotated[
+    int | None,
+    typer.Option("--init", min=1, help="Recording pairs J_0 is fitted from (default 10 q)."),
+]
+_ScaledOpt = Annotated[
+    bool,
+    typer.Option(
+        "--scaled/--defaults",
+        help="Dead zones, Broyden's step and the ridge scaled to the data's motion and noise "
+        "(docs/recordings.md), or every estimator's config defaults.",
+    ),
+]
+_EstimateOutOpt = Annotated[
+    str | None, typer.Option("--out", "-o", help="Folder for results.csv and steps.csv.")
+]
+_PlotsOpt = Annotated[
+    bool, typer.Option("--plots/--no-plots", help="Write errors.png and medians.png (matplotlib).")
+]
+_CheckpointOpt = Annotated[
+    str | None,
+    typer.Option("--checkpoint", help="--feature autoencoder: the encoder.npz (train-encoder's)."),
+]
+_ForceOpt = Annotated[
+    bool,
+    typer.Option("--force", help="Overwrite the results of an earlier estimate in the folder."),
+]
 
-    Reports each estimator's one-step-ahead prediction error of Delta s against the
-    zero-motion predictor and a least-squares J fitted in hindsight; writes results.csv,
-    steps.csv and the plots errors.png, medians.png (default: RUN_DIR/estimate, or beside the
-    recording) and prints the folder last.
-    """
+
+def _estimate_folder(src: Any, recording: bool, out: str | None, force: bool) -> tuple[Any, list]:
+    """The results folder and the earlier estimate's files in it (refused without --force)."""
     from pathlib import Path
 
     from rodctl import estimate as est
 
-    src = Path(path)
-    recording = src.suffix.lower() in (".csv", ".npz")
     if out:
         dest = Path(out)
     elif recording:
@@ -852,24 +855,35 @@ def estimate(
             f"--out {dest}: holds an earlier estimate ({', '.join(earlier)}); "
             "choose another folder, or overwrite it with --force"
         )
+    return dest, earlier
+
+
+def _estimate_pairs(
+    src: Any, recording: bool, feature: str, init: int | None, checkpoint: str | None
+) -> Any:
+    """The (Delta s, Delta r) pairs of a points recording or of a run's log."""
+    from rodctl import estimate as est
+
     if recording:
         from rodctl.recordings.points import read_points
 
-        pairs = est.pairs_from_recording(
+        return est.pairs_from_recording(
             read_points(src),
             init=init,
             feature=feature or "points",
             checkpoint=checkpoint,
             source=str(src),
         )
-    else:
-        from rodctl.replay import read_run
+    from rodctl.replay import read_run
 
-        run = read_run(src, images=False)
-        pairs = est.pairs_from_run(
-            run, feature=feature or "logged", init=init, checkpoint=checkpoint
-        )
-    result = est.estimate(pairs, estimator or None, scaled=scaled)
+    run = read_run(src, images=False)
+    return est.pairs_from_run(run, feature=feature or "logged", init=init, checkpoint=checkpoint)
+
+
+def _write_estimate(result: Any, dest: Any, earlier: list, plots: bool) -> None:
+    """Write results.csv, steps.csv (and the plots) into `dest`; print the table and notes."""
+    from rodctl import estimate as est
+
     try:
         for stale in est.result_files(dest) if earlier else ():
             stale.unlink(missing_ok=True)  # --force: no plot of the earlier estimate left beside
@@ -884,6 +898,38 @@ def estimate(
     for r in result.runs:
         if r.outcome not in ("completed",) and r.note:
             typer.echo(f"{r.name}: {r.outcome}: {r.note}", err=True)
+
+
+@app.command()
+@user_errors
+def estimate(
+    path: _EstimatePathArg,
+    estimator: _EstimatorOpt = None,
+    feature: _FeatureOpt = "",
+    init: _InitOpt = None,
+    scaled: _ScaledOpt = False,
+    out: _EstimateOutOpt = None,
+    plots: _PlotsOpt = True,
+    checkpoint: _CheckpointOpt = None,
+    force: _ForceOpt = False,
+) -> None:
+    """Run the online Jacobian estimators over a recorded (Delta s, Delta r), offline.
+
+    Reports each estimator's one-step-ahead prediction error of Delta s against the
+    zero-motion predictor and a least-squares J fitted in hindsight; writes results.csv,
+    steps.csv and the plots errors.png, medians.png (default: RUN_DIR/estimate, or beside the
+    recording) and prints the folder last.
+    """
+    from pathlib import Path
+
+    from rodctl import estimate as est
+
+    src = Path(path)
+    recording = src.suffix.lower() in (".csv", ".npz")
+    dest, earlier = _estimate_folder(src, recording, out, force)
+    pairs = _estimate_pairs(src, recording, feature, init, checkpoint)
+    result = est.estimate(pairs, estimator or None, scaled=scaled)
+    _write_estimate(result, dest, earlier, plots)
     typer.echo(str(dest))
 
 
