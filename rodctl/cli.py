@@ -475,53 +475,27 @@ def _open_rerun(rrd) -> None:
     subprocess.Popen([exe, str(rrd)], start_new_session=True)
 
 
-@app.command("train-encoder")
-@user_errors
-def train_encoder(
-    config: ConfigArg,
-    set_: SetOpt = None,
-    out: OutOpt = "runs",
-    dataset: Annotated[
-        str | None,
-        typer.Option(
-            "--dataset",
-            help="Train on a dataset.npz from an earlier run, or a run folder (a recording).",
-        ),
-    ] = None,
-    quick: Annotated[
-        bool,
-        typer.Option(
-            "--quick",
-            help="A quick encoder: 3,000 samples, 300 epochs, batches of 500 (about 30 s on "
-            "2 cores), enough for a new rod or camera.",
-        ),
-    ] = False,
-    quiet: QuietOpt = False,
-) -> None:
-    """Collect rod centerlines through the camera and train the autoencoder feature.
+_DatasetOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--dataset",
+        help="Train on a dataset.npz from an earlier run, or a run folder (a recording).",
+    ),
+]
+_QuickOpt = Annotated[
+    bool,
+    typer.Option(
+        "--quick",
+        help="A quick encoder: 3,000 samples, 300 epochs, batches of 500 (about 30 s on "
+        "2 cores), enough for a new rod or camera.",
+    ),
+]
 
-    Writes dataset.npz, encoder.npz and encoder.pt (the same weights, normalisation, config
-    and metrics, for numpy and for torch) and metrics.json into a new run directory; prints it
-    as the last line. Use the checkpoint with --set feature.checkpoint=RUN_DIR/encoder.npz.
-    --dataset also takes a recording's run folder (`rodctl import`; docs/recordings.md).
-    Needs torch: pip install -e ".[train]" (docs/install.md).
 
-    Examples:
-
-        rodctl train-encoder configs/default.yaml --quick
-        rodctl train-encoder configs/default.yaml --dataset runs/20261201-120000_default/dataset.npz
-    """
+def _training_recording(cfg: ExperimentConfig, dataset: str | None) -> tuple[ExperimentConfig, Any]:
+    """--dataset: a recording's run folder (its points count goes into `cfg`), or a file."""
     from pathlib import Path
 
-    from rodctl.features.autoencoder import require_torch
-    from rodctl.runs import RunDir
-    from rodctl.training.encoder import quick_config
-    from rodctl.training.encoder import train_encoder as train
-
-    require_torch("rodctl train-encoder")  # before anything is collected or written
-    cfg = load_config(config, set_ or [])
-    if quick:
-        cfg = quick_config(cfg)
     from rodctl.recordings.dataset import is_run
 
     recording = None
@@ -532,15 +506,15 @@ def train_encoder(
         cfg = with_points(cfg, recording.centerlines.shape[1])
     elif dataset is not None and not Path(dataset).is_file():
         raise UserError(f"--dataset {dataset}: no such file")
-    run = RunDir.create(out, cfg, command="train-encoder", argv=sys.argv)
-    if recording is not None:
-        from rodctl.recordings.dataset import write_run_dataset
+    return cfg, recording
 
-        try:
-            dataset = str(write_run_dataset(recording, cfg, run.path / "dataset.npz"))
-        except UserError:
-            run.discard_if_empty()
-            raise
+
+def _train_in_run(cfg: ExperimentConfig, run: Any, dataset: str | None, quiet: bool) -> dict:
+    """Train the encoder in `run` and finish the run: completed, interrupted (exit 1), failed."""
+    from pathlib import Path
+
+    from rodctl.training.encoder import train_encoder as train
+
     try:
         with sigterm_as_interrupt():
             metrics = train(
@@ -561,6 +535,51 @@ def train_encoder(
         run.finish("failed", error=f"{type(exc).__name__}: {exc}")
         raise
     run.finish("completed")
+    return metrics
+
+
+@app.command("train-encoder")
+@user_errors
+def train_encoder(
+    config: ConfigArg,
+    set_: SetOpt = None,
+    out: OutOpt = "runs",
+    dataset: _DatasetOpt = None,
+    quick: _QuickOpt = False,
+    quiet: QuietOpt = False,
+) -> None:
+    """Collect rod centerlines through the camera and train the autoencoder feature.
+
+    Writes dataset.npz, encoder.npz and encoder.pt (the same weights, normalisation, config
+    and metrics, for numpy and for torch) and metrics.json into a new run directory; prints it
+    as the last line. Use the checkpoint with --set feature.checkpoint=RUN_DIR/encoder.npz.
+    --dataset also takes a recording's run folder (`rodctl import`; docs/recordings.md).
+    Needs torch: pip install -e ".[train]" (docs/install.md).
+
+    Examples:
+
+        rodctl train-encoder configs/default.yaml --quick
+        rodctl train-encoder configs/default.yaml --dataset runs/20261201-120000_default/dataset.npz
+    """
+    from rodctl.features.autoencoder import require_torch
+    from rodctl.runs import RunDir
+    from rodctl.training.encoder import quick_config
+
+    require_torch("rodctl train-encoder")  # before anything is collected or written
+    cfg = load_config(config, set_ or [])
+    if quick:
+        cfg = quick_config(cfg)
+    cfg, recording = _training_recording(cfg, dataset)
+    run = RunDir.create(out, cfg, command="train-encoder", argv=sys.argv)
+    if recording is not None:
+        from rodctl.recordings.dataset import write_run_dataset
+
+        try:
+            dataset = str(write_run_dataset(recording, cfg, run.path / "dataset.npz"))
+        except UserError:
+            run.discard_if_empty()
+            raise
+    metrics = _train_in_run(cfg, run, dataset, quiet)
     if not quiet:
         keys = [k for k in metrics if "px" in k or k.endswith("_s")]
         for k in keys:
@@ -773,71 +792,55 @@ def sweep(
     )  # fmt: skip
 
 
-@app.command()
-@user_errors
-def estimate(
-    path: Annotated[
-        str,
-        typer.Argument(help="A run directory, its run.mcap, or a points recording (.csv/.npz)."),
-    ],
-    estimator: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--estimator", "-e", help="Registered estimator to run (repeat); default all."
-        ),
-    ] = None,
-    feature: Annotated[
-        str,
-        typer.Option(
-            "--feature",
-            help="Feature space: logged (a run's own s), points, or a registered feature type "
-            "(bezier, fourier, ...). Default: logged for a run, points for a recording.",
-        ),
-    ] = "",
-    init: Annotated[
-        int | None,
-        typer.Option("--init", min=1, help="Recording pairs J_0 is fitted from (default 10 q)."),
-    ] = None,
-    scaled: Annotated[
-        bool,
-        typer.Option(
-            "--scaled/--defaults",
-            help="Dead zones, Broyden's step and the ridge scaled to the data's motion and noise "
-            "(docs/recordings.md), or every estimator's config defaults.",
-        ),
-    ] = False,
-    out: Annotated[
-        str | None,
-        typer.Option("--out", "-o", help="Folder for results.csv and steps.csv."),
-    ] = None,
-    plots: Annotated[
-        bool,
-        typer.Option("--plots/--no-plots", help="Write errors.png and medians.png (matplotlib)."),
-    ] = True,
-    checkpoint: Annotated[
-        str | None,
-        typer.Option(
-            "--checkpoint", help="--feature autoencoder: the encoder.npz (train-encoder's)."
-        ),
-    ] = None,
-    force: Annotated[
-        bool,
-        typer.Option("--force", help="Overwrite the results of an earlier estimate in the folder."),
-    ] = False,
-) -> None:
-    """Run the online Jacobian estimators over a recorded (Delta s, Delta r), offline.
+_EstimatePathArg = Annotated[
+    str, typer.Argument(help="A run directory, its run.mcap, or a points recording (.csv/.npz).")
+]
+_EstimatorOpt = Annotated[
+    list[str] | None,
+    typer.Option("--estimator", "-e", help="Registered estimator to run (repeat); default all."),
+]
+_FeatureOpt = Annotated[
+    str,
+    typer.Option(
+        "--feature",
+        help="Feature space: logged (a run's own s), points, or a registered feature type "
+        "(bezier, fourier, ...). Default: logged for a run, points for a recording.",
+    ),
+]
+_InitOpt = Annotated[
+    int | None,
+    typer.Option("--init", min=1, help="Recording pairs J_0 is fitted from (default 10 q)."),
+]
+_ScaledOpt = Annotated[
+    bool,
+    typer.Option(
+        "--scaled/--defaults",
+        help="Dead zones, Broyden's step and the ridge scaled to the data's motion and noise "
+        "(docs/recordings.md), or every estimator's config defaults.",
+    ),
+]
+_EstimateOutOpt = Annotated[
+    str | None, typer.Option("--out", "-o", help="Folder for results.csv and steps.csv.")
+]
+_PlotsOpt = Annotated[
+    bool, typer.Option("--plots/--no-plots", help="Write errors.png and medians.png (matplotlib).")
+]
+_CheckpointOpt = Annotated[
+    str | None,
+    typer.Option("--checkpoint", help="--feature autoencoder: the encoder.npz (train-encoder's)."),
+]
+_ForceOpt = Annotated[
+    bool,
+    typer.Option("--force", help="Overwrite the results of an earlier estimate in the folder."),
+]
 
-    Reports each estimator's one-step-ahead prediction error of Delta s against the
-    zero-motion predictor and a least-squares J fitted in hindsight; writes results.csv,
-    steps.csv and the plots errors.png, medians.png (default: RUN_DIR/estimate, or beside the
-    recording) and prints the folder last.
-    """
+
+def _estimate_folder(src: Any, recording: bool, out: str | None, force: bool) -> tuple[Any, list]:
+    """The results folder and the earlier estimate's files in it (refused without --force)."""
     from pathlib import Path
 
     from rodctl import estimate as est
 
-    src = Path(path)
-    recording = src.suffix.lower() in (".csv", ".npz")
     if out:
         dest = Path(out)
     elif recording:
@@ -852,24 +855,35 @@ def estimate(
             f"--out {dest}: holds an earlier estimate ({', '.join(earlier)}); "
             "choose another folder, or overwrite it with --force"
         )
+    return dest, earlier
+
+
+def _estimate_pairs(
+    src: Any, recording: bool, feature: str, init: int | None, checkpoint: str | None
+) -> Any:
+    """The (Delta s, Delta r) pairs of a points recording or of a run's log."""
+    from rodctl import estimate as est
+
     if recording:
         from rodctl.recordings.points import read_points
 
-        pairs = est.pairs_from_recording(
+        return est.pairs_from_recording(
             read_points(src),
             init=init,
             feature=feature or "points",
             checkpoint=checkpoint,
             source=str(src),
         )
-    else:
-        from rodctl.replay import read_run
+    from rodctl.replay import read_run
 
-        run = read_run(src, images=False)
-        pairs = est.pairs_from_run(
-            run, feature=feature or "logged", init=init, checkpoint=checkpoint
-        )
-    result = est.estimate(pairs, estimator or None, scaled=scaled)
+    run = read_run(src, images=False)
+    return est.pairs_from_run(run, feature=feature or "logged", init=init, checkpoint=checkpoint)
+
+
+def _write_estimate(result: Any, dest: Any, earlier: list, plots: bool) -> None:
+    """Write results.csv, steps.csv (and the plots) into `dest`; print the table and notes."""
+    from rodctl import estimate as est
+
     try:
         for stale in est.result_files(dest) if earlier else ():
             stale.unlink(missing_ok=True)  # --force: no plot of the earlier estimate left beside
@@ -884,6 +898,38 @@ def estimate(
     for r in result.runs:
         if r.outcome not in ("completed",) and r.note:
             typer.echo(f"{r.name}: {r.outcome}: {r.note}", err=True)
+
+
+@app.command()
+@user_errors
+def estimate(
+    path: _EstimatePathArg,
+    estimator: _EstimatorOpt = None,
+    feature: _FeatureOpt = "",
+    init: _InitOpt = None,
+    scaled: _ScaledOpt = False,
+    out: _EstimateOutOpt = None,
+    plots: _PlotsOpt = True,
+    checkpoint: _CheckpointOpt = None,
+    force: _ForceOpt = False,
+) -> None:
+    """Run the online Jacobian estimators over a recorded (Delta s, Delta r), offline.
+
+    Reports each estimator's one-step-ahead prediction error of Delta s against the
+    zero-motion predictor and a least-squares J fitted in hindsight; writes results.csv,
+    steps.csv and the plots errors.png, medians.png (default: RUN_DIR/estimate, or beside the
+    recording) and prints the folder last.
+    """
+    from pathlib import Path
+
+    from rodctl import estimate as est
+
+    src = Path(path)
+    recording = src.suffix.lower() in (".csv", ".npz")
+    dest, earlier = _estimate_folder(src, recording, out, force)
+    pairs = _estimate_pairs(src, recording, feature, init, checkpoint)
+    result = est.estimate(pairs, estimator or None, scaled=scaled)
+    _write_estimate(result, dest, earlier, plots)
     typer.echo(str(dest))
 
 
@@ -905,88 +951,238 @@ def _numbers(flag: str, text: str | None, n: int, kind: type) -> list:
     return vals
 
 
+_NO_MASK = "--mask-topic: masks are read from a ROS 2 bag beside its --image-topic"
+
+_RecordingArg = Annotated[
+    str, typer.Argument(help="A points recording (.csv/.npz), a ROS 2 bag or an image folder.")
+]
+_ImportNameOpt = Annotated[
+    str | None, typer.Option("--name", help="Run name (default import-<file stem>).")
+]
+_PointsTopicOpt = Annotated[
+    str | None,
+    typer.Option("--points-topic", help="Bag: the tracked points (MarkerArray, Path, ...)."),
+]
+_PoseTopicOpt = Annotated[
+    list[str] | None,
+    typer.Option("--pose-topic", help="Bag: an end effector's PoseStamped (once or twice)."),
+]
+_ToleranceOpt = Annotated[
+    float, typer.Option("--tolerance", min=0.0, help="Bag: largest pose gap (s) around a frame.")
+]
+_ImageTopicOpt = Annotated[
+    str | None,
+    typer.Option("--image-topic", help="Bag: camera frames (Image or CompressedImage)."),
+]
+_CameraInfoTopicOpt = Annotated[
+    str | None, typer.Option("--camera-info-topic", help="Bag: CameraInfo (K, D).")
+]
+_CameraOpt = Annotated[
+    str | None,
+    typer.Option("--camera", help="Images: YAML with the camera's pose and extraction settings."),
+]
+_ClampPoseOpt = Annotated[
+    str | None, typer.Option("--clamp-pose", help="Images: the fixed end's X,Y,THETA (world).")
+]
+_HsvLowOpt = Annotated[str, typer.Option("--hsv-low", help="Images: rod colour H,S,V low.")]
+_HsvHighOpt = Annotated[str, typer.Option("--hsv-high", help="Images: rod colour H,S,V high.")]
+_PosesOpt = Annotated[
+    str | None,
+    typer.Option("--poses", help="Image folder or video: CSV of gripper poses t,x,y,theta."),
+]
+_TopicsOpt = Annotated[
+    str | None,
+    typer.Option("--topics", help="Bag: YAML mapping of its topics (flags replace keys)."),
+]
+_TfFrameOpt = Annotated[
+    list[str] | None,
+    typer.Option("--tf-frame", help="Bag: an end effector's tf child frame (once or twice)."),
+]
+_TfTopicOpt = Annotated[
+    str | None, typer.Option("--tf-topic", help="Bag: the TFMessage topic (default /tf).")
+]
+_CalibrationOpt = Annotated[
+    str | None,
+    typer.Option("--calibration", help="Images: YAML with an extrinsic or marked points."),
+]
+_ExtrinsicOpt = Annotated[
+    str | None,
+    typer.Option("--extrinsic", help="Images: world->camera RX,RY,RZ,TX,TY,TZ (Rodrigues)."),
+]
+_FpsOpt = Annotated[
+    float | None, typer.Option("--fps", min=0.0, help="Video: frame rate (t = k / fps).")
+]
+_FrameTimesOpt = Annotated[
+    str | None, typer.Option("--frame-times", help="Video: CSV with each frame's t.")
+]
+_MaskTopicOpt = Annotated[
+    str | None,
+    typer.Option("--mask-topic", help="Bag: mono8/8UC1 rod masks, used instead of HSV."),
+]
+_TfWorldOpt = Annotated[
+    str | None,
+    typer.Option("--tf-world", help="Bag: compose tf chains up to this frame (default root)."),
+]
+
+
+def _import_calibration(calibration: str | None, extrinsic: str | None) -> Any:
+    """The camera calibration from `--calibration FILE` or `--extrinsic`, or None (not both)."""
+    if calibration and extrinsic:
+        raise UserError("--calibration and --extrinsic: give one of them")
+    if calibration:
+        from rodctl.recordings.calibration import load_calibration
+
+        return load_calibration(calibration)
+    if extrinsic:
+        from rodctl.recordings.calibration import extrinsic_from_flag
+
+        return extrinsic_from_flag(_numbers("--extrinsic", extrinsic, 6, float))
+    return None
+
+
+def _frames_args(
+    path: str,
+    camera: str | None,
+    clamp_pose: str | None,
+    hsv_low: str,
+    hsv_high: str,
+    tolerance: float,
+    name: str | None,
+    calib: Any,
+) -> dict:
+    """The keyword arguments every camera-frames import takes (needs --camera)."""
+    if not camera:
+        raise UserError(f"{path}: camera frames need --camera FILE (intrinsics, pose)")
+    clamp = None if clamp_pose is None else _numbers("--clamp-pose", clamp_pose, 3, float)
+    return dict(
+        camera=camera, clamp_pose=clamp,
+        hsv_low=_numbers("--hsv-low", hsv_low, 3, int),
+        hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
+        tolerance=tolerance, name=name, calibration=calib,
+    )  # fmt: skip
+
+
+_BAG_ONLY = (
+    "points_topic", "pose_topic", "image_topic", "camera_info_topic", "topics", "tf_frame",
+    "tf_topic", "tf_world",
+)  # fmt: skip
+
+
+def _refuse_misplaced_flags(
+    path: str, is_dir: bool, is_video: bool, poses: str | None, flags: dict[str, Any]
+) -> None:
+    """A UserError for --mask-topic or a bag-only flag (in `flags`) given with another input."""
+    if flags["mask_topic"] and (is_video or poses):
+        raise UserError(_NO_MASK)
+    misplaced = ["--" + key.replace("_", "-") for key in _BAG_ONLY if flags[key]]
+    if misplaced and not (is_dir and not poses):
+        kind = "an image folder with --poses" if is_dir else "not a ROS 2 bag"
+        raise UserError(
+            f"{', '.join(misplaced)}: topics are read from a ROS 2 bag; {path} is {kind}"
+        )
+
+
+def _bag_topics(flags: dict[str, Any]) -> dict[str, Any]:
+    """The bag's topics: the flags, each unset one from the --topics YAML, checked together."""
+    t = dict(flags)
+    mapping = None
+    if t["topics"]:
+        from rodctl.recordings.mapping import load_mapping
+
+        mapping = load_mapping(t["topics"])
+    if mapping is not None:
+        t["image_topic"] = t["image_topic"] or mapping.image
+        t["camera_info_topic"] = t["camera_info_topic"] or mapping.camera_info
+        t["points_topic"] = t["points_topic"] or (None if t["image_topic"] else mapping.points)
+        t["pose_topic"] = t["pose_topic"] or mapping.poses or None
+        t["mask_topic"] = t["mask_topic"] or mapping.mask
+        if mapping.tf is not None:
+            t["tf_frame"] = t["tf_frame"] or mapping.tf.frames
+            t["tf_topic"] = t["tf_topic"] or mapping.tf.topic
+            t["tf_world"] = t["tf_world"] or mapping.tf.world
+    t["tf_topic"] = t["tf_topic"] or "/tf"
+    if t["image_topic"] and t["points_topic"]:
+        raise UserError(
+            "--image-topic and --points-topic (or the --topics keys image and points): a bag "
+            "import reads camera frames or tracked points, not both"
+        )
+    if t["mask_topic"] and not t["image_topic"]:
+        raise UserError(_NO_MASK)
+    if t["tf_world"] and not t["tf_frame"]:
+        raise UserError("--tf-world: goes with --tf-frame (the tf chains it ends)")
+    return t
+
+
+def _import_video(
+    path: str, out: str, poses: str | None, fps: float | None, frame_times: str | None,
+    frames_args: Callable[[], dict],
+) -> None:  # fmt: skip
+    """Import the video at `path` with its --poses CSV; print the run folder."""
+    from rodctl.recordings.importer import import_video
+
+    if not poses:
+        raise UserError(f"{path}: a video needs --poses CSV (t,x,y,theta of the gripper)")
+    run_dir, notes = import_video(
+        path, out, poses=poses, fps=fps, frame_times=frame_times, **frames_args()
+    )
+    _print_import(run_dir, notes)
+
+
+def _import_bag_folder(
+    path: str, out: str, t: dict[str, Any], tolerance: float, name: str | None,
+    frames_args: Callable[[], dict],
+) -> None:  # fmt: skip
+    """Import the ROS 2 bag at `path` (camera frames or tracked points, topics `t`); print it."""
+    from rodctl.recordings.importer import import_bag, import_bag_images
+
+    ends = len(t["pose_topic"] or []) + len(t["tf_frame"] or [])
+    if t["image_topic"]:
+        run_dir, notes = import_bag_images(
+            path, out, image_topic=t["image_topic"], info_topic=t["camera_info_topic"],
+            pose_topic=t["pose_topic"] or [], tf_frame=t["tf_frame"] or [],
+            tf_topic=t["tf_topic"], tf_world=t["tf_world"], mask_topic=t["mask_topic"],
+            **frames_args(),
+        )  # fmt: skip
+        _print_import(run_dir, notes)
+        return
+    if not t["points_topic"] or not ends:
+        raise UserError(
+            f"{path}: a folder is a ROS 2 bag (give --points-topic or --image-topic, and "
+            "--pose-topic or --tf-frame, or --topics YAML) or an image folder (give --poses "
+            "CSV and --camera FILE)"
+        )
+    run_dir, notes = import_bag(
+        path, out, t["points_topic"], t["pose_topic"] or [], tolerance=tolerance, name=name,
+        tf_frames=t["tf_frame"] or [], tf_topic=t["tf_topic"], tf_world=t["tf_world"],
+    )  # fmt: skip
+    _print_import(run_dir, notes)
+
+
 @app.command("import")
 @user_errors
 def import_recording(
-    path: Annotated[
-        str,
-        typer.Argument(help="A points recording (.csv/.npz), a ROS 2 bag or an image folder."),
-    ],
+    path: _RecordingArg,
     out: OutOpt = "runs",
-    name: Annotated[
-        str | None, typer.Option("--name", help="Run name (default import-<file stem>).")
-    ] = None,
-    points_topic: Annotated[
-        str | None,
-        typer.Option("--points-topic", help="Bag: the tracked points (MarkerArray, Path, ...)."),
-    ] = None,
-    pose_topic: Annotated[
-        list[str] | None,
-        typer.Option("--pose-topic", help="Bag: an end effector's PoseStamped (once or twice)."),
-    ] = None,
-    tolerance: Annotated[
-        float,
-        typer.Option("--tolerance", min=0.0, help="Bag: largest pose gap (s) around a frame."),
-    ] = 0.2,
-    image_topic: Annotated[
-        str | None,
-        typer.Option("--image-topic", help="Bag: camera frames (Image or CompressedImage)."),
-    ] = None,
-    camera_info_topic: Annotated[
-        str | None, typer.Option("--camera-info-topic", help="Bag: CameraInfo (K, D).")
-    ] = None,
-    camera: Annotated[
-        str | None,
-        typer.Option(
-            "--camera", help="Images: YAML with the camera's pose and extraction settings."
-        ),
-    ] = None,
-    clamp_pose: Annotated[
-        str | None, typer.Option("--clamp-pose", help="Images: the fixed end's X,Y,THETA (world).")
-    ] = None,
-    hsv_low: Annotated[
-        str, typer.Option("--hsv-low", help="Images: rod colour H,S,V low.")
-    ] = "170,120,50",
-    hsv_high: Annotated[
-        str, typer.Option("--hsv-high", help="Images: rod colour H,S,V high.")
-    ] = "10,255,255",
-    poses: Annotated[
-        str | None,
-        typer.Option("--poses", help="Image folder or video: CSV of gripper poses t,x,y,theta."),
-    ] = None,
-    topics: Annotated[
-        str | None,
-        typer.Option("--topics", help="Bag: YAML mapping of its topics (flags replace keys)."),
-    ] = None,
-    tf_frame: Annotated[
-        list[str] | None,
-        typer.Option("--tf-frame", help="Bag: an end effector's tf child frame (once or twice)."),
-    ] = None,
-    tf_topic: Annotated[
-        str | None, typer.Option("--tf-topic", help="Bag: the TFMessage topic (default /tf).")
-    ] = None,
-    calibration: Annotated[
-        str | None,
-        typer.Option("--calibration", help="Images: YAML with an extrinsic or marked points."),
-    ] = None,
-    extrinsic: Annotated[
-        str | None,
-        typer.Option("--extrinsic", help="Images: world->camera RX,RY,RZ,TX,TY,TZ (Rodrigues)."),
-    ] = None,
-    fps: Annotated[
-        float | None, typer.Option("--fps", min=0.0, help="Video: frame rate (t = k / fps).")
-    ] = None,
-    frame_times: Annotated[
-        str | None, typer.Option("--frame-times", help="Video: CSV with each frame's t.")
-    ] = None,
-    mask_topic: Annotated[
-        str | None,
-        typer.Option("--mask-topic", help="Bag: mono8/8UC1 rod masks, used instead of HSV."),
-    ] = None,
-    tf_world: Annotated[
-        str | None,
-        typer.Option("--tf-world", help="Bag: compose tf chains up to this frame (default root)."),
-    ] = None,
+    name: _ImportNameOpt = None,
+    points_topic: _PointsTopicOpt = None,
+    pose_topic: _PoseTopicOpt = None,
+    tolerance: _ToleranceOpt = 0.2,
+    image_topic: _ImageTopicOpt = None,
+    camera_info_topic: _CameraInfoTopicOpt = None,
+    camera: _CameraOpt = None,
+    clamp_pose: _ClampPoseOpt = None,
+    hsv_low: _HsvLowOpt = "170,120,50",
+    hsv_high: _HsvHighOpt = "10,255,255",
+    poses: _PosesOpt = None,
+    topics: _TopicsOpt = None,
+    tf_frame: _TfFrameOpt = None,
+    tf_topic: _TfTopicOpt = None,
+    calibration: _CalibrationOpt = None,
+    extrinsic: _ExtrinsicOpt = None,
+    fps: _FpsOpt = None,
+    frame_times: _FrameTimesOpt = None,
+    mask_topic: _MaskTopicOpt = None,
+    tf_world: _TfWorldOpt = None,
 ) -> None:
     """Turn a recording into a rodctl run folder (config.yaml, meta.json, summary.json,
     run.mcap with the contract topics) that replay, Foxglove and estimate read.
@@ -999,112 +1195,29 @@ def import_recording(
     """
     from pathlib import Path
 
-    from rodctl.recordings.importer import import_bag, import_points
-
-    calib = None
-    if calibration and extrinsic:
-        raise UserError("--calibration and --extrinsic: give one of them")
-    if calibration:
-        from rodctl.recordings.calibration import load_calibration
-
-        calib = load_calibration(calibration)
-    elif extrinsic:
-        from rodctl.recordings.calibration import extrinsic_from_flag
-
-        calib = extrinsic_from_flag(_numbers("--extrinsic", extrinsic, 6, float))
-
-    def frames_args() -> dict:
-        if not camera:
-            raise UserError(f"{path}: camera frames need --camera FILE (intrinsics, pose)")
-        clamp = None if clamp_pose is None else _numbers("--clamp-pose", clamp_pose, 3, float)
-        return dict(
-            camera=camera, clamp_pose=clamp,
-            hsv_low=_numbers("--hsv-low", hsv_low, 3, int),
-            hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
-            tolerance=tolerance, name=name, calibration=calib,
-        )  # fmt: skip
-
+    from rodctl.recordings.importer import import_image_folder, import_points
     from rodctl.recordings.video import VIDEO_SUFFIXES
 
-    no_mask = "--mask-topic: masks are read from a ROS 2 bag beside its --image-topic"
-    if mask_topic and (Path(path).suffix.lower() in VIDEO_SUFFIXES or poses):
-        raise UserError(no_mask)
-    bag_only = {
-        "--points-topic": points_topic, "--pose-topic": pose_topic,
-        "--image-topic": image_topic, "--camera-info-topic": camera_info_topic,
-        "--topics": topics, "--tf-frame": tf_frame, "--tf-topic": tf_topic,
-        "--tf-world": tf_world,
-    }  # fmt: skip
-    misplaced = [flag for flag, v in bag_only.items() if v]
-    if misplaced and not (Path(path).is_dir() and not poses):
-        kind = "an image folder with --poses" if Path(path).is_dir() else "not a ROS 2 bag"
-        raise UserError(
-            f"{', '.join(misplaced)}: topics are read from a ROS 2 bag; {path} is {kind}"
-        )
-    if Path(path).suffix.lower() in VIDEO_SUFFIXES:
-        from rodctl.recordings.importer import import_video
-
-        if not poses:
-            raise UserError(f"{path}: a video needs --poses CSV (t,x,y,theta of the gripper)")
-        run_dir, notes = import_video(
-            path, out, poses=poses, fps=fps, frame_times=frame_times, **frames_args()
-        )
-        _print_import(run_dir, notes)
+    calib = _import_calibration(calibration, extrinsic)
+    frames_args = functools.partial(
+        _frames_args, path, camera, clamp_pose, hsv_low, hsv_high, tolerance, name, calib
+    )
+    is_dir, is_video = Path(path).is_dir(), Path(path).suffix.lower() in VIDEO_SUFFIXES
+    flags = dict(
+        points_topic=points_topic, pose_topic=pose_topic, image_topic=image_topic,
+        camera_info_topic=camera_info_topic, topics=topics, tf_frame=tf_frame,
+        tf_topic=tf_topic, tf_world=tf_world, mask_topic=mask_topic,
+    )  # fmt: skip
+    _refuse_misplaced_flags(path, is_dir, is_video, poses, flags)
+    if is_video:
+        _import_video(path, out, poses, fps, frame_times, frames_args)
         return
-    if Path(path).is_dir() and poses:
-        from rodctl.recordings.importer import import_image_folder
-
-        run_dir, notes = import_image_folder(path, out, poses=poses, **frames_args())
-        _print_import(run_dir, notes)
+    if is_dir and poses:
+        _print_import(*import_image_folder(path, out, poses=poses, **frames_args()))
         return
-    mapping = None
-    if topics:
-        from rodctl.recordings.mapping import load_mapping
-
-        mapping = load_mapping(topics)
-    if mapping is not None:
-        image_topic = image_topic or mapping.image
-        camera_info_topic = camera_info_topic or mapping.camera_info
-        points_topic = points_topic or (None if image_topic else mapping.points)
-        pose_topic = pose_topic or mapping.poses or None
-        mask_topic = mask_topic or mapping.mask
-        if mapping.tf is not None:
-            tf_frame = tf_frame or mapping.tf.frames
-            tf_topic = tf_topic or mapping.tf.topic
-            tf_world = tf_world or mapping.tf.world
-    tf_topic = tf_topic or "/tf"
-    if image_topic and points_topic:
-        raise UserError(
-            "--image-topic and --points-topic (or the --topics keys image and points): a bag "
-            "import reads camera frames or tracked points, not both"
-        )
-    if mask_topic and not image_topic:
-        raise UserError(no_mask)
-    if tf_world and not tf_frame:
-        raise UserError("--tf-world: goes with --tf-frame (the tf chains it ends)")
-    ends = len(pose_topic or []) + len(tf_frame or [])
-    if Path(path).is_dir() and image_topic:
-        from rodctl.recordings.importer import import_bag_images
-
-        run_dir, notes = import_bag_images(
-            path, out, image_topic=image_topic, info_topic=camera_info_topic,
-            pose_topic=pose_topic or [], tf_frame=tf_frame or [], tf_topic=tf_topic,
-            tf_world=tf_world, mask_topic=mask_topic, **frames_args(),
-        )  # fmt: skip
-        _print_import(run_dir, notes)
-        return
-    if Path(path).is_dir():
-        if not points_topic or not ends:
-            raise UserError(
-                f"{path}: a folder is a ROS 2 bag (give --points-topic or --image-topic, and "
-                "--pose-topic or --tf-frame, or --topics YAML) or an image folder (give --poses "
-                "CSV and --camera FILE)"
-            )
-        run_dir, notes = import_bag(
-            path, out, points_topic, pose_topic or [], tolerance=tolerance, name=name,
-            tf_frames=tf_frame or [], tf_topic=tf_topic, tf_world=tf_world,
-        )  # fmt: skip
-        _print_import(run_dir, notes)
+    t = _bag_topics(flags)
+    if is_dir:
+        _import_bag_folder(path, out, t, tolerance, name, frames_args)
         return
     typer.echo(str(import_points(path, out, name)))
 

@@ -307,32 +307,8 @@ def _write_frames_run(
     return run_dir, notes
 
 
-def write_run(
-    rec: PointsRecording,
-    src: Path,
-    out: str | Path,
-    name: str | None,
-    source: dict,
-    views: tuple | None = None,
-    clamp: np.ndarray | None = None,
-    cut: str | None = None,
-) -> Path:
-    """Write a checked points recording as a run folder under `out` (the module docstring).
-
-    `views` = (world (T, N, 2), pixels (T, N, 2), image size, description) replaces the nominal
-    views of `_views` when a calibrated camera gave both; `clamp` is the fixed end's pose
-    (default: end effector 1's first pose for two ends, else zeros); `cut` is the note of an
-    extraction cut short (Ctrl-C): the frames done are written, the run's status is
-    `interrupted` and `RunFailed` is raised naming the folder.
-    """
-    from rodctl.logs.mcap import McapSink
-    from rodctl.records import RunHeader, RunSummary, StepRecord
-    from rodctl.runs import jsonable, write_json_atomic
-
-    world, px, size, view = views if views is not None else _views(rec)
-    T, N = rec.points.shape[:2]
-    r = rec.r
-    stem = name or f"import-{src.stem}"
+def _new_run_dir(out: str | Path, stem: str) -> Path:
+    """A new, empty `<time>_<stem>` folder under `out` (`-2`, `-3`, ... when taken)."""
     parent = Path(out)
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -344,6 +320,12 @@ def write_run(
         run_dir.mkdir()
     except OSError as exc:
         raise UserError(f"--out {parent}: cannot create the run folder: {exc}") from None
+    return run_dir
+
+
+def _run_config(rec: PointsRecording, src: Path, stem: str, source: dict, view: dict) -> dict:
+    """The imported run's config.yaml: its name and the recording's `source` description."""
+    T, N = rec.points.shape[:2]
     source = {
         **source,
         "file": str(src),
@@ -356,21 +338,18 @@ def write_run(
     config = {"name": stem, "seed": 0, "source": source}
     if "camera" in view:  # camera frames: the camera the logs' /camera/calibration describes
         config["camera"] = view["camera"]
-    config_yaml = yaml.safe_dump(config, sort_keys=False)
-    (run_dir / "config.yaml").write_text(config_yaml, encoding="utf-8")
-    meta = {
-        "run_id": run_dir.name,
-        "command": "import",
-        "status": "running",
-        "source": str(src),
-        "started_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
-    write_json_atomic(run_dir / "meta.json", meta)
+    return config
 
-    s_all = px.reshape(T, -1) if rec.units == "px" else world.reshape(T, -1)
-    s_target = s_all[-1]
-    header = RunHeader(
-        run_id=run_dir.name,
+
+def _run_header(
+    rec: PointsRecording, run_id: str, config_yaml: str, size: Any, clamp: np.ndarray | None,
+    world: np.ndarray, px: np.ndarray, s_target: np.ndarray,
+) -> Any:  # fmt: skip
+    """The run.mcap header: the last frame is the target, the clamp as `write_run` says."""
+    from rodctl.records import RunHeader
+
+    return RunHeader(
+        run_id=run_id,
         method="recording/points",
         config_yaml=config_yaml,
         image_size=size,
@@ -387,12 +366,18 @@ def write_run(
         target_pose=np.asarray(rec.poses[-1, 0]),
         rod_length=float(np.sqrt((np.diff(world[0], axis=0) ** 2).sum(axis=1)).sum()),
     )
-    sink = McapSink(run_dir / "run.mcap")
-    sink.open(header)
+
+
+def _write_frames(
+    sink: Any, rec: PointsRecording, world: np.ndarray, px: np.ndarray, s_all: np.ndarray
+) -> tuple[Any, int, bool]:
+    """One step record per frame into `sink`: (the last record, frames written, cut by Ctrl-C)."""
+    from rodctl.records import StepRecord
+
+    T, r = rec.points.shape[0], rec.r
     p, q = s_all.shape[1], rec.q
-    last = None
-    status, written = ("interrupted" if cut else "completed"), 0
-    t0 = time.perf_counter()
+    s_target = s_all[-1]
+    last, written = None, 0
     try:
         for k in range(T):
             u = np.zeros(q) if k == 0 else r[k] - r[k - 1]
@@ -418,12 +403,20 @@ def write_run(
             sink.write(last)
             written = k + 1
     except KeyboardInterrupt:
-        status = "interrupted"
-    wall = time.perf_counter() - t0
-    summary = RunSummary(
+        return last, written, True
+    return last, written, False
+
+
+def _run_summary(
+    status: str, method: str, last: Any, written: int, wall: float, run_id: str, frames: int
+) -> Any:
+    """The imported run's summary: `written` of `frames` frames, `last` the last step record."""
+    from rodctl.records import RunSummary
+
+    return RunSummary(
         status=status,
         outcome="recording",
-        method=header.method,
+        method=method,
         steps=max(written - 1, 0),
         converged=False,
         steps_to_converge=None,
@@ -431,8 +424,55 @@ def write_run(
         final_pixel_error=float(last.pixel_error) if last is not None else float("nan"),
         wall_time_s=wall,
         steps_per_s=written / wall if wall > 0 else 0.0,
-        extra={"run_id": run_dir.name, "frames_imported": written, "frames": int(T)},
+        extra={"run_id": run_id, "frames_imported": written, "frames": int(frames)},
     )
+
+
+def write_run(
+    rec: PointsRecording,
+    src: Path,
+    out: str | Path,
+    name: str | None,
+    source: dict,
+    views: tuple | None = None,
+    clamp: np.ndarray | None = None,
+    cut: str | None = None,
+) -> Path:
+    """Write a checked points recording as a run folder under `out` (the module docstring).
+
+    `views` = (world (T, N, 2), pixels (T, N, 2), image size, description) replaces the nominal
+    views of `_views` when a calibrated camera gave both; `clamp` is the fixed end's pose
+    (default: end effector 1's first pose for two ends, else zeros); `cut` is the note of an
+    extraction cut short (Ctrl-C): the frames done are written, the run's status is
+    `interrupted` and `RunFailed` is raised naming the folder.
+    """
+    from rodctl.logs.mcap import McapSink
+    from rodctl.runs import jsonable, write_json_atomic
+
+    world, px, size, view = views if views is not None else _views(rec)
+    T = rec.points.shape[0]
+    stem = name or f"import-{src.stem}"
+    run_dir = _new_run_dir(out, stem)
+    config_yaml = yaml.safe_dump(_run_config(rec, src, stem, source, view), sort_keys=False)
+    (run_dir / "config.yaml").write_text(config_yaml, encoding="utf-8")
+    meta = {
+        "run_id": run_dir.name,
+        "command": "import",
+        "status": "running",
+        "source": str(src),
+        "started_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    write_json_atomic(run_dir / "meta.json", meta)
+
+    s_all = px.reshape(T, -1) if rec.units == "px" else world.reshape(T, -1)
+    header = _run_header(rec, run_dir.name, config_yaml, size, clamp, world, px, s_all[-1])
+    sink = McapSink(run_dir / "run.mcap")
+    sink.open(header)
+    t0 = time.perf_counter()
+    last, written, stopped = _write_frames(sink, rec, world, px, s_all)
+    wall = time.perf_counter() - t0
+    status = "interrupted" if cut or stopped else "completed"
+    summary = _run_summary(status, header.method, last, written, wall, run_dir.name, T)
     sink.close(summary, status)
     write_json_atomic(run_dir / "summary.json", jsonable(summary.to_json()))
     meta.update(status=status, ended_at=time.strftime("%Y-%m-%dT%H:%M:%S%z"))

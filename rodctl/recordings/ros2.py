@@ -105,6 +105,60 @@ def line_marker(ts: Any, t_ns: int, line: np.ndarray, frame: str = "world") -> A
     )
 
 
+def _image_msg(ts: Any, t_ns: int, img: np.ndarray) -> Any:
+    """A sensor_msgs/Image (rgb8) of the frame `img` (H, W, 3) at `t_ns`."""
+    h, w = img.shape[:2]
+    return ts.types["sensor_msgs/msg/Image"](
+        header=_header(ts, t_ns, "camera"),
+        height=h,
+        width=w,
+        encoding="rgb8",
+        is_bigendian=0,
+        step=3 * w,
+        data=img.reshape(-1),
+    )
+
+
+def _camera_info_msg(ts: Any, t_ns: int, h: int, w: int, K: np.ndarray) -> Any:
+    """A sensor_msgs/CameraInfo with the pinhole intrinsics `K` and no distortion."""
+    T = ts.types
+    P = np.hstack([K, np.zeros((3, 1))])
+    return T["sensor_msgs/msg/CameraInfo"](
+        header=_header(ts, t_ns, "camera"),
+        height=h,
+        width=w,
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=K.reshape(-1),
+        r=np.eye(3).reshape(-1),
+        p=P.reshape(-1),
+        binning_x=0,
+        binning_y=0,
+        roi=T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        ),
+    )
+
+
+def _export_connections(writer: Any, ts: Any, two: bool) -> dict[str, Any]:
+    """The bag's connections: image, camera info, pose(s) and centerline."""
+    conns = {
+        TOPIC_IMAGE: writer.add_connection(TOPIC_IMAGE, "sensor_msgs/msg/Image", typestore=ts),
+        TOPIC_INFO: writer.add_connection(TOPIC_INFO, "sensor_msgs/msg/CameraInfo", typestore=ts),
+        TOPIC_POSE: writer.add_connection(
+            TOPIC_POSE, "geometry_msgs/msg/PoseStamped", typestore=ts
+        ),
+        TOPIC_CENTERLINE: writer.add_connection(
+            TOPIC_CENTERLINE, "visualization_msgs/msg/MarkerArray", typestore=ts
+        ),
+    }
+    if two:
+        conns[TOPIC_POSE_1] = writer.add_connection(
+            TOPIC_POSE_1, "geometry_msgs/msg/PoseStamped", typestore=ts
+        )
+    return conns
+
+
 def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") -> dict[str, int]:
     """Write the run at `run_path` as the ROS 2 bag folder `bag`; return messages per topic.
 
@@ -136,24 +190,9 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
     except WriterError as exc:
         raise UserError(f"{out}: {exc}") from None
     with writer:
-        conns = {
-            TOPIC_IMAGE: writer.add_connection(TOPIC_IMAGE, "sensor_msgs/msg/Image", typestore=ts),
-            TOPIC_INFO: writer.add_connection(
-                TOPIC_INFO, "sensor_msgs/msg/CameraInfo", typestore=ts
-            ),
-            TOPIC_POSE: writer.add_connection(
-                TOPIC_POSE, "geometry_msgs/msg/PoseStamped", typestore=ts
-            ),
-            TOPIC_CENTERLINE: writer.add_connection(
-                TOPIC_CENTERLINE, "visualization_msgs/msg/MarkerArray", typestore=ts
-            ),
-        }
-
         two = bool(run.records) and all(np.size(r.u) == 6 for r in run.records)
+        conns = _export_connections(writer, ts, two)
         if two:
-            conns[TOPIC_POSE_1] = writer.add_connection(
-                TOPIC_POSE_1, "geometry_msgs/msg/PoseStamped", typestore=ts
-            )
             counts[TOPIC_POSE_1] = 0
         end1 = np.asarray(run.header.clamp_pose, dtype=float)[:3].copy()
 
@@ -173,39 +212,8 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
                 continue
             img = np.ascontiguousarray(r.image, dtype=np.uint8)
             h, w = img.shape[:2]
-            put(
-                TOPIC_IMAGE,
-                t_ns,
-                T["sensor_msgs/msg/Image"](
-                    header=_header(ts, t_ns, "camera"),
-                    height=h,
-                    width=w,
-                    encoding="rgb8",
-                    is_bigendian=0,
-                    step=3 * w,
-                    data=img.reshape(-1),
-                ),
-            )
-            P = np.hstack([K, np.zeros((3, 1))])
-            put(
-                TOPIC_INFO,
-                t_ns,
-                T["sensor_msgs/msg/CameraInfo"](
-                    header=_header(ts, t_ns, "camera"),
-                    height=h,
-                    width=w,
-                    distortion_model="plumb_bob",
-                    d=np.zeros(5),
-                    k=K.reshape(-1),
-                    r=np.eye(3).reshape(-1),
-                    p=P.reshape(-1),
-                    binning_x=0,
-                    binning_y=0,
-                    roi=T["sensor_msgs/msg/RegionOfInterest"](
-                        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-                    ),
-                ),
-            )
+            put(TOPIC_IMAGE, t_ns, _image_msg(ts, t_ns, img))
+            put(TOPIC_INFO, t_ns, _camera_info_msg(ts, t_ns, h, w, K))
     return counts
 
 
@@ -870,6 +878,140 @@ def _match_masks(
     return out
 
 
+def _frames_camera(
+    path: str, image_topic: str, size: tuple[int, int], camera: Any,
+    KD: tuple[np.ndarray, np.ndarray, str] | None, calibration: Any,
+) -> tuple[Any, Any, np.ndarray | None, np.ndarray | None, str, list[str]]:  # fmt: skip
+    """The camera of frames of `size` (w, h): (config, Camera, K, D, model, notes); K, D
+    replace the config's intrinsics, a `calibration` its pose over the plane."""
+    from rodctl.vision.camera import Camera
+
+    w, h = size
+    K = D = None
+    model = "plumb_bob"
+    if KD is not None:
+        K, D, model = KD
+        camera = camera.model_copy(
+            update={"fx": float(K[0, 0]), "fy": float(K[1, 1]),
+                    "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+        )  # fmt: skip
+    if (camera.width, camera.height) != (w, h):
+        raise UserError(
+            f"{path}: {image_topic} frames are {w}x{h}, the camera is "
+            f"{camera.width}x{camera.height}"
+        )
+    cam = Camera(camera)
+    notes = []
+    if calibration is not None:
+        dist = D if D is not None else np.zeros(5)
+        cam, note = calibration.camera(camera, cam.camera_matrix, dist, model)
+        notes.append(note)
+    return camera, cam, K, D, model, notes
+
+
+def _synced_poses(
+    frames: list[tuple[int, Any]], poses: Sequence[Any], tolerance: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The end effectors' poses at the frames' times: (frame_ns, inside (F,) bool, ends
+    (K, E, 3) for the K frames inside every pose series' time span)."""
+    t0 = frames[0][0]
+    frame_ns = np.array([f[0] for f in frames], dtype=np.int64)
+    inside = np.ones(len(frames), dtype=bool)
+    synced = []
+    for series in poses:
+        vals, ins = series.at(frame_ns, t0, tolerance)
+        full = np.full((len(frames), 3), np.nan)
+        full[ins] = vals
+        synced.append(full)
+        inside &= ins
+    return frame_ns, inside, np.stack(synced, axis=1)[inside]
+
+
+def _frame_mask(
+    where: str, img: np.ndarray, given: np.ndarray | None, mask_topic: str,
+    undistort: Any, hsv_low: Sequence[int], hsv_high: Sequence[int],
+) -> np.ndarray:  # fmt: skip
+    """The frame's rod mask (uint8 0/255): the `given` one (undistorted), else HSV's."""
+    from rodctl.recordings.segment import hsv_mask
+
+    if given is not None:
+        mask = given.astype(np.uint8) * 255
+        if undistort is not None:
+            mask = np.where(undistort(mask) >= 128, 255, 0).astype(np.uint8)
+        if not mask.any():
+            raise UserError(f"{where}: its mask ({mask_topic}) has no rod pixel")
+        return mask
+    mask = hsv_mask(img, hsv_low, hsv_high)
+    if not mask.any():
+        raise UserError(f"{where}: the HSV threshold finds no rod (--hsv-low/--hsv-high)")
+    return mask
+
+
+def _load_frame(f: Any) -> np.ndarray:
+    """A frame: the image, or what its loader returns."""
+    return f() if callable(f) else f
+
+
+def _convert_frames(
+    image_topic: str, frames: list[tuple[int, Any]], frame_ns: np.ndarray, ft: np.ndarray,
+    inside: np.ndarray, ends: np.ndarray, camera: Any, cam: Any,
+    clamp_pose: Sequence[float] | None, lens: tuple[Any, Any, str], size: tuple[int, int],
+    masks: tuple[str, list[tuple[int, np.ndarray]]] | None, tolerance: float,
+    hsv: tuple[Sequence[int], Sequence[int]], notes: list[str],
+) -> tuple[list[np.ndarray], list[np.ndarray | None], np.ndarray]:  # fmt: skip
+    """`extract_frames`' walk over the frames inside the poses' span: (centerlines in pixels,
+    the images logged or None, the frames chosen); Ctrl-C keeps the frames done (a note)."""
+    from types import SimpleNamespace
+
+    from rodctl.config.logging import LoggingConfig
+    from rodctl.logs.codec import FrameSchedule
+    from rodctl.recordings.segment import mask_image
+    from rodctl.vision.centerline import CenterlineExtractor
+
+    t0 = frames[0][0]
+    two = ends.shape[1] == 2
+    fixed = None if two else CenterlineExtractor(camera, cam, np.asarray(clamp_pose, float))
+    rod, bg = camera.render.rod_color, camera.render.background_color
+    pts = []
+    K, D, model = lens
+    undistort = None if K is None or D is None else undistorter(K, D, model, size)
+    chosen = np.flatnonzero(inside)
+    given = None
+    if masks is not None:
+        given = _match_masks(masks[0], masks[1], frame_ns, t0, chosen, size, tolerance)
+    # the frames the run logs on /camera/image: the simulated runs' schedule (at most
+    # logging.image_rate_hz per second of the run's time), each frame as it was segmented
+    schedule = FrameSchedule(LoggingConfig().image_rate_hz)
+    t_first = ft[chosen[0]] if len(chosen) else 0.0
+    logged: list[np.ndarray | None] = []
+    try:
+        for i, (k, g) in enumerate(zip(chosen, ends, strict=True)):
+            t_ns, img = frames[k][0], _load_frame(frames[k][1])
+            where = f"{image_topic}: frame {int(k)} (t = {(t_ns - t0) / 1e9:.6f} s)"
+            slot = SimpleNamespace(image=img, sim_time=float(ft[k] - t_first))
+            take = schedule.take(slot)
+            if undistort is not None and (given is None or take):
+                img = undistort(img)
+            keep = img if take else None
+            mask = _frame_mask(
+                where, img, None if given is None else given[i],
+                "" if masks is None else masks[0], undistort, *hsv,
+            )  # fmt: skip
+            # two moving ends: the walk starts at end effector 0's pose of this frame
+            extractor = CenterlineExtractor(camera, cam, g[0]) if two else fixed
+            assert extractor is not None  # one fixed extractor unless both ends move
+            ex = extractor.extract(mask_image(mask, rod, bg), g[-1])
+            if not ex.ok:
+                raise UserError(f"{where}: the centerline was not extracted: {ex.note}")
+            pts.append(ex.points)
+            logged.append(keep)
+    except KeyboardInterrupt:
+        notes.append(f"{INTERRUPTED}: {len(pts)} of {len(chosen)} frames converted")
+        if len(pts) < 3:
+            raise
+    return pts, logged, chosen
+
+
 def extract_frames(
     source: str,
     image_label: str,
@@ -892,106 +1034,23 @@ def extract_frames(
     `masks` = (topic, [(t_ns, (H, W) bool)]) replaces the HSV threshold. The body of
     `read_bag_images`, of the image-folder and of the video import; see `read_bag_images` for
     the walk's start, the result and the errors."""
-    from types import SimpleNamespace
-
-    from rodctl.config.logging import LoggingConfig
-    from rodctl.logs.codec import FrameSchedule
-    from rodctl.recordings.segment import hsv_mask, mask_image
     from rodctl.recordings.synthetic import PointsRecording
-    from rodctl.vision.camera import Camera
-    from rodctl.vision.centerline import CenterlineExtractor
 
-    path, image_topic = source, image_label
-
-    def load(f: Any) -> np.ndarray:
-        return f() if callable(f) else f
-
-    first = load(frames[0][1])
-    h, w = first.shape[:2]
-    K = D = None
-    model = "plumb_bob"
-    if KD is not None:
-        K, D, model = KD
-        camera = camera.model_copy(
-            update={"fx": float(K[0, 0]), "fy": float(K[1, 1]),
-                    "cx": float(K[0, 2]), "cy": float(K[1, 2])}
-        )  # fmt: skip
-    if (camera.width, camera.height) != (w, h):
-        raise UserError(
-            f"{path}: {image_topic} frames are {w}x{h}, the camera is "
-            f"{camera.width}x{camera.height}"
-        )
-    cam = Camera(camera)
-    notes = []
-    if calibration is not None:
-        dist = D if D is not None else np.zeros(5)
-        cam, note = calibration.camera(camera, cam.camera_matrix, dist, model)
-        notes.append(note)
-    t0 = frames[0][0]
-    frame_ns = np.array([f[0] for f in frames], dtype=np.int64)
-    ft = (frame_ns - t0) / 1e9
-    inside = np.ones(len(frames), dtype=bool)
-    synced = []
-    for series in poses:
-        vals, ins = series.at(frame_ns, t0, tolerance)
-        full = np.full((len(frames), 3), np.nan)
-        full[ins] = vals
-        synced.append(full)
-        inside &= ins
-    ends = np.stack(synced, axis=1)[inside]  # (K, E, 3)
-    two = ends.shape[1] == 2
+    h, w = _load_frame(frames[0][1]).shape[:2]
+    camera, cam, K, D, model, notes = _frames_camera(
+        source, image_label, (w, h), camera, KD, calibration
+    )
+    frame_ns, inside, ends = _synced_poses(frames, poses, tolerance)  # ends: (K, E, 3)
+    ft = (frame_ns - frames[0][0]) / 1e9
     if not inside.all():
         notes.append(
             f"{int((~inside).sum())} of {len(frames)} frames lie outside the poses' time span "
             "and were left out"
         )
-    fixed = None if two else CenterlineExtractor(camera, cam, np.asarray(clamp_pose, float))
-    rod, bg = camera.render.rod_color, camera.render.background_color
-    pts = []
-    undistort = None if K is None or D is None else undistorter(K, D, model, (w, h))
-    chosen = np.flatnonzero(inside)
-    given = None
-    if masks is not None:
-        given = _match_masks(masks[0], masks[1], frame_ns, t0, chosen, (w, h), tolerance)
-    # the frames the run logs on /camera/image: the simulated runs' schedule (at most
-    # logging.image_rate_hz per second of the run's time), each frame as it was segmented
-    schedule = FrameSchedule(LoggingConfig().image_rate_hz)
-    t_first = ft[chosen[0]] if len(chosen) else 0.0
-    logged: list[np.ndarray | None] = []
-    try:
-        for i, (k, g) in enumerate(zip(chosen, ends, strict=True)):
-            t_ns, img = frames[k][0], load(frames[k][1])
-            where = f"{image_topic}: frame {int(k)} (t = {(t_ns - t0) / 1e9:.6f} s)"
-            slot = SimpleNamespace(image=img, sim_time=float(ft[k] - t_first))
-            take = schedule.take(slot)
-            if undistort is not None and (given is None or take):
-                img = undistort(img)
-            keep = img if take else None
-            if given is not None:
-                assert masks is not None  # `given` is matched from them
-                mask = given[i].astype(np.uint8) * 255
-                if undistort is not None:
-                    mask = np.where(undistort(mask) >= 128, 255, 0).astype(np.uint8)
-                if not mask.any():
-                    raise UserError(f"{where}: its mask ({masks[0]}) has no rod pixel")
-            else:
-                mask = hsv_mask(img, hsv_low, hsv_high)
-                if not mask.any():
-                    raise UserError(
-                        f"{where}: the HSV threshold finds no rod (--hsv-low/--hsv-high)"
-                    )
-            # two moving ends: the walk starts at end effector 0's pose of this frame
-            extractor = CenterlineExtractor(camera, cam, g[0]) if two else fixed
-            assert extractor is not None  # one fixed extractor unless both ends move
-            ex = extractor.extract(mask_image(mask, rod, bg), g[-1])
-            if not ex.ok:
-                raise UserError(f"{where}: the centerline was not extracted: {ex.note}")
-            pts.append(ex.points)
-            logged.append(keep)
-    except KeyboardInterrupt:
-        notes.append(f"{INTERRUPTED}: {len(pts)} of {len(chosen)} frames converted")
-        if len(pts) < 3:
-            raise
+    pts, logged, chosen = _convert_frames(
+        image_label, frames, frame_ns, ft, inside, ends, camera, cam, clamp_pose,
+        (K, D, model), (w, h), masks, tolerance, (hsv_low, hsv_high), notes,
+    )  # fmt: skip
     n = len(pts)
     px = np.stack(pts)
     world = np.stack([cam.unproject(p) for p in px])
