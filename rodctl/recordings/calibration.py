@@ -114,7 +114,9 @@ class PlaneCamera(Camera):
         self._background = self._make_background()
 
     def set_pose(self, *args: Any, **kwargs: Any) -> None:
-        raise NotImplementedError("a calibrated PlaneCamera's pose comes from its homography")
+        """Refused: a calibrated camera's pose is its homography's (a camera-bump event or a
+        replayed bump cannot move it)."""
+        raise TypeError("a calibrated PlaneCamera's pose comes from its homography: set_pose")
 
 
 @dataclass
