@@ -207,23 +207,18 @@ def import_image_folder(
     """The camera-frame import of `import_bag_images` for an image folder with frames.csv
     and a poses CSV (`rodctl.recordings.folder`); the intrinsics come from `camera`."""
     from rodctl.recordings.folder import read_folder
-    from rodctl.recordings.ros2 import RowSeries, camera_config, extract_frames
+    from rodctl.recordings.ros2 import camera_config
 
     src = Path(folder)
     _need_clamp(src, clamp_pose)
     cam_cfg = camera_config(camera)
     frames, pose_rows = read_folder(src, poses)
-    rec, world, used, notes = extract_frames(
-        str(src), "frames.csv", frames, [RowSeries(str(poses), pose_rows)], cam_cfg, clamp_pose,
-        None,
-        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
-    )  # fmt: skip
     source: dict[str, Any] = {"kind": "image_folder", "poses": str(poses)}
-    if calibration is not None:
-        source["calibration"] = calibration.describe()
-    return _write_frames_run(
-        (rec, world, used, notes), src, out, name, source, clamp_pose, hsv_low, hsv_high, tolerance
-    )
+    return _import_posed_frames(
+        src, "frames.csv", frames, (poses, pose_rows), source, out, camera=cam_cfg,
+        clamp_pose=clamp_pose, hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+        name=name, calibration=calibration,
+    )  # fmt: skip
 
 
 def import_video(
@@ -243,19 +238,47 @@ def import_video(
 ) -> tuple[Path, list[str]]:
     """The camera-frame import of `import_image_folder` for a video file (OpenCV) and a poses
     CSV (`rodctl.recordings.video`): frame times from `frame_times` or fps."""
-    from rodctl.recordings.ros2 import RowSeries, camera_config, extract_frames
+    from rodctl.recordings.ros2 import camera_config
     from rodctl.recordings.video import read_video
 
     src = Path(video)
     _need_clamp(src, clamp_pose)
     cam_cfg = camera_config(camera)
     frames, pose_rows, used_times = read_video(src, poses, fps=fps, frame_times=frame_times)
+    source: dict[str, Any] = {"kind": "video", "poses": str(poses), **used_times}
+    return _import_posed_frames(
+        src, src.name, frames, (poses, pose_rows), source, out, camera=cam_cfg,
+        clamp_pose=clamp_pose, hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance,
+        name=name, calibration=calibration,
+    )  # fmt: skip
+
+
+def _import_posed_frames(
+    src: Path,
+    label: str,
+    frames: Any,
+    poses: tuple[str | Path, Any],
+    source: dict[str, Any],
+    out: str | Path,
+    *,
+    camera: Any,
+    clamp_pose: list[float] | None,
+    hsv_low: list[int],
+    hsv_high: list[int],
+    tolerance: float,
+    name: str | None,
+    calibration: Any,
+) -> tuple[Path, list[str]]:
+    """The shared end of an image-folder or video import: `frames` with one end effector's
+    poses (file, rows) through the extractor, seen by `camera` (its config), into a run folder."""
+    from rodctl.recordings.ros2 import RowSeries, extract_frames
+
+    path, rows = poses
     rec, world, used, notes = extract_frames(
-        str(src), src.name, frames, [RowSeries(str(poses), pose_rows)], cam_cfg, clamp_pose,
+        str(src), label, frames, [RowSeries(str(path), rows)], camera, clamp_pose,
         None,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
     )  # fmt: skip
-    source: dict[str, Any] = {"kind": "video", "poses": str(poses), **used_times}
     if calibration is not None:
         source["calibration"] = calibration.describe()
     return _write_frames_run(
