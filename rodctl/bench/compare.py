@@ -34,6 +34,8 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 from pydantic import ValidationError
+from rich import box
+from rich.table import Table
 
 from rodctl.bench.comparisons import write_compare_report
 from rodctl.bench.runner import make_pool, run_study, run_tasks
@@ -53,6 +55,7 @@ from rodctl.config.loading import (
     format_validation_error,
     load_config,
 )
+from rodctl.display import stderr
 from rodctl.errors import UserError
 from rodctl.executors.base import Executor
 from rodctl.features import make_feature_map
@@ -454,7 +457,7 @@ def write_summary_md(
 
 
 def _write_figures(folder: Path, records: dict, rows: Sequence[dict], methods: list[str]) -> None:
-    from rodctl.plots import write_comparison_figures
+    from rodctl.plots import write_comparison_figures  # noqa: PLC0415 - matplotlib, to draw
 
     ordered = {m: records[m] for m in methods if m in records}
     if ordered:
@@ -469,9 +472,6 @@ def terminal_table(summary: dict, title: str) -> Any:
     method converged on); median smoothness; median final pixel error; stalled / pinned /
     step-limit / failed episodes.
     """
-    from rich import box
-    from rich.table import Table
-
     table = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True)
     justifications: tuple[tuple[str, Literal["left", "right"]], ...] = (
         ("method", "left"),
@@ -501,8 +501,6 @@ def terminal_table(summary: dict, title: str) -> Any:
 
 
 def _print_table(summary: dict, title: str) -> None:
-    from rodctl.display import stderr
-
     stderr.print(terminal_table(summary, title))
 
 
@@ -512,7 +510,7 @@ def success_figure(rows: Sequence[dict], methods: Sequence[str], path: Path, bin
     Methods differ by colour, line style and marker (`rodctl.plots.style`), and each method's
     points are shifted sideways by a small, fixed amount, so two methods with the same value
     (every method at 100 %) stay visible side by side instead of hiding each other."""
-    from rodctl.plots import DPI
+    from rodctl.plots import DPI  # noqa: PLC0415 - matplotlib, only to draw
 
     fig = success_axes(rows, methods, bins)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -525,7 +523,7 @@ def success_axes(rows: Sequence[dict], methods: Sequence[str], bins: int = 5) ->
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from rodctl.plots import style
+    from rodctl.plots import style  # noqa: PLC0415 - matplotlib, only to draw
 
     d = np.array([r["difficulty"] for r in rows], dtype=float)
     edges = np.linspace(d.min(), d.max() + 1e-9, bins + 1)

@@ -4,7 +4,7 @@ One test is method − reference on one metric over the targets both converged o
 target set and target), Holm-adjusted over its family (rodctl.statistics: docs/statistics.md);
 a suite pools several target seeds and calls a significant finding replicated when every seed
 agrees in direction. `write_compare_report` writes a plain compare's statistics.json and
-report.html; a suite's are written by rodctl.suite from the same pieces.
+report.html; a suite's are written by rodctl.bench.suite from the same pieces.
 """
 
 from __future__ import annotations

@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from rodctl.bench.tasks import EpisodeTask
 from rodctl.config import ExperimentConfig, dump_config
+from rodctl.config.base import Pose
+from rodctl.config.run import EndPoses
 from rodctl.env import ShapeServoEnv, Target
 from rodctl.episode import EpisodeFailed, EpisodeResult, run_episode
 from rodctl.executors.base import stop_reason
@@ -41,7 +43,8 @@ def run_episode_task(task: EpisodeTask) -> dict[str, Any]:
     cfg = ExperimentConfig.model_validate(task.config)
     # The episode's own config says everything (seed, target), so its log replays alone.
     cfg.seed = task.seed
-    cfg.run.target.pose = tuple(task.pose)
+    # Checked as it is assigned (`validate_assignment`): 3 values, or 6 with rod.arms: 2.
+    cfg.run.target.pose = cast("Pose | EndPoses", tuple(task.pose))
     row: dict[str, Any] = task.row_tags()
     log_dir = Path(task.log_dir) if task.log_dir else None
     env = result = None

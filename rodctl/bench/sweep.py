@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 from pydantic import ValidationError
+from rich.table import Table
 
 from rodctl.bench.compare import method_config
 from rodctl.bench.runner import RunInterrupted, make_pool, run_study, run_tasks
@@ -48,6 +49,7 @@ from rodctl.config.loading import (
     load_config,
 )
 from rodctl.config.sweep import MAX_POINTS, METRICS, SweepConfig
+from rodctl.display import stderr
 from rodctl.errors import UserError
 from rodctl.executors.base import Executor
 from rodctl.features import make_feature_map
@@ -430,10 +432,6 @@ def _summary_md(
 
 def _print_table(title: str, header: list[str], lines: list[list[str]]) -> None:
     """The ranked table (its first 20 lines) on the terminal."""
-    from rich.table import Table  # noqa: PLC0415 - rich only when a table is printed
-
-    from rodctl.display import stderr  # noqa: PLC0415 - the terminal, when printing
-
     table = Table(title=title)
     for h in header:
         table.add_column(h)
