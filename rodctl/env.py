@@ -72,7 +72,6 @@ from rodctl.vision import Camera, CenterlineExtractor
 Q = 3
 
 
-#: Sampled target candidates tried before a config is declared unusable.
 @runtime_checkable
 class _AnalyticSim(Protocol):
     """An engine with d(centerline)/dr in closed form (the quasi-static one), exact where its
