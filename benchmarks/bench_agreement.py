@@ -34,7 +34,7 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from rodctl.suite import read_rows, run_suite  # noqa: E402
+from rodctl.bench.suite import read_rows, run_suite  # noqa: E402
 
 SUITE = REPO / "configs" / "benchmarks" / "suite.yaml"
 SCENARIOS = ("nominal", "heavy-soft", "event-stiffness", "transfer")

@@ -30,7 +30,7 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from rodctl.compare import run_compare  # noqa: E402
+from rodctl.bench.compare import run_compare  # noqa: E402
 from rodctl.features.autoencoder import DEFAULT_CHECKPOINT  # noqa: E402
 
 PAPER_STAGES = ("paper", "akf-pinv", "broyden-mfac")

@@ -25,24 +25,23 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from rodctl.compare import (  # noqa: E402
-    _episode,
-    _episode_tasks,
-    _preflight,
-    load_compare_config,
-    make_targets,
-    run_tasks,
-)
+from rodctl.bench import compare  # noqa: E402
+from rodctl.bench.episodes import run_episode_task  # noqa: E402
+from rodctl.bench.runner import run_tasks  # noqa: E402
+from rodctl.bench.target_set import make_targets  # noqa: E402
+from rodctl.bench.tasks import EpisodeTask  # noqa: E402
 from rodctl.executors import make_executor  # noqa: E402
 
 
-def episode_tasks(targets: int) -> list[dict]:
+def episode_tasks(targets: int) -> list[EpisodeTask]:
     """The smoke benchmark's episodes on `targets` targets (no logs, no records)."""
-    cfg = load_compare_config(REPO / "configs" / "compare-smoke.yaml", [f"targets.count={targets}"])
-    configs = _preflight(cfg)
+    cfg = compare.load_compare_config(
+        REPO / "configs" / "compare-smoke.yaml", [f"targets.count={targets}"]
+    )
+    configs = compare.preflight(cfg)
     with make_executor("local", 1) as ex:
         tgts = make_targets(cfg, None, lambda ts, fn: run_tasks(ex, ts, fn, "targets", False))
-    return _episode_tasks(cfg, configs, tgts, fig_target=-1, folder=Path("."))
+    return compare.episode_tasks(cfg, configs, tgts, fig_target=-1, folder=Path("."))
 
 
 def warm(_task: int) -> int:
@@ -82,7 +81,7 @@ def run(kind: str, workers: int, tasks: list[dict]) -> dict:
     with make_executor(kind, workers) as ex:
         ex.map(warm, list(range(workers)))  # workers started and imported: not episode time
         t1 = time.perf_counter()
-        done = ex.map(_episode, tasks)
+        done = ex.map(run_episode_task, tasks)
         t2 = time.perf_counter()
     t3 = time.perf_counter()
     errors = [d.error for d in done if d.error]

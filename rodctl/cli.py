@@ -208,12 +208,12 @@ def config_show(config: ConfigArg, set_: SetOpt = None) -> None:
         cfg = load_config(config, set_ or [])
         derived = _derived_values(cfg)
     elif model.__name__ == "SweepConfig":
-        from rodctl.sweep import load_sweep_config
+        from rodctl.bench.sweep import load_sweep_config
 
         cfg = load_sweep_config(config, set_ or [])
         derived = {}
     else:
-        from rodctl.compare import load_compare_config
+        from rodctl.bench.compare import load_compare_config
 
         cfg = load_compare_config(config, set_ or [])
         derived = {}
@@ -675,7 +675,7 @@ ResumeOpt = Annotated[
 def _finish_batch(runner: Callable[..., Any], config: str, **kwargs: Any) -> None:
     """Run compare/sweep (`runner(config, overrides, out, ...)`); an interrupted run prints its
     folder and exits 1 (results kept)."""
-    from rodctl.compare import RunInterrupted
+    from rodctl.bench.runner import RunInterrupted
 
     kwargs["overrides"] = kwargs.pop("set_") or []
     kwargs["progress"] = not kwargs.pop("quiet")
@@ -727,9 +727,9 @@ def compare(
         rodctl compare configs/compare.yaml --workers 2 --set targets.count=10
         rodctl compare configs/compare.yaml --resume runs/20261201-120000_compare
     """
-    from rodctl.compare import run_compare
+    from rodctl.bench.compare import run_compare
+    from rodctl.bench.suite import run_suite
     from rodctl.config import read_yaml
-    from rodctl.suite import run_suite
 
     data = read_yaml(config)
     if not {"scenarios", "methods", "parameters"} & set(data):
@@ -771,8 +771,8 @@ def sweep(
         rodctl sweep configs/sweep-smoke.yaml
         rodctl sweep configs/sweep-tuning.yaml --workers 2
     """
+    from rodctl.bench.sweep import run_sweep
     from rodctl.config import read_yaml
-    from rodctl.sweep import run_sweep
 
     data = read_yaml(config)
     if "parameters" not in data:

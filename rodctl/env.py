@@ -65,13 +65,11 @@ from rodctl.errors import UserError
 from rodctl.geometry import resample_polyline
 from rodctl.runs import rng
 from rodctl.sim import RodSim
-from rodctl.targets import difficulty, sample_target_pose
+from rodctl.targets import TARGET_TRIES, difficulty, target_candidates
 from rodctl.vision import Camera, CenterlineExtractor
 
 #: Gripper degrees of freedom: x, y, theta.
 Q = 3
-#: Sampled target candidates tried before a config is declared unusable.
-TARGET_TRIES = 20
 
 
 @runtime_checkable
@@ -522,11 +520,21 @@ class ShapeServoEnv(gym.Env):
             cols.append((plus - minus) / (2.0 * h))
         return np.stack(cols, axis=1)
 
-    def make_target(self, pose: Any = None, *, seed: int | None = None) -> Target:
+    def make_target(
+        self,
+        pose: Any = None,
+        *,
+        seed: int | None = None,
+        band: tuple[float, float] | None = None,
+        generator: np.random.Generator | None = None,
+    ) -> Target:
         """Check that a gripper pose gives a usable target, without starting an episode.
 
         Drives a fresh rod to `pose` (None: sample one as `run.target` says), lets it settle and
         extracts what the camera sees, with the camera of episode `seed` (default: the config's).
+        `band` (low, high) and `generator`: sample in that normalised offset band, from that
+        generator, instead of `run.target`'s band and the seed's 'targets' stream (a study's
+        target set, `rodctl.bench.target_set`).
 
         Raises:
             UserError: the pose is out of reach, the rod does not settle there, or the camera
@@ -535,7 +543,7 @@ class ShapeServoEnv(gym.Env):
         seed = self.cfg.seed if seed is None else int(seed)
         self._rod_cfg = self.cfg.rod
         self._new_camera(seed)
-        return self._make_target(pose, seed)
+        return self._make_target(pose, seed, band, generator)
 
     # --- internals -----------------------------------------------------------------------------
 
@@ -659,8 +667,15 @@ class ShapeServoEnv(gym.Env):
             **({"clamp": np.array(sim.clamp_pose, dtype=float)} if self.dual_arm else {}),
         }
 
-    def _make_target(self, pose: Any, seed: int) -> Target:
-        """Drive a fresh rod to the target gripper pose (given or sampled) and look at it."""
+    def _make_target(
+        self,
+        pose: Any,
+        seed: int,
+        band: tuple[float, float] | None = None,
+        generator: np.random.Generator | None = None,
+    ) -> Target:
+        """Drive a fresh rod to the target gripper pose (given or sampled: `make_target`) and
+        look at it."""
         cfg = self.cfg
         given = pose if pose is not None else cfg.run.target.pose
         sim = _home_sim(self._rod_cfg)
@@ -675,17 +690,14 @@ class ShapeServoEnv(gym.Env):
                 )
             candidates: Any = [pose]
         else:
-            gen = rng(seed, "targets")
-            candidates = (
-                sample_target_pose(
-                    gen,
-                    home,
-                    cfg.rod.length,
-                    lambda p: not sim.clip_pose(p)[1],
-                    tcfg.min_offset,
-                    tcfg.max_offset,
-                )
-                for _ in range(TARGET_TRIES)
+            lo, hi = band if band is not None else (tcfg.min_offset, tcfg.max_offset)
+            candidates = target_candidates(
+                rng(seed, "targets") if generator is None else generator,
+                home,
+                cfg.rod.length,
+                lambda p: not sim.clip_pose(p)[1],
+                lo,
+                hi,
             )
         for pose in candidates:
             res = sim.move_to(pose)

@@ -56,7 +56,7 @@ def load_results(path: str | Path) -> Any:
             results.jsonl.
 
     Returns:
-        A DataFrame with results.csv's columns (for a compare: `rodctl.compare.CSV_COLUMNS`);
+        A DataFrame with results.csv's columns (for a compare: `rodctl.bench.compare.CSV_COLUMNS`);
         empty cells are NaN.
 
     Raises:
@@ -73,7 +73,7 @@ def load_results(path: str | Path) -> Any:
             except json.JSONDecodeError:
                 continue  # a line cut by a crash, as `ResultsLog.read` skips it
         frame = pd.DataFrame(rows)
-        from rodctl.compare import CSV_COLUMNS
+        from rodctl.bench.compare import CSV_COLUMNS
 
         first = [c for c in CSV_COLUMNS if c in frame.columns]
         frame = frame[first + [c for c in frame.columns if c not in first]]

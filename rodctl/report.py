@@ -4,7 +4,7 @@ A plain `rodctl compare` and a suite write the same kind of report: summary.md r
 (markdown-it-py, the CommonMark parser rich already depends on, with GitHub's pipe tables), a
 one-line verdict for each method against the reference (the paired difference in steps to
 converge with its confidence interval, and whether it is significant), the paired tables, then
-the figures. The statistics are `rodctl.statistics` and `rodctl.comparisons`; this
+the figures. The statistics are `rodctl.statistics` and `rodctl.bench.comparisons`; this
 module only renders them.
 
 Figures come in reading order (`FIGURES`: the overview across targets first, then the one

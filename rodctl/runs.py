@@ -26,8 +26,8 @@ from pydantic import BaseModel
 
 from rodctl.config import dump_config
 from rodctl.errors import RunFailed, UserError, describe_os_error
-from rodctl.journal import unlock_run_folder
 from rodctl.registry import plugin_provenance, stage_provenance
+from rodctl.runlock import unlock_run_folder
 
 #: Every consumer of randomness, in a fixed order. Each gets its own independent stream derived
 #: from the config's one seed; append new names at the end so existing streams stay unchanged.

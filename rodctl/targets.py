@@ -8,7 +8,7 @@ gripper pose is from the home pose, in normalised units (see `TARGET_SCALE`), so
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -19,6 +19,9 @@ from rodctl.errors import UserError
 #: and in radians for theta: offset 1.0 is a 0.3 L translation or a 60 degree turn.
 TARGET_SCALE_FRACTION = (0.3, 0.3)
 TARGET_SCALE_THETA = np.pi / 3
+
+#: Candidate poses tried per sampled target before giving up (a candidate can fail to settle).
+TARGET_TRIES = 20
 
 
 def target_scale(rod_length: float) -> np.ndarray:
@@ -70,3 +73,19 @@ def sample_target_pose(
         f"home pose {list(np.round(home, 4))} in {max_tries} tries; widen rod.workspace or lower "
         "run.target.max_offset"
     )
+
+
+def target_candidates(
+    rng: np.random.Generator,
+    home: np.ndarray,
+    rod_length: float,
+    allowed: Callable[[np.ndarray], bool],
+    min_offset: float,
+    max_offset: float,
+    tries: int = TARGET_TRIES,
+) -> Iterator[np.ndarray]:
+    """Up to `tries` poses of `sample_target_pose`, each drawn only when the caller asks for the
+    next (the previous one did not settle, or the camera could not extract it): the one target
+    sampler of the environment and of a study's target set."""
+    for _ in range(tries):
+        yield sample_target_pose(rng, home, rod_length, allowed, min_offset, max_offset)

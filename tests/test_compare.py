@@ -5,6 +5,7 @@ and bad input is a `UserError` naming the file and key."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 
@@ -12,7 +13,10 @@ import pytest
 import yaml
 from paths import REPO
 
-from rodctl.compare import OUTCOMES, load_compare_config, run_compare, summarize
+from rodctl.bench.compare import episode_tasks, load_compare_config, preflight, run_compare
+from rodctl.bench.episodes import run_episode_task
+from rodctl.bench.stats import OUTCOMES, summarize
+from rodctl.bench.target_set import make_targets
 from rodctl.config import ConfigError
 from rodctl.errors import UserError
 
@@ -102,19 +106,17 @@ def test_a_shared_targets_file_reproduces_the_run_in_one_process(smoke_run, tmp_
 def test_an_episode_on_the_shared_target_equals_one_that_drives_its_own(tmp_path):
     """Targets are driven once and shared (issue #17): an episode handed the target's view
     gives the row an episode that drives a rod to the target itself gives, step for step."""
-    from rodctl.compare import _episode, _episode_tasks, _preflight, make_targets
-
     cfg = load_compare_config(SMOKE, ["targets.count=2"])
-    configs = _preflight(cfg)
+    configs = preflight(cfg)
     targets = make_targets(cfg, None, lambda tasks, fn: [fn(t) for t in tasks])
     assert all(t.view is not None for t in targets)
-    tasks = _episode_tasks(cfg, configs, targets, fig_target=-1, folder=tmp_path)
+    tasks = episode_tasks(cfg, configs, targets, fig_target=-1, folder=tmp_path)
     for task in tasks[:: len(configs) - 1]:  # a few methods on both targets
-        shared = _episode(task)
-        own = _episode({**task, "target_view": None})
+        shared = run_episode_task(task)
+        own = run_episode_task(dataclasses.replace(task, target_view=None))
         shared.pop("wall_time_s")
         own.pop("wall_time_s")
-        assert shared == own, task["method"]
+        assert shared == own, task.method
 
 
 def test_summary_statistics():
@@ -325,7 +327,7 @@ def test_an_exception_inside_an_episode_is_its_error_row_and_the_run_goes_on(tmp
 def test_terminal_table_fits_80_columns_without_truncating_a_cell():
     from rich.console import Console
 
-    from rodctl.compare import terminal_table
+    from rodctl.bench.compare import terminal_table
 
     st = {
         "success_rate": 0.77,

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from paths import CONFIGS, REPO
 from typer.testing import CliRunner
 
+from rodctl.bench.compare import load_compare_config
 from rodctl.cli import app
-from rodctl.compare import load_compare_config
 from rodctl.config import ConfigError, ExperimentConfig, dump_config, load_config, read_yaml
 from rodctl.config.compare import CompareConfig
 
@@ -36,8 +36,8 @@ def _is_sweep(path) -> bool:
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
 def test_every_shipped_config_validates(path):
     if _is_sweep(path):
+        from rodctl.bench.sweep import load_sweep_config
         from rodctl.config.sweep import SweepConfig
-        from rodctl.sweep import load_sweep_config
 
         cfg = load_sweep_config(path)
         model = SweepConfig

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from paths import REPO
 
-from rodctl.compare import _episode
+from rodctl.bench.episodes import run_episode_task
+from rodctl.bench.tasks import EpisodeTask
 from rodctl.config import load_config
 from rodctl.diagnosis import diagnose, pose_search
 from rodctl.env import ShapeServoEnv, Target
@@ -30,17 +31,14 @@ def _env_at_home(shift_px: float):
 @pytest.mark.slow
 def test_a_compare_episode_on_a_target_no_pose_can_make_stalls_and_is_unreachable():
     """Through the compare worker: the episode stalls, then its row says why."""
-    from rodctl.compare import _episode
-
     env, cfg = _env_at_home(shift_px=15.0)
     t = env.target
-    task = {
-        "config": cfg.model_dump(mode="json"), "method": "m", "target": 0,
-        "pose": [float(v) for v in t.pose], "target_difficulty": t.difficulty, "seed": 0,
-        "target_view": {"centerline": t.centerline, "pixels": t.pixels},
-        "want_records": False, "log_dir": None, "diagnose": True,
-    }  # fmt: skip
-    row = _episode(task)
+    task = EpisodeTask(
+        config=cfg.model_dump(mode="json"), method="m", target=0,
+        pose=tuple(float(v) for v in t.pose), target_difficulty=t.difficulty, seed=0,
+        target_view={"centerline": t.centerline, "pixels": t.pixels}, diagnose=True,
+    )  # fmt: skip
+    row = run_episode_task(task)
     assert row["outcome"] == "stalled" and row["diagnosis"] == "unreachable", row
     assert row["error"] == ""
 
@@ -106,12 +104,11 @@ def test_a_dual_arm_episode_that_stalls_on_a_shape_no_pose_makes_is_unreachable(
     two ends makes it) stalls the episode, and its row says `unreachable`."""
     env, cfg = _dual_env(scale=0.95)
     t = env.target
-    task = {
-        "config": cfg.model_dump(mode="json"), "method": "m", "target": 0,
-        "pose": [float(v) for v in t.pose], "target_difficulty": t.difficulty, "seed": 0,
-        "target_view": {"centerline": t.centerline, "pixels": t.pixels},
-        "want_records": False, "log_dir": None, "diagnose": True,
-    }  # fmt: skip
-    row = _episode(task)
+    task = EpisodeTask(
+        config=cfg.model_dump(mode="json"), method="m", target=0,
+        pose=tuple(float(v) for v in t.pose), target_difficulty=t.difficulty, seed=0,
+        target_view={"centerline": t.centerline, "pixels": t.pixels}, diagnose=True,
+    )  # fmt: skip
+    row = run_episode_task(task)
     assert row["outcome"] == "stalled" and row["diagnosis"] == "unreachable", row
     assert row["error"] == ""

@@ -16,8 +16,10 @@ from gymnasium.utils.env_checker import check_env
 from paths import REPO
 from typer.testing import CliRunner
 
+from rodctl.bench.compare import load_compare_config, method_config
+from rodctl.bench.suite import scenario_configs
+from rodctl.bench.target_set import read_target_file
 from rodctl.cli import app
-from rodctl.compare import load_compare_config, method_config, read_target_file
 from rodctl.config import ConfigError, ExperimentConfig, load_config, validate_config
 from rodctl.config.compare import CompareConfig
 from rodctl.config.rod import RodConfig
@@ -31,7 +33,6 @@ from rodctl.method import Method
 from rodctl.replay import compare_records
 from rodctl.rl import ShapeServoRLEnv
 from rodctl.sim import RodSim
-from rodctl.suite import scenario_configs
 
 N = 20
 

@@ -19,7 +19,7 @@ import pytest
 from batch_helpers import alive, interrupt, journal, rows
 from paths import REPO
 
-from rodctl.compare import run_compare
+from rodctl.bench.compare import run_compare
 from rodctl.errors import UserError
 from rodctl.executors import Done, clear_stop, make_executor, request_stop, stop_reason
 from rodctl.executors.local import CANCELLED, LocalExecutor
@@ -201,7 +201,7 @@ def test_ray_retries_a_lost_worker_then_records_an_error(ray_address, tmp_path):
 
 @pytest.mark.slow
 def test_ray_runs_a_sweep(ray_address, tmp_path):
-    from rodctl.sweep import run_sweep
+    from rodctl.bench.sweep import run_sweep
 
     folder = run_sweep(
         str(SWEEP_SMOKE), [], str(tmp_path), progress=False, workers=2, executor="ray"

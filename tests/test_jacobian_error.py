@@ -10,7 +10,7 @@ import math
 import numpy as np
 import yaml
 
-from rodctl.compare import CSV_COLUMNS, run_compare
+from rodctl.bench.compare import CSV_COLUMNS, run_compare
 from rodctl.config import validate_config
 from rodctl.env import ShapeServoEnv
 from rodctl.episode import run_episode

@@ -159,7 +159,7 @@ def test_commands_draw_the_speed_limits_and_call_the_command_a_pose_increment():
 
 
 def test_methods_with_equal_results_stay_apart_in_the_success_figure():
-    from rodctl.compare import success_axes
+    from rodctl.bench.compare import success_axes
 
     rows = [
         {"method": m, "difficulty": d, "outcome": "converged", "steps_to_converge": 6}

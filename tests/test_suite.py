@@ -62,8 +62,8 @@ def test_a_scenario_key_that_does_not_exist_is_named(tmp_path):
 
 
 def _scenarios(overrides):
-    from rodctl.compare import load_compare_config
-    from rodctl.suite import scenario_configs
+    from rodctl.bench.compare import load_compare_config
+    from rodctl.bench.suite import scenario_configs
 
     cfg = load_compare_config(SMOKE, overrides)
     return scenario_configs(cfg, REPO / "configs/benchmarks", SMOKE)
@@ -245,8 +245,8 @@ def _synthetic_suite(tmp_path: Path, seeds=(0, 1, 2), n=30):
 
 
 def test_a_finding_is_replicated_only_when_every_seed_agrees(tmp_path):
-    from rodctl.compare import load_compare_config
-    from rodctl.suite import write_suite_outputs
+    from rodctl.bench.compare import load_compare_config
+    from rodctl.bench.suite import write_suite_outputs
 
     cfg = load_compare_config(SMOKE, ["seeds=[0, 1, 2]"])
     folders = _synthetic_suite(tmp_path)
@@ -292,8 +292,8 @@ def test_a_finding_is_replicated_only_when_every_seed_agrees(tmp_path):
 
 
 def test_one_seed_replicates_nothing(tmp_path):
-    from rodctl.compare import load_compare_config
-    from rodctl.suite import write_suite_outputs
+    from rodctl.bench.compare import load_compare_config
+    from rodctl.bench.suite import write_suite_outputs
 
     cfg = load_compare_config(SMOKE)
     write_suite_outputs(cfg, tmp_path, _synthetic_suite(tmp_path, seeds=(0,)), wall=1.0)

@@ -13,12 +13,12 @@ from batch_helpers import journal, rows, send_self_after
 from paths import REPO
 from typer.testing import CliRunner
 
+from rodctl.bench.runner import RunInterrupted
+from rodctl.bench.sweep import load_sweep_config, rank_groups, run_sweep, sweep_points
 from rodctl.cli import app
-from rodctl.compare import RunInterrupted
 from rodctl.config import ConfigError
 from rodctl.errors import UserError
 from rodctl.executors import clear_stop
-from rodctl.sweep import load_sweep_config, rank_groups, run_sweep, sweep_points
 
 SMOKE = REPO / "configs" / "sweep-smoke.yaml"
 TUNING = REPO / "configs" / "sweep-tuning.yaml"
@@ -48,7 +48,7 @@ def test_the_fair_tuning_gives_every_method_the_same_budget_and_targets():
     """configs/benchmarks/tuning/: one sweep per tuned method of the suite, the same number of
     settings, the same tuning targets (not the suite's seed), the same ranking; the paper's
     method on its own autoencoder feature."""
-    from rodctl.compare import load_compare_config
+    from rodctl.bench.compare import load_compare_config
 
     suite = load_compare_config(REPO / "configs/benchmarks/suite.yaml")
     configs = {

@@ -119,7 +119,7 @@ def test_replay_on_a_read_only_disk_is_one_line_with_the_path(small_disk):
 def test_a_compare_whose_disk_fills_records_why_in_meta_json(tmp_path, monkeypatch):
     import errno
 
-    import rodctl.compare as compare_module
+    import rodctl.bench.compare as compare_module
 
     def full(*args, **kwargs):  # what PIL and file objects raise: no file name
         raise OSError(errno.ENOSPC, "No space left on device")

@@ -18,11 +18,14 @@ from batch_helpers import journal, send_self_after
 from paths import REPO
 from typer.testing import CliRunner
 
+from rodctl.bench.compare import run_compare
+from rodctl.bench.journal import ResultsLog
+from rodctl.bench.runner import RunInterrupted
+from rodctl.bench.sweep import run_sweep
+from rodctl.bench.tasks import row_key
 from rodctl.cli import app
-from rodctl.compare import ResultsLog, RunInterrupted, _row_key, run_compare
 from rodctl.executors import clear_stop
-from rodctl.journal import LOCK_NAME
-from rodctl.sweep import run_sweep
+from rodctl.runlock import LOCK_NAME
 
 
 @pytest.fixture(autouse=True)
@@ -67,7 +70,7 @@ def _resumed(folder) -> int:
 
 
 def _once_per_key(folder) -> None:
-    keys = Counter(_row_key(r) for r in journal(folder))
+    keys = Counter(row_key(r) for r in journal(folder))
     assert keys and all(n == 1 for n in keys.values()), keys
     assert all(r["outcome"] != "interrupted" for r in journal(folder))
 
@@ -150,7 +153,7 @@ def test_every_reader_takes_the_last_final_row_of_a_key(tmp_path):
     ]
     path.write_text("".join(json.dumps(r) + "\n" for r in rows) + '{"method": "torn')
     log = ResultsLog(path)
-    got = {_row_key(r): r for r in log.read()}
+    got = {row_key(r): r for r in log.read()}
     assert len(log.read()) == 3
     assert got[("a", 0, None, None)]["steps"] == 2
     assert got[("a", 1, None, None)]["steps"] == 3
@@ -159,4 +162,4 @@ def test_every_reader_takes_the_last_final_row_of_a_key(tmp_path):
     assert kept["steps"] == 3
     assert len(path.read_text().splitlines()) == len(rows) + 1  # nothing appended
     log.append({"method": "b", "target": 1, "outcome": "converged", "steps": 4})
-    assert {_row_key(r): r for r in log.read()}[("b", 1, None, None)]["steps"] == 4  # not torn
+    assert {row_key(r): r for r in log.read()}[("b", 1, None, None)]["steps"] == 4  # not torn

@@ -7,9 +7,11 @@ import pytest
 from paths import REPO
 from typer.testing import CliRunner
 
-import rodctl.compare as compare_module
+import rodctl.bench.runner as runner_module
+from rodctl.bench.journal import ResultsLog
+from rodctl.bench.runner import stream_episodes
+from rodctl.bench.tasks import EpisodeTask
 from rodctl.cli import app
-from rodctl.compare import ResultsLog, stream_episodes
 from rodctl.executors.base import Done, clear_stop, stop_reason
 
 
@@ -33,8 +35,8 @@ class _OneRow:
 
 
 def test_a_workers_signal_is_named_once(tmp_path):
-    stream_episodes(_OneRow(), [{"method": "m", "target": 0}], ResultsLog(tmp_path / "r.jsonl"),
-                    progress=False)  # fmt: skip
+    task = EpisodeTask(config={}, method="m", target=0, pose=(0.0, 0.0, 0.0), seed=0)
+    stream_episodes(_OneRow(), [task], ResultsLog(tmp_path / "r.jsonl"), progress=False)
     assert stop_reason() == "SIGTERM"
 
 
@@ -43,7 +45,7 @@ def test_a_stop_before_any_episode_finished_does_not_claim_results(tmp_path, mon
     def stopped(*args, **kwargs):
         raise KeyboardInterrupt("SIGTERM")
 
-    monkeypatch.setattr(compare_module, "stream_episodes", stopped)
+    monkeypatch.setattr(runner_module, "stream_episodes", stopped)
     res = CliRunner().invoke(
         app, ["compare", str(REPO / "configs/compare-smoke.yaml"), "-q", "-o", str(tmp_path),
               "--workers", "1", "--set", "targets.count=1"],

@@ -20,7 +20,6 @@ when every seed agrees (docs/statistics.md).
 
 from __future__ import annotations
 
-import csv
 import functools
 import json
 import time
@@ -29,8 +28,16 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from rich.console import Group
 
-from rodctl.comparisons import (
+from rodctl.bench.compare import (
+    load_compare_config,
+    method_config,
+    run_compare,
+    terminal_table,
+    write_results_csv,
+)
+from rodctl.bench.comparisons import (
     ALPHA,
     Comparison,
     difference_json,
@@ -40,11 +47,17 @@ from rodctl.comparisons import (
     success_pairs,
     suite_comparisons,
 )
+from rodctl.bench.runner import RunInterrupted
+from rodctl.bench.stats import band_names, summarize, summary_rows
+from rodctl.bench.target_set import given_target_poses
 from rodctl.config.compare import CompareConfig
 from rodctl.config.loading import ConfigError, apply_override, config_source, validate_config
+from rodctl.diagnosis import DIAGNOSES
+from rodctl.display import stderr
 from rodctl.errors import UserError
-from rodctl.journal import lock_run_folder
+from rodctl.registry import STAGES
 from rodctl.report import markdown_table, write_report_html
+from rodctl.runlock import lock_run_folder
 from rodctl.runs import RunDir, write_json_atomic
 from rodctl.statistics import PairedDifference
 
@@ -71,8 +84,6 @@ def scenario_configs(cfg: CompareConfig, config_dir: Path, source: str) -> dict[
         UserError: a scenario key that does not exist or a value out of range, named as
             `scenarios.<name>.set.<key>`.
     """
-    from rodctl.compare import given_target_poses, method_config
-
     by_scenario: dict[str, dict] = {}
     common = cfg.model_dump(mode="json", exclude={"scenarios", "seeds"})
     for name, sc in (cfg.scenarios or {}).items():
@@ -117,8 +128,6 @@ def _set_in_methods(methods: dict[str, dict], key: str, value: Any, where: str) 
     Raises:
         ConfigError: the key does not start with a stage, or no method's stage has the field.
     """
-    from rodctl.registry import STAGES
-
     parts = key.split(".")
     if len(parts) < 2 or parts[0] not in STAGES:
         raise ConfigError(
@@ -151,17 +160,11 @@ def run_suite(
 
     `resume`: an earlier suite folder; scenarios that completed are kept, the others resumed.
     """
-    from rodctl.compare import RunInterrupted, load_compare_config, run_compare
-
     wall0 = time.perf_counter()
     cfg = load_compare_config(config_path, overrides)
     source = config_source(config_path, overrides)
     scenarios = scenario_configs(cfg, Path(config_path).resolve().parent, source)
-    if resume is not None:
-        run = _reopen(resume)
-    else:
-        run = RunDir.create(out, cfg, command="compare (suite)")
-        lock_run_folder(run.path, "compare (suite)")  # held until run.finish
+    run = _reopen(resume) if resume is not None else _create(out, cfg)
     folders: dict[str, str] = dict(run.meta.get("scenarios", {}))
     before = float(run.meta.get("wall_s", 0.0))  # earlier invocations' share (--resume)
 
@@ -170,30 +173,10 @@ def run_suite(
 
     status = "failed"
     try:
-        (run.path / "scenarios").mkdir(exist_ok=True)
-        for name, data in scenarios.items():
-            path = run.path / "scenarios" / f"{name}.yaml"
-            path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
-            earlier = folders.get(name)
-            if earlier and _completed(Path(earlier)):
-                continue
-            # The scenario's folder is recorded as soon as it exists, so --resume continues it
-            # (keeping its finished episodes) after a stop, and after a kill or power cut too.
-            run_compare(
-                str(path),
-                [],
-                str(run.path / "scenarios"),
-                progress=progress,
-                workers=workers,
-                executor=executor,
-                address=address,
-                resume=earlier,
-                on_start=functools.partial(_record_scenario, run, folders, name, wall),
-            )
+        options = {"progress": progress, "workers": workers, "executor": executor}
+        _run_scenarios(run, scenarios, folders, wall, address=address, **options)
         report = write_suite_outputs(cfg, run.path, folders, wall())
         if progress:
-            from rodctl.display import stderr
-
             stderr.print(report)
         status = "completed"
         return run.path
@@ -205,6 +188,41 @@ def run_suite(
         raise RunInterrupted(run.path, reason, done, len(scenarios), "scenarios") from None
     finally:
         run.finish(status, wall_s=wall())
+
+
+def _create(out: str, cfg: CompareConfig) -> RunDir:
+    """A new suite folder, its lock held until `run.finish`."""
+    run = RunDir.create(out, cfg, command="compare (suite)")
+    lock_run_folder(run.path, "compare (suite)")
+    return run
+
+
+def _run_scenarios(
+    run: RunDir,
+    scenarios: dict[str, dict],
+    folders: dict[str, str],
+    wall: Callable[[], float],
+    **compare_options: Any,
+) -> None:
+    """Each scenario's compare run, from its config file under scenarios/, into a folder of
+    its own there; a scenario whose folder completed before (`--resume`) is kept as it is."""
+    (run.path / "scenarios").mkdir(exist_ok=True)
+    for name, data in scenarios.items():
+        path = run.path / "scenarios" / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+        earlier = folders.get(name)
+        if earlier and _completed(Path(earlier)):
+            continue
+        # The scenario's folder is recorded as soon as it exists, so --resume continues it
+        # (keeping its finished episodes) after a stop, and after a kill or power cut too.
+        run_compare(
+            str(path),
+            [],
+            str(run.path / "scenarios"),
+            resume=earlier,
+            on_start=functools.partial(_record_scenario, run, folders, name, wall),
+            **compare_options,
+        )
 
 
 def _record_scenario(
@@ -280,59 +298,76 @@ def statistics_json(
             "families": "the pooled tests of every scenario, method and metric; separately, "
             "each seed's tests (docs/statistics.md)",
         },
-        "findings": [
-            {
-                "scenario": c.scenario,
-                "method": c.method,
-                "metric": c.metric,
-                "mean": c.pooled.mean,
-                "ci_low": c.pooled.ci_low,
-                "ci_high": c.pooled.ci_high,
-                "p_value": c.pooled.p_value,
-                "p_adjusted": c.pooled.p_adjusted,
-                "per_seed_mean": {str(s): d.mean for s, d in c.per_seed.items()},
-                "replicated": c.replicated,
-                "verdict": c.verdict,
-            }
-            for c in comparisons
-            if c.significant
-        ],
+        "findings": [_finding_json(c) for c in comparisons if c.significant],
         "scenarios": {},
     }
     for name in scenarios:
         mine = [r for r in rows if r["scenario"] == name]
         entry: dict[str, Any] = {
-            "finished_before_event": {
-                m: sum(bool(r.get("finished_before_event")) for r in mine if r["method"] == m)
-                for m in methods
-            },
+            "finished_before_event": _finished_before_event(mine, methods),
             "diagnosis": diagnosis_counts(mine, methods),
             "methods": {},
         }
         for m in methods:
-            if m == reference:
-                continue
-            om, both, orf = success_pairs(mine, m, reference)
-            per_seed = {}
-            for s in seeds:
-                sm, sb, sr = success_pairs([r for r in mine if r.get("seed") == s], m, reference)
-                per_seed[str(s)] = {"only_method": sm, "both": sb, "only_reference": sr}
-            entry["methods"][m] = {
-                "success": {"only_method": om, "both": both, "only_reference": orf},
-                "success_per_seed": per_seed,
-                "metrics": {
-                    c.metric: difference_json(c.pooled)
-                    | {
-                        "verdict": c.verdict,
-                        "replicated": c.replicated,
-                        "per_seed": {str(s): difference_json(d) for s, d in c.per_seed.items()},
-                    }
-                    for c in comparisons
-                    if c.scenario == name and c.method == m
-                },
-            }
+            if m != reference:
+                mc = [c for c in comparisons if c.scenario == name and c.method == m]
+                entry["methods"][m] = _method_json(mine, m, reference, seeds, mc)
         out["scenarios"][name] = entry
     return out
+
+
+def _finding_json(c: Comparison) -> dict[str, Any]:
+    """A significant pooled comparison, as statistics.json lists it among the findings."""
+    return {
+        "scenario": c.scenario,
+        "method": c.method,
+        "metric": c.metric,
+        "mean": c.pooled.mean,
+        "ci_low": c.pooled.ci_low,
+        "ci_high": c.pooled.ci_high,
+        "p_value": c.pooled.p_value,
+        "p_adjusted": c.pooled.p_adjusted,
+        "per_seed_mean": {str(s): d.mean for s, d in c.per_seed.items()},
+        "replicated": c.replicated,
+        "verdict": c.verdict,
+    }
+
+
+def _finished_before_event(rows: Sequence[dict[str, Any]], methods: Sequence[str]) -> dict:
+    """Per method, its episodes that ended before the scenario's event reached them."""
+    return {
+        m: sum(bool(r.get("finished_before_event")) for r in rows if r["method"] == m)
+        for m in methods
+    }
+
+
+def _method_json(
+    rows: Sequence[dict[str, Any]],
+    method: str,
+    reference: str,
+    seeds: Sequence[Any],
+    comparisons: Sequence[Comparison],
+) -> dict[str, Any]:
+    """One method against the reference in one scenario: who converged where (pooled and per
+    seed) and each paired metric's difference, verdict and per-seed differences."""
+    om, both, orf = success_pairs(rows, method, reference)
+    per_seed = {}
+    for s in seeds:
+        sm, sb, sr = success_pairs([r for r in rows if r.get("seed") == s], method, reference)
+        per_seed[str(s)] = {"only_method": sm, "both": sb, "only_reference": sr}
+    return {
+        "success": {"only_method": om, "both": both, "only_reference": orf},
+        "success_per_seed": per_seed,
+        "metrics": {
+            c.metric: difference_json(c.pooled)
+            | {
+                "verdict": c.verdict,
+                "replicated": c.replicated,
+                "per_seed": {str(s): difference_json(d) for s, d in c.per_seed.items()},
+            }
+            for c in comparisons
+        },
+    }
 
 
 def write_suite_outputs(
@@ -340,24 +375,10 @@ def write_suite_outputs(
 ) -> Any:
     """results.csv, summary.md, statistics.json and report.html of the suite; returns the
     terminal tables."""
-    from rodctl.compare import (
-        CSV_COLUMNS,
-        _band_names,
-        markdown_table,
-        summarize,
-        summary_rows,
-        terminal_table,
-    )
-
     rows = read_rows(folders)
-    with (folder / "results.csv").open("w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS, extrasaction="ignore")
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in CSV_COLUMNS})
+    write_results_csv(folder / "results.csv", rows)
     methods = list(cfg.methods)
     ref = cfg.reference_method
-    bands = _band_names(cfg)
     scenarios = list(dict.fromkeys(r["scenario"] for r in rows))
     scenarios = [n for n in (cfg.scenarios or {}) if n in scenarios] or scenarios
     seeds = seeds_of(rows)
@@ -379,37 +400,10 @@ def write_suite_outputs(
     tables = []
     for name in scenarios:
         mine = [r for r in rows if r["scenario"] == name]
-        # Targets are told apart by (seed, target) once several seeds are pooled.
-        keyed = [{**r, "target": pair_key(r)} for r in mine]
-        summary = summarize(keyed, methods, bands)
-        header, lines = summary_rows(summary, bands)
-        sc = (cfg.scenarios or {}).get(name)
-        md += [f"## {name}", ""]
-        if sc is not None and sc.description:
-            md += [sc.description, ""]
-        if sc is not None and (sc.set or sc.method_set):
-            changed = [f"`{k}` = `{v}`" for k, v in sc.set.items()]
-            changed += [f"methods' `{k}` = `{v}`" for k, v in sc.method_set.items()]
-            md += ["Changed: " + ", ".join(changed), ""]
-        md += [markdown_table(header, lines), ""]
-        early = {
-            m: sum(bool(r.get("finished_before_event")) for r in mine if r["method"] == m)
-            for m in methods
-        }
-        if any(early.values()):
-            md += [
-                "Finished before the event (the event never reached them; counted in the table "
-                "above, left out of the paired comparisons below with their pairs): "
-                + ", ".join(f"{m} {n}" for m, n in early.items())
-                + " episodes.",
-                "",
-            ]
-        md += _diagnosis_markdown(mine, methods)
         mine_c = [c for c in comparisons if c.scenario == name]
-        md += paired_markdown(mine, methods, ref, mine_c, seeds)
-        tables.append(
-            (name, terminal_table(summary, f"{name}: {summary['common_targets']} paired"))
-        )
+        lines, table = _scenario_section(cfg, name, mine, mine_c, seeds)
+        md += lines
+        tables.append(table)
     (folder / "summary.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     write_json_atomic(
         folder / "statistics.json", statistics_json(rows, methods, ref, scenarios, comparisons)
@@ -418,16 +412,50 @@ def write_suite_outputs(
     write_report_html(
         folder / "report.html", f"rodctl suite {cfg.name}", "\n".join(md), figure_sets
     )
-    from rich.console import Group
+    return Group(*tables)
 
-    return Group(*(t for _, t in tables))
+
+def _scenario_section(
+    cfg: CompareConfig,
+    name: str,
+    rows: Sequence[dict[str, Any]],
+    comparisons: Sequence[Comparison],
+    seeds: Sequence[Any],
+) -> tuple[list[str], Any]:
+    """One scenario's part of summary.md (what it changed, its table, the episodes the event
+    missed, the diagnoses, the paired comparisons) and its terminal table."""
+    methods = list(cfg.methods)
+    bands = band_names(cfg.targets.bands)
+    # Targets are told apart by (seed, target) once several seeds are pooled.
+    keyed = [{**r, "target": pair_key(r)} for r in rows]
+    summary = summarize(keyed, methods, bands)
+    header, lines = summary_rows(summary, bands)
+    sc = (cfg.scenarios or {}).get(name)
+    md = [f"## {name}", ""]
+    if sc is not None and sc.description:
+        md += [sc.description, ""]
+    if sc is not None and (sc.set or sc.method_set):
+        changed = [f"`{k}` = `{v}`" for k, v in sc.set.items()]
+        changed += [f"methods' `{k}` = `{v}`" for k, v in sc.method_set.items()]
+        md += ["Changed: " + ", ".join(changed), ""]
+    md += [markdown_table(header, lines), ""]
+    early = _finished_before_event(rows, methods)
+    if any(early.values()):
+        md += [
+            "Finished before the event (the event never reached them; counted in the table "
+            "above, left out of the paired comparisons below with their pairs): "
+            + ", ".join(f"{m} {n}" for m, n in early.items())
+            + " episodes.",
+            "",
+        ]
+    md += _diagnosis_markdown(rows, methods)
+    md += paired_markdown(rows, methods, cfg.reference_method, comparisons, seeds)
+    return md, terminal_table(summary, f"{name}: {summary['common_targets']} paired")
 
 
 def diagnosis_counts(rows: Sequence[dict[str, Any]], methods: Sequence[str]) -> dict[str, Any]:
     """Per method, how many of its stalled or pinned episodes got each diagnosis (and how many
     got none: an older run, or a diagnosis that failed)."""
-    from rodctl.diagnosis import DIAGNOSES
-
     out = {}
     for m in methods:
         failed = [r for r in rows if r["method"] == m and r.get("outcome") in ("stalled", "pinned")]
@@ -438,8 +466,6 @@ def diagnosis_counts(rows: Sequence[dict[str, Any]], methods: Sequence[str]) -> 
 
 
 def _diagnosis_markdown(rows: Sequence[dict[str, Any]], methods: Sequence[str]) -> list[str]:
-    from rodctl.diagnosis import DIAGNOSES
-
     counts = diagnosis_counts(rows, methods)
     if not any(sum(c.values()) for c in counts.values()):
         return []

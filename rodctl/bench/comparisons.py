@@ -4,7 +4,7 @@ One test is method − reference on one metric over the targets both converged o
 target set and target), Holm-adjusted over its family (rodctl.statistics: docs/statistics.md);
 a suite pools several target seeds and calls a significant finding replicated when every seed
 agrees in direction. `write_compare_report` writes a plain compare's statistics.json and
-report.html; a suite's are written by rodctl.suite from the same pieces.
+report.html; a suite's are written by rodctl.bench.suite from the same pieces.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, TypeGuard
 
 from rodctl.report import markdown_table, verdict_lines, write_report_html
+from rodctl.runs import write_json_atomic
 from rodctl.statistics import PairedDifference, adjust, paired_difference
 
 #: Metrics compared paired by target: (column, label, unit, which episodes count).
@@ -279,8 +280,6 @@ def write_compare_report(folder: Path, cfg: Any, rows: Sequence[dict[str, Any]])
     reference, each paired metric's difference (`rodctl.statistics.PairedDifference` as a
     mapping) and `success` (targets only the method / both / only the reference converged on).
     """
-    from rodctl.runs import write_json_atomic
-
     methods = list(cfg.methods)
     md_path = folder / "summary.md"
     md = md_path.read_text(encoding="utf-8").rstrip("\n").split("\n")

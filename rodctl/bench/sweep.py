@@ -5,7 +5,8 @@ A sweep is a compare with one more axis. Each *point* sets some dotted keys of t
 method on the shared targets of every seed; so two points differ only by their swept values.
 Every (point, method, seed, target) combination is validated before any work starts (a value a
 key does not accept is exit 2 naming the key, the value and the method), and each episode runs
-through the same function and executors as `rodctl compare` (local pool or Ray), with its row
+through the same study skeleton, worker and executors as `rodctl compare` (`rodctl.bench.runner`;
+local pool or Ray), with its row
 appended to results.jsonl the moment it finishes and `--resume` to finish an interrupted sweep.
 
 Outputs, in one new folder: results.jsonl (the journal), results.csv (one row per episode, a
@@ -20,7 +21,6 @@ import csv
 import itertools
 import json
 import math
-import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -28,24 +28,18 @@ from typing import Any
 
 import numpy as np
 from pydantic import ValidationError
+from rich.table import Table
 
-from rodctl.compare import (
+from rodctl.bench.compare import method_config
+from rodctl.bench.runner import RunInterrupted, make_pool, run_study, run_tasks
+from rodctl.bench.stats import quantiles
+from rodctl.bench.target_set import (
     CompareTarget,
-    ResultsLog,
-    RunInterrupted,
-    _quantiles,
-    _row_key,
-    failure_reason,
-    finished_rows,
     given_target_poses,
     make_targets,
-    markdown_table,
-    method_config,
-    run_tasks,
-    start_run,
-    stream_episodes,
     write_targets,
 )
+from rodctl.bench.tasks import EpisodeTask
 from rodctl.config import ExperimentConfig
 from rodctl.config.loading import (
     ConfigError,
@@ -55,9 +49,13 @@ from rodctl.config.loading import (
     load_config,
 )
 from rodctl.config.sweep import MAX_POINTS, METRICS, SweepConfig
-from rodctl.errors import RunFailed, UserError
-from rodctl.executors.base import clear_stop, make_executor, stop_handlers, stop_reason
-from rodctl.runs import jsonable, write_json_atomic
+from rodctl.display import stderr
+from rodctl.errors import UserError
+from rodctl.executors.base import Executor
+from rodctl.features import make_feature_map
+from rodctl.report import markdown_table
+from rodctl.runs import jsonable, rng, write_json_atomic
+from rodctl.training import prepare_feature
 
 #: Per-episode columns of results.csv after the swept keys.
 EPISODE_COLUMNS = (
@@ -94,8 +92,6 @@ def sweep_points(cfg: SweepConfig) -> list[dict[str, Any]]:
         # a grid parameter has its values (`SweepConfig` checks it)
         combos = itertools.product(*(cfg.parameters[k].values or [] for k in keys))
         return [dict(zip(keys, c, strict=True)) for c in combos]
-    from rodctl.runs import rng
-
     gen = rng(cfg.seed, "sweep")
     points = []
     for _ in range(cfg.samples or 0):
@@ -173,7 +169,7 @@ def group_stats(rows: list[dict[str, Any]]) -> dict[str, Any]:
     conv = [r for r in rows if r.get("outcome") == "converged"]
 
     def med(values: list[Any]) -> float | None:
-        return _quantiles([float(v) for v in values if v is not None])[1]
+        return quantiles([float(v) for v in values if v is not None])[1]
 
     return {
         "episodes": len(rows),
@@ -211,6 +207,45 @@ def rank_groups(groups: list[dict[str, Any]], rank_by: list[str]) -> list[dict[s
 # --- the command ------------------------------------------------------------------------------
 
 
+class SweepStudy:
+    """`rodctl sweep` as a study of `rodctl.bench.runner`: the shared targets of every seed, one
+    episode per (seed, target, point, method), and the ranking."""
+
+    command = "sweep"
+
+    def __init__(self, cfg: SweepConfig, source: str, config_dir: Path, wall0: float) -> None:
+        self.config = cfg
+        self.source = source
+        self.points = sweep_points(cfg)
+        self.methods = _method_data(cfg)
+        preflight(self.methods)
+        given = given_target_poses(cfg, config_dir)
+        self.given = given
+        self.hashed = {"config": cfg.model_dump(mode="json", exclude={"workers"}), "targets": given}
+        self.targets: dict[int, list[CompareTarget]] = {}
+        self.wall0 = wall0
+
+    def plan(self, pool: Executor, folder: Path, progress: bool) -> list[EpisodeTask]:
+        """Make every seed's shared targets (targets_seed<S>.yaml) and the episode tasks."""
+        cfg = self.config
+        for s in cfg.seeds:
+            spec = cfg.model_copy(update={"seed": s})  # what make_targets reads: this seed
+
+            def fan_out(ts: list[Any], fn: Callable[[Any], Any], s: int = s) -> list[Any]:
+                return run_tasks(pool, ts, fn, f"targets s{s}", progress)
+
+            self.targets[s] = make_targets(spec, self.given, fan_out)
+            write_targets(self.targets[s], folder / f"targets_seed{s}.yaml")
+        return sweep_tasks(cfg, self.points, self.methods, self.targets, folder, self.source)
+
+    def report(
+        self, folder: Path, rows: list[dict[str, Any]], total: int, pool: Executor, progress: bool
+    ) -> None:
+        """results.csv, summary.json/md (ranked), figures; the ranked table on the terminal."""
+        wall = time.perf_counter() - self.wall0
+        _report(self.config, folder, self.points, self.targets, rows, total, wall, pool, progress)
+
+
 def run_sweep(
     config_path: str,
     overrides: list[str],
@@ -231,79 +266,27 @@ def run_sweep(
     wall0 = time.perf_counter()
     cfg = load_sweep_config(config_path, overrides)
     source = config_source(config_path, overrides)
-    points = sweep_points(cfg)
-    methods = _method_data(cfg)
-    _preflight(methods)
-    given = given_target_poses(cfg, Path(config_path).resolve().parent)
-    n_workers = workers or cfg.workers or os.cpu_count() or 1
-    pool = make_executor(executor, n_workers, address)
-    hashed = {"config": cfg.model_dump(mode="json", exclude={"workers"}), "targets": given}
-    run = start_run(out, cfg, "sweep", hashed, resume)
-    log = ResultsLog(run.path / "results.jsonl")
-    status, reason, rows, total = "failed", None, [], 0
-    failure: str | None = None
-    try:
-        with stop_handlers(), pool, stop_handlers():  # as in run_compare
-            targets = {}
-            for s in cfg.seeds:
-                spec = cfg.model_copy(update={"seed": s})  # what make_targets reads: this seed
-
-                def fan_out(ts: list[dict], fn: Callable[[dict], Any], s: int = s) -> list[Any]:
-                    return run_tasks(pool, ts, fn, f"targets s{s}", progress)
-
-                targets[s] = make_targets(spec, given, fan_out)
-                write_targets(targets[s], run.path / f"targets_seed{s}.yaml")
-            tasks = _tasks(cfg, points, methods, targets, run.path, source)
-            total = len(tasks)
-            kept = finished_rows(log, tasks, rerun=lambda _t: False)
-            todo = [t for t in tasks if _row_key(t) not in kept]
-            new = stream_episodes(pool, todo, log, progress=progress, done_before=len(kept))
-            reason = stop_reason()
-        got = {_row_key(r): r for r in new if r is not None and r["outcome"] != "interrupted"}
-        found = [kept.get(_row_key(t)) or got.get(_row_key(t)) for t in tasks]
-        rows = [r for r in found if r is not None]
-        _report(
-            cfg, run.path, points, targets, rows, total, time.perf_counter() - wall0, pool, progress
-        )
-        status = "interrupted" if reason else "completed"
-        if reason:
-            raise RunInterrupted(run.path, reason, len(rows), total)
-        return run.path
-    except KeyboardInterrupt as exc:
-        status, reason = "interrupted", str(exc) or "SIGINT"
-        raise RunInterrupted(run.path, reason, len(rows), total) from None
-    except Exception as exc:
-        failure = failure_reason(exc, run.path)
-        if isinstance(exc, OSError):  # a full or read-only disk: one line, exit 1
-            raise RunFailed(failure) from None
-        raise
-    finally:
-        log.compact()
-        extra = {"episodes": {"finished": len(rows), "total": total}}
-        why = f"interrupted by {reason}" if reason else failure
-        run.finish(status, **({"error": why} if why else {}), **extra)
-        clear_stop()
+    study = SweepStudy(cfg, source, Path(config_path).resolve().parent, wall0)
+    pool = make_pool(executor, workers, cfg.workers, address)
+    return run_study(study, out, pool, progress=progress, resume=resume)
 
 
-def _preflight(methods: dict[str, dict[str, Any]]) -> None:
+def preflight(methods: dict[str, dict[str, Any]]) -> None:
     """Build each method's feature once here, so a missing checkpoint fails before any work."""
-    from rodctl.features import make_feature_map
-    from rodctl.training import prepare_feature
-
     for data in methods.values():
         ecfg = ExperimentConfig.model_validate(data)
         prepare_feature(ecfg)
         make_feature_map(ecfg.feature, points=ecfg.camera.points, experiment=ecfg)
 
 
-def _tasks(
+def sweep_tasks(
     cfg: SweepConfig,
     points: list[dict[str, Any]],
     methods: dict[str, dict[str, Any]],
     targets: dict[int, list[CompareTarget]],
     folder: Path,
     source: str,
-) -> list[dict[str, Any]]:
+) -> list[EpisodeTask]:
     """One task per (seed, target, point, method), target-major: a partial sweep has every
     point on its first targets, so its ranking already means something."""
     configs = {
@@ -319,22 +302,21 @@ def _tasks(
                     run_id = f"{name}_p{i:04d}_s{s}_t{t.index:03d}"
                     log_dir = folder / "episodes" / run_id if cfg.keep_logs else None
                     tasks.append(
-                        {
-                            "config": configs[(i, name)],
-                            "method": name,
-                            "target": t.index,
-                            "pose": [float(v) for v in t.pose],
-                            "seed": t.seed,
-                            "want_records": False,
-                            "log_dir": str(log_dir) if log_dir else None,
-                            "run_id": run_id,
-                            "tags": {
+                        EpisodeTask(
+                            config=configs[(i, name)],
+                            method=name,
+                            target=t.index,
+                            pose=tuple(float(v) for v in t.pose),
+                            seed=t.seed,
+                            log_dir=str(log_dir) if log_dir else None,
+                            run_id=run_id,
+                            tags={
                                 "point": i,
                                 "seed": s,
                                 "difficulty": round(t.difficulty, 6),
                                 **point,
                             },
-                        }
+                        )
                     )
     return tasks
 
@@ -361,22 +343,11 @@ def _report(
 ) -> None:
     """results.csv, summary.json/md (ranked), figures; the ranked table on the terminal."""
     keys = list(cfg.parameters)
-    partial = len(rows) < total
     for r in rows:
         r["converged"] = r.get("outcome") == "converged"
-    columns = ["point", "seed", *keys, *EPISODE_COLUMNS]
-    with (folder / "results.csv").open("w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: _cell(r.get(k)) for k in columns})
-    groups = []
+    write_results_csv(folder / "results.csv", rows, keys)
     method_names = list(cfg.methods) if cfg.methods is not None else ["base"]
-    for i, point in enumerate(points):
-        for m in method_names:
-            mine = [r for r in rows if r.get("point") == i and r["method"] == m]
-            groups.append({"point": i, "method": m, **point, **group_stats(mine)})
-    ranked = rank_groups(groups, cfg.rank_by)
+    ranked = rank_groups(_groups(points, method_names, rows), cfg.rank_by)
     summary = {
         "name": cfg.name,
         "search": cfg.search,
@@ -386,7 +357,7 @@ def _report(
         "seeds": cfg.seeds,
         "targets_per_seed": {str(s): len(t) for s, t in targets.items()},
         "episodes": {"finished": len(rows), "total": total},
-        "partial": partial,
+        "partial": len(rows) < total,
         "executor": pool.name,
         "workers": pool.workers,
         "wall_time_s": round(wall, 2),
@@ -394,23 +365,8 @@ def _report(
     }
     write_json_atomic(folder / "summary.json", summary)
     header, lines = _summary_table(ranked, keys, cfg.rank_by)
-    text = [f"# rodctl sweep: {cfg.name}", ""]
-    if partial:
-        text += [
-            f"**PARTIAL**: interrupted; {len(rows)} of {total} episodes finished and are "
-            "counted here. `rodctl sweep CONFIG --resume FOLDER` finishes it.",
-            "",
-        ]
-    text += [
-        f"{cfg.search} search, {len(points)} points x {len(method_names)} method(s) x seeds "
-        f"{cfg.seeds} x {sum(len(t) for t in targets.values())} targets; ranked by "
-        f"{', '.join(cfg.rank_by)} (success rate: higher is better; others lower). Steps: "
-        f"median steps to converge over converged episodes. Wall time {wall:.0f} s on "
-        f"{pool.workers} {pool.name} worker(s).",
-        "",
-        markdown_table(header, lines),
-        "",
-    ]
+    table = markdown_table(header, lines)
+    text = _summary_md(cfg, summary, table, len(method_names), targets, wall)
     (folder / "summary.md").write_text("\n".join(text), encoding="utf-8")
     if rows:
         for metric in cfg.rank_by:
@@ -418,16 +374,70 @@ def _report(
                 path = folder / "figures" / f"{metric}_vs_{key.replace('.', '_')}.png"
                 metric_figure(rows, key, metric, method_names, path)
     if progress:
-        from rich.table import Table
+        _print_table(f"{cfg.name}: {len(rows)}/{total} episodes, {wall:.0f} s", header, lines)
 
-        from rodctl.display import stderr
 
-        table = Table(title=f"{cfg.name}: {len(rows)}/{total} episodes, {wall:.0f} s")
-        for h in header:
-            table.add_column(h)
-        for line in lines[:20]:
-            table.add_row(*line)
-        stderr.print(table)
+def write_results_csv(path: Path, rows: list[dict[str, Any]], keys: list[str]) -> None:
+    """results.csv: one row per episode, its point and seed, a column per swept key, then the
+    episode's own columns (`EPISODE_COLUMNS`)."""
+    columns = ["point", "seed", *keys, *EPISODE_COLUMNS]
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: _cell(r.get(k)) for k in columns})
+
+
+def _groups(
+    points: list[dict[str, Any]], methods: list[str], rows: list[dict[str, Any]]
+) -> list[dict[str, Any]]:
+    """One group per (point, method), point-major, with its swept values and `group_stats`."""
+    groups = []
+    for i, point in enumerate(points):
+        for m in methods:
+            mine = [r for r in rows if r.get("point") == i and r["method"] == m]
+            groups.append({"point": i, "method": m, **point, **group_stats(mine)})
+    return groups
+
+
+def _summary_md(
+    cfg: SweepConfig,
+    summary: dict[str, Any],
+    table: str,
+    n_methods: int,
+    targets: dict[int, list[CompareTarget]],
+    wall: float,
+) -> list[str]:
+    """summary.md's lines: the title, the PARTIAL note of a stopped sweep, how it ran, the
+    ranked table."""
+    finished, total = summary["episodes"]["finished"], summary["episodes"]["total"]
+    text = [f"# rodctl sweep: {cfg.name}", ""]
+    if summary["partial"]:
+        text += [
+            f"**PARTIAL**: interrupted; {finished} of {total} episodes finished and are "
+            "counted here. `rodctl sweep CONFIG --resume FOLDER` finishes it.",
+            "",
+        ]
+    return text + [
+        f"{cfg.search} search, {summary['points']} points x {n_methods} method(s) x seeds "
+        f"{cfg.seeds} x {sum(len(t) for t in targets.values())} targets; ranked by "
+        f"{', '.join(cfg.rank_by)} (success rate: higher is better; others lower). Steps: "
+        f"median steps to converge over converged episodes. Wall time {wall:.0f} s on "
+        f"{summary['workers']} {summary['executor']} worker(s).",
+        "",
+        table,
+        "",
+    ]
+
+
+def _print_table(title: str, header: list[str], lines: list[list[str]]) -> None:
+    """The ranked table (its first 20 lines) on the terminal."""
+    table = Table(title=title)
+    for h in header:
+        table.add_column(h)
+    for line in lines[:20]:
+        table.add_row(*line)
+    stderr.print(table)
 
 
 def _fmt(v: Any, spec: str) -> str:

@@ -1,0 +1,235 @@
+"""The one skeleton every study runs on: `rodctl compare` and `rodctl sweep` are `Study`s.
+
+A study plans its episode tasks (making its shared targets on the way) and reports on the rows;
+`run_study` does the rest the same way for each: the run folder (new, or the `--resume` one with
+its config checked unchanged), the executor (this process, a spawn pool or Ray), the journal
+(every row appended to results.jsonl the moment its episode finishes; a resumed run keeps the
+finished ones), the progress bars, and the stop: SIGINT/SIGTERM end the run between episodes,
+the finished rows are reported as partial and `RunInterrupted` says how many there are.
+meta.json ends `completed`, `interrupted` or `failed` (with why) whatever happens.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Protocol
+
+from rodctl.bench.episodes import run_episode_task
+from rodctl.bench.journal import ResultsLog, finished_rows, start_run
+from rodctl.bench.tasks import EpisodeTask, row_key
+from rodctl.display import task_progress
+from rodctl.errors import RunFailed, UserError, describe_os_error
+from rodctl.executors.base import (
+    Executor,
+    clear_stop,
+    make_executor,
+    request_stop,
+    stop_handlers,
+    stop_reason,
+)
+from rodctl.executors.local import CANCELLED
+from rodctl.outcome import Outcome
+from rodctl.runs import RunDir
+
+
+class RunInterrupted(Exception):
+    """SIGINT/SIGTERM stopped a run; its folder holds every finished episode, marked partial."""
+
+    def __init__(
+        self, folder: Path, reason: str, done: int, total: int, unit: str = "episodes"
+    ) -> None:
+        super().__init__(f"interrupted by {reason}: {done} of {total} {unit} finished")
+        self.folder = folder
+        self.reason = reason
+        self.done = done
+
+
+class Study(Protocol):
+    """What `run_study` needs of a compare or a sweep."""
+
+    #: The command, as meta.json and `--resume` name it ("compare", "sweep").
+    command: str
+
+    @property
+    def config(self) -> Any:
+        """The study's validated config (its `name` names the run folder)."""
+        ...
+
+    @property
+    def hashed(self) -> dict[str, Any]:
+        """What `--resume` requires unchanged (the config without `workers`, given targets)."""
+        ...
+
+    def plan(self, pool: Executor, folder: Path, progress: bool) -> list[EpisodeTask]:
+        """The episode tasks, in the order they run (the shared targets made on `pool`)."""
+        ...
+
+    def report(
+        self, folder: Path, rows: list[dict[str, Any]], total: int, pool: Executor, progress: bool
+    ) -> None:
+        """Write the outputs of the finished `rows` (of `total` episodes; fewer: partial)."""
+        ...
+
+
+def make_pool(
+    kind: str, workers: int | None, configured: int | None, address: str | None
+) -> Executor:
+    """The executor of a study: `workers` (the command line's), else the config's, else one per
+    CPU core; `kind` "local" or "ray" (`address`: an existing Ray cluster).
+
+    Raises:
+        UserError: fewer than one worker, or an executor that cannot start.
+    """
+    n_workers = workers or configured or os.cpu_count() or 1
+    if n_workers < 1:
+        raise UserError(f"--workers must be >= 1, got {n_workers}")
+    return make_executor(kind, n_workers, address)
+
+
+def run_study(
+    study: Study,
+    out: str,
+    pool: Executor,
+    *,
+    progress: bool,
+    resume: str | None = None,
+    on_start: Callable[[Path], None] | None = None,
+) -> Path:
+    """Run `study` on `pool` into a new folder under `out` (or the `resume` folder); return it.
+
+    `on_start`: called with the run's folder as soon as it exists.
+
+    Raises:
+        UserError: a `resume` folder of another command or config; whatever the study raises.
+        RunInterrupted: SIGINT/SIGTERM stopped the run; the finished rows are reported.
+        RunFailed: an OS error (a full or read-only disk), in one line.
+    """
+    run = start_run(out, study.config, study.command, study.hashed, resume)
+    if on_start is not None:
+        on_start(run.path)
+    log = ResultsLog(run.path / "results.jsonl")
+    status, reason, rows, total = "failed", None, [], 0
+    failure: str | None = None
+    try:
+        # Handlers before the executor starts (a signal during start-up counts) and again
+        # after it: ray.init replaces SIGTERM's handler.
+        with stop_handlers(), pool, stop_handlers():
+            tasks = study.plan(pool, run.path, progress)
+            total = len(tasks)
+            kept = finished_rows(log, tasks)
+            todo = [t for t in tasks if t.key not in kept]
+            new = stream_episodes(pool, todo, log, progress=progress, done_before=len(kept))
+            reason = stop_reason()
+        rows = _in_task_order(tasks, kept, new)
+        study.report(run.path, rows, total, pool, progress)
+        status = "interrupted" if reason else "completed"
+        if reason:
+            raise RunInterrupted(run.path, reason, len(rows), total)
+        return run.path
+    except KeyboardInterrupt as exc:
+        status, reason = "interrupted", str(exc) or "SIGINT"
+        raise RunInterrupted(run.path, reason, len(rows), total) from None
+    except Exception as exc:
+        failure = failure_reason(exc, run.path)
+        if isinstance(exc, OSError):  # a full or read-only disk: one line, exit 1
+            raise RunFailed(failure) from None
+        raise
+    finally:
+        _finish(run, log, status, reason, failure, len(rows), total)
+
+
+def _in_task_order(
+    tasks: list[EpisodeTask],
+    kept: dict[tuple, dict[str, Any]],
+    new: list[dict[str, Any] | None],
+) -> list[dict[str, Any]]:
+    """The finished rows (kept from an earlier run, or new), in the order of the tasks."""
+    got = {row_key(r): r for r in new if r is not None and r["outcome"] != Outcome.INTERRUPTED}
+    found = [kept.get(t.key) or got.get(t.key) for t in tasks]
+    return [r for r in found if r is not None]
+
+
+def _finish(
+    run: RunDir,
+    log: ResultsLog,
+    status: str,
+    reason: str | None,
+    failure: str | None,
+    finished: int,
+    total: int,
+) -> None:
+    """The journal compacted and meta.json's end: status, why, how many episodes finished."""
+    log.compact()
+    extra = {"episodes": {"finished": finished, "total": total}}
+    why = f"interrupted by {reason}" if reason else failure
+    run.finish(status, **({"error": why} if why else {}), **extra)
+    clear_stop()
+
+
+def failure_reason(exc: BaseException, folder: Path) -> str:
+    """One line saying why a compare or sweep failed, for the terminal and meta.json: an OS
+    error with its path (the run folder when the library writing did not say which file)."""
+    if isinstance(exc, OSError):
+        if exc.filename is None:
+            return f"{exc.strerror or exc}: while writing in {folder}"
+        return describe_os_error(exc)
+    return str(exc) if isinstance(exc, UserError) else f"{type(exc).__name__}: {exc}"
+
+
+def run_tasks(
+    executor: Executor, tasks: list[Any], fn: Callable[[Any], Any], label: str, progress: bool
+) -> list[Any]:
+    """fn(task) for every task on the executor, results in task order.
+
+    Raises:
+        KeyboardInterrupt: a stop was requested before every task finished.
+        UserError: a task could not be run (its worker was lost every time).
+    """
+    with task_progress(label, len(tasks), progress) as advance:
+        done = executor.map(fn, tasks, on_done=lambda _d: advance())
+    if stop_reason() is not None:
+        raise KeyboardInterrupt(stop_reason())
+    for d in done:
+        if d.error is not None:
+            raise UserError(f"{label} task {d.key}: {d.error}")
+    return [d.value for d in done]
+
+
+def stream_episodes(
+    executor: Executor,
+    tasks: list[EpisodeTask],
+    log: ResultsLog,
+    *,
+    progress: bool,
+    done_before: int = 0,
+    label: str = "episodes",
+) -> list[dict[str, Any] | None]:
+    """Run the episode tasks; every row is appended to `log` the moment it arrives.
+
+    Returns the rows in task order, None for the tasks a stop left unrun. An episode that comes
+    back `interrupted` (its worker got SIGINT/SIGTERM) stops the whole run, as a signal to the
+    parent does. A task whose worker was lost every time is an `error` row.
+    """
+    rows: list[dict[str, Any] | None] = [None] * len(tasks)
+    for i, task in enumerate(tasks):
+        executor.submit(run_episode_task, task, i)
+    total = len(tasks) + done_before
+    with task_progress(label, total, progress, rate="episodes", completed=done_before) as advance:
+        for done in executor.results():
+            task = tasks[done.key]
+            if done.error == CANCELLED:
+                continue
+            if done.error is not None:
+                row = {**task.row_tags(), "outcome": "error", "error": done.error}
+            else:
+                row = done.value
+            if row["outcome"] == Outcome.INTERRUPTED:
+                # The row says "interrupted by SIGTERM"; the stop reason is the signal alone.
+                why = str(row.get("error") or "").removeprefix("interrupted by ")
+                request_stop(why or "a worker was stopped")
+            row = log.append(row)  # an episode's first final row stays its record
+            rows[done.key] = row
+            advance(f"{row.get('method', '')}: {row['outcome']}")
+    return rows
