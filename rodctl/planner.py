@@ -90,6 +90,8 @@ class Plan:
             within the tolerance was found (the target is unreachable from the start, as far as
             the search goes).
         pose: (3,) the gripper pose the verified straight path was aimed at (None: no plan).
+        move: (3,) the path's increment per step, (pose − home) / k for the k moves that reach
+            `pose` at the speed limit (None: no plan); `steps` of them meet the tolerance.
         pixel_error: the extracted pixel error after `steps` moves of the verified path (px).
         pose_steps: steps to the target pose at the speed limit (`rodctl.metrics.pose_steps`).
         best_error: the smallest projected pixel error the search found (px), at any budget.
@@ -106,6 +108,7 @@ class Plan:
     pose_steps: int
     best_error: float
     snaps: int = 0
+    move: np.ndarray | None = None
     levels: list[tuple[int, float]] = field(default_factory=list)
     evaluations: int = 0
     rejected: list[tuple[int, float]] = field(default_factory=list)
@@ -340,6 +343,7 @@ def plan(
         steps, err, snaps = _verify(env, target, home, pose, kk, tol, seed)
         if steps is not None:
             result.steps, result.pose, result.pixel_error, result.snaps = steps, pose, err, snaps
+            result.move = (np.asarray(pose, dtype=float) - home) / max(kk, 1)
             break
         result.rejected.append((kk, err))
     result.evaluations = model.evaluations
