@@ -7,10 +7,10 @@ does a method converge in fewer steps than the planner found?
 
 RUN_FOLDER is a `rodctl compare` folder or a suite folder (its results.csv; docs/outputs.md). The
 scenario's experiment config (rod, camera, run.pixel_tolerance) is the `base` of the compare run
-that made the rows: RUN_FOLDER/results.json for a plain compare, or
-RUN_FOLDER/scenarios/<scenario>[-seed<S>]/results.json in a suite; `--config FILE` (a compare
-config, with `--set` overrides) replaces it for a plain compare. Scenarios with mid-run events,
-dual-arm runs and table friction are skipped with the reason (the planner refuses them).
+that made the rows: RUN_FOLDER/results.json for a plain compare, or in a suite the results.json
+under RUN_FOLDER/scenarios/ whose config names that scenario and seed; `--config FILE` (a
+compare config, with `--set` overrides) replaces it for a plain compare. Scenarios with mid-run
+events, dual-arm runs and table friction are skipped with the reason (the planner refuses them).
 
 For each target (its pose from results.csv's target_x/y/theta, the target made again by the
 scenario's rod and clean camera, as compare made it), the planner's verified step count
@@ -45,7 +45,13 @@ from rodctl.config import ExperimentConfig, load_config, validate_config  # noqa
 from rodctl.config.compare import CompareConfig  # noqa: E402
 from rodctl.config.loading import apply_override, parse_override  # noqa: E402
 from rodctl.errors import UserError  # noqa: E402
-from rodctl.planner import PlannerError, check_plannable, make_target, plan  # noqa: E402
+from rodctl.planner import (  # noqa: E402
+    PlannerError,
+    check_plannable,
+    grid_min_error,
+    make_target,
+    plan,
+)
 
 NEEDED = (
     "scenario", "seed", "method", "target", "target_x", "target_y", "target_theta", "converged",
@@ -55,6 +61,7 @@ NEEDED = (
 PLAN_COLUMNS = (
     "scenario", "seed", "target", "pose_steps", "planner_steps", "planner_x", "planner_y",
     "planner_theta", "planner_pixel_error", "best_error", "snaps", "evaluations", "cpu_s",
+    "grid_below",
 )  # fmt: skip
 
 
@@ -72,13 +79,19 @@ def read_results(folder: Path) -> list[dict[str, str]]:
 
 
 def _run_json(folder: Path, scenario: str, seed: str) -> Path | None:
-    for cand in (
-        folder / "scenarios" / f"{scenario}-seed{seed}" / "results.json",
-        folder / "scenarios" / scenario / "results.json",
-        folder / "results.json",
-    ):
-        if cand.is_file():
-            return cand
+    """The results.json of the compare run that made a scenario's rows at a seed: the folder's
+    own (a plain compare), or the one under scenarios/ (a suite: one compare run folder per
+    scenario and seed) whose config names that scenario and seed."""
+    own = folder / "results.json"
+    found = [own] if own.is_file() else []
+    found += sorted((folder / "scenarios").glob("*/results.json"))
+    for path in found:
+        try:
+            cfg = json.loads(path.read_text(encoding="utf-8")).get("config") or {}
+        except (OSError, ValueError):
+            continue
+        if cfg.get("scenario", "nominal") == scenario and str(cfg.get("seed", 0)) == str(seed):
+            return path
     return None
 
 
@@ -91,9 +104,8 @@ def scenario_config(
     path = _run_json(folder if folder.is_dir() else folder.parent, scenario, seed)
     if path is None:
         raise UserError(
-            f"{folder}: no results.json for scenario {scenario!r} seed {seed} (looked in "
-            f"scenarios/{scenario}-seed{seed}/, scenarios/{scenario}/ and the folder); "
-            "give --config"
+            f"{folder}: no results.json of scenario {scenario!r} at seed {seed} (in the folder "
+            "or under its scenarios/); give --config"
         )
     data = json.loads(path.read_text(encoding="utf-8"))
     try:
@@ -123,6 +135,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", help="a compare config for a plain compare run (else results.json)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--out", type=Path, help="write the plans here (csv)")
+    ap.add_argument(
+        "--grid",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also start fits from an N^3 grid over the poses one step short of each plan "
+        "(a check of the local search; about N^3 times a plan's cost)",
+    )
     args = ap.parse_args(argv)
     try:
         return _run(args)
@@ -173,6 +193,14 @@ def _run(args: argparse.Namespace) -> int:
                 "best_error": round(p.best_error, 4), "snaps": p.snaps,
                 "evaluations": p.evaluations, "cpu_s": round(p.cpu_s, 3),
             }  # fmt: skip
+            if args.grid and p.steps is not None:
+                below, pose = grid_min_error(cfg, target, p.steps - 1, args.grid)
+                rec["grid_below"] = round(below, 4)
+                if below < cfg.run.pixel_tolerance:
+                    print(
+                        f"  target {i}: the grid found {below:.3f} px at {pose} in "
+                        f"{p.steps - 1} steps, under the planner's {p.steps}"
+                    )
             by_target[i] = rec
             plans.append(rec)
         _report(scenario, seed, group, by_target)
@@ -181,7 +209,7 @@ def _run(args: argparse.Namespace) -> int:
             writer = csv.DictWriter(fh, fieldnames=PLAN_COLUMNS)
             writer.writeheader()
             for rec in plans:
-                writer.writerow({k: "" if rec[k] is None else rec[k] for k in PLAN_COLUMNS})
+                writer.writerow({k: "" if rec.get(k) is None else rec[k] for k in PLAN_COLUMNS})
         print(f"\nplans written to {args.out}")
     print(f"\nwall time {time.perf_counter() - wall0:.1f} s")
     return 0
@@ -206,6 +234,13 @@ def _report(
             f"min {min(short)}; planner below pose_steps on {sum(s > 0 for s in short)} of "
             f"{len(planned)}"
         )
+        grid = [t for t in planned if t.get("grid_below") is not None]
+        if grid:
+            tol = min(t["grid_below"] for t in grid)
+            print(
+                f"grid check (fits from a grid one step short of each plan): smallest error "
+                f"{tol:.3f} px over {len(grid)} targets"
+            )
     print(
         "| method | converged on planned | beats (steps) | ties | mean steps - planner | "
         "beats (steps - probing) | ties | mean (steps - probing) - planner |"

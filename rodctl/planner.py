@@ -375,3 +375,36 @@ def _verify(
         if err < tol:
             return step, err, snaps
     return None, err, snaps
+
+
+def grid_min_error(
+    cfg: ExperimentConfig, target: Target, k: int, n: int
+) -> tuple[float, np.ndarray | None]:
+    """(smallest projected pixel error, its pose) of bounded fits started from every pose of an
+    n x n x n grid over the poses k speed-limited steps from home (the box B_k in the workspace):
+    a check of `plan`, whose three starts per budget are local. The pixel tolerance is met only
+    within millimetres of a pose, finer than any affordable grid, so each grid pose starts the
+    same fit as `plan`'s rather than being scored alone. k < 1: the home pose alone."""
+    check_plannable(cfg)
+    env = ShapeServoEnv(clean_config(cfg))
+    env.reset(options={"target": target})
+    assert env.task is not None
+    home = np.asarray(env.task.home_pose, dtype=float)
+    m = np.asarray(env.task.max_step, dtype=float)
+    model = _Model(cfg, env.camera, target.pixels)
+    if k < 1:
+        return model.error(home), home
+    ws_lo, ws_hi = workspace_box(cfg, 3)
+    lo = np.maximum(ws_lo, home - k * m * (1 - 1e-9))
+    hi = np.maximum(lo, np.minimum(ws_hi, home + k * m * (1 - 1e-9)))
+    axes = [np.linspace(a, b, n) for a, b in zip(lo, hi, strict=True)]
+    best, best_pose = math.inf, None
+    for x in axes[0]:
+        for y in axes[1]:
+            for t in axes[2]:
+                model.sim.restore(model.home_snap)  # each start reached from home
+                model._at = None
+                pose, err = _fit(model, np.array([x, y, t]), lo, hi)
+                if err < best and pose_steps(home, pose, m) <= k:
+                    best, best_pose = err, pose.copy()
+    return best, best_pose

@@ -17,7 +17,7 @@ from rodctl.config import ExperimentConfig, load_config
 from rodctl.diagnosis import pose_search
 from rodctl.env import ShapeServoEnv, Target
 from rodctl.metrics import pose_steps
-from rodctl.planner import PlannerError, check_plannable, make_target, plan
+from rodctl.planner import PlannerError, check_plannable, grid_min_error, make_target, plan
 
 SMALL = [
     "feature.type=bezier", "logging.mcap=false", "logging.rerun=false", "logging.figures=false",
@@ -147,3 +147,13 @@ def test_the_benchmark_counts_the_episodes_that_beat_the_planner(tmp_path, capsy
         fh.write("scenario,seed,method\nnominal,0,quick\n")
     assert bench.main([str(tmp_path)]) == 2
     assert "lacks the column(s) target" in capsys.readouterr().err
+
+
+def test_a_grid_over_one_step_fewer_finds_no_pose_within_tolerance_either(planned):
+    """The search is local; fits started from a grid of 3^3 poses over the poses one step short
+    of the plan find none within tolerance either, and over the plan's own budget they do."""
+    cfg, target, p = planned
+    below, _ = grid_min_error(cfg, target, p.steps - 1, 3)
+    assert below >= cfg.run.pixel_tolerance
+    at, pose = grid_min_error(cfg, target, p.steps, 3)
+    assert at < cfg.run.pixel_tolerance and pose is not None
