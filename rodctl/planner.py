@@ -88,7 +88,7 @@ class Plan:
     Attributes:
         steps: planner_steps, the fewest speed-limited steps found (verified); None: no pose
             within the tolerance was found (the target is unreachable from the start, as far as
-            the search goes).
+            the search goes), or none whose straight path verified (`rejected` lists them).
         pose: (3,) the gripper pose the verified straight path was aimed at (None: no plan).
         move: (3,) the path's increment per step, (pose − home) / k for the k moves that reach
             `pose` at the speed limit (None: no plan); `steps` of them meet the tolerance.
@@ -96,7 +96,8 @@ class Plan:
         pose_steps: steps to the target pose at the speed limit (`rodctl.metrics.pose_steps`).
         best_error: the smallest projected pixel error the search found (px), at any budget.
         snaps: snap-throughs on the verified path (quasi-static engine only; pymunk: 0).
-        levels: (budget k, smallest projected pixel error found in B_k) per budget searched.
+        levels: (budget k, smallest projected pixel error found in B_k) per budget searched;
+            k = -1: the whole workspace (searched when B_pose_steps did not reach the tolerance).
         evaluations: settled shapes the search evaluated.
         rejected: candidate poses whose straight path did not verify (budget k, extracted error).
         cpu_s: CPU time of the whole plan (search and verification).
