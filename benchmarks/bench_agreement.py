@@ -121,7 +121,9 @@ def agreement(a: Sequence[dict[str, Any]], b: Sequence[dict[str, Any]]) -> dict[
         "by_outcome" ({outcome both runs ended on: (pairs, steps within one)}: the step
         agreement of the episodes both converged apart from those both stalled),
         "outcome_changes" ({(outcome a, outcome b): pairs} where they differ: which run
-        stalls more), "disagreements": [(key, outcome a, steps a, outcome b, steps b), ...]}.
+        stalls more), "stalled_error_gaps" (|difference| of the final pixel errors of the
+        pairs both stalled, sorted: where they stall rather than when),
+        "disagreements": [(key, outcome a, steps a, outcome b, steps b), ...]}.
     """
     rows_b = {_key(r): r for r in b}
     pairs = [(r, rows_b[_key(r)]) for r in a if _key(r) in rows_b]
@@ -132,6 +134,7 @@ def agreement(a: Sequence[dict[str, Any]], b: Sequence[dict[str, Any]]) -> dict[
     disagreements = []
     by_outcome: dict[str, list[int]] = defaultdict(lambda: [0, 0])
     changes: dict[tuple[str, str], int] = defaultdict(int)
+    stalled_gaps: list[float] = []
     for ra, rb in pairs:
         o = ra["outcome"] == rb["outcome"]
         w = abs(int(ra["steps"] or 0) - int(rb["steps"] or 0)) <= 1
@@ -140,6 +143,9 @@ def agreement(a: Sequence[dict[str, Any]], b: Sequence[dict[str, Any]]) -> dict[
         if o:
             by_outcome[ra["outcome"]][0] += 1
             by_outcome[ra["outcome"]][1] += w
+            if ra["outcome"] == "stalled" and ra.get("final_pixel_error") is not None:
+                gap = abs(float(ra["final_pixel_error"]) - float(rb["final_pixel_error"]))
+                stalled_gaps.append(gap)
         else:
             changes[(ra["outcome"], rb["outcome"])] += 1
         for kind, name in (("scenario", ra["scenario"]), ("method", ra["method"])):
@@ -157,6 +163,7 @@ def agreement(a: Sequence[dict[str, Any]], b: Sequence[dict[str, Any]]) -> dict[
         "by_method": {k: tuple(v) for k, v in groups["method"].items()},
         "by_outcome": {k: tuple(v) for k, v in by_outcome.items()},
         "outcome_changes": dict(changes),
+        "stalled_error_gaps": sorted(stalled_gaps),
         "disagreements": disagreements,
     }
 
@@ -195,6 +202,13 @@ def report(
     lines.append("steps within +-1 by the outcome both runs ended on (episodes, %):")
     for name, (n, w) in sorted(result["by_outcome"].items()):
         lines.append(f"  {name:<20} {n:4d} {100 * w / n:6.1f}")
+    gaps = result["stalled_error_gaps"]
+    if gaps:
+        lines.append(
+            f"both stalled: final pixel errors differ by median {gaps[len(gaps) // 2]:.3f} px, "
+            f"90th percentile {gaps[min(len(gaps) - 1, int(0.9 * len(gaps)))]:.3f} px, "
+            f"largest {gaps[-1]:.3f} px ({len(gaps)} pairs)"
+        )
     lines.append(f"outcomes that differ, {names[0]} -> {names[1]}:")
     for (oa, ob), n in sorted(result["outcome_changes"].items()):
         lines.append(f"  {oa} -> {ob}: {n}")

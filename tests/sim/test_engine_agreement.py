@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 
+import pytest
 from paths import REPO
 
 from rodctl.config import validate_config
@@ -77,5 +78,11 @@ def test_the_step_agreement_is_split_by_the_outcome_both_runs_ended_on() -> None
     result = bench_agreement.agreement(a, b)
     assert result["by_outcome"] == {"converged": (2, 1), "stalled": (2, 1)}
     assert result["outcome_changes"] == {("stalled", "converged"): 1, ("converged", "stalled"): 1}
+    assert result["stalled_error_gaps"] == []  # the crafted rows have no final pixel error
+    errors = [0.5, 0.6, 1.5, 1.2, 1.4, 0.9, 0.5, 0.6, 1.6, 1.7, 0.9, 1.3]
+    for r, px in zip(a + b, errors, strict=True):
+        r["final_pixel_error"] = px
+    gaps = bench_agreement.agreement(a, b)["stalled_error_gaps"]
+    assert gaps == pytest.approx([0.1, 0.5])  # targets 2 and 3, both stalled
     text = bench_agreement.report(result, names=("pymunk", "pymunk-b"))
     assert "stalled -> converged: 1" in text and "pymunk vs pymunk-b" in text
