@@ -8,6 +8,8 @@ outcome on >= 95 % of the episodes and the step count within +-1 on >= 90 %.
     .venv/bin/python benchmarks/bench_agreement.py                     # 20 targets x 4 scenarios
     .venv/bin/python benchmarks/bench_agreement.py --targets 5 --workers 2
     .venv/bin/python benchmarks/bench_agreement.py --from SUITE_PYMUNK SUITE_QUASISTATIC
+    .venv/bin/python benchmarks/bench_agreement.py --scenarios event-stiffness --workers 1 \
+        --engines pymunk pymunk --set-b rod.settle_speed_tol=1e-4   # pymunk against itself
 
 The targets are the suite's own sampling (seed 0) with the scenario's offsets; a scenario's
 target poses are the same for both engines (sampled from the seed; each engine settles the rod
@@ -15,7 +17,11 @@ there itself). Only `rod.engine` differs between the two runs. The table scenari
 part: the quasi-static engine refuses table friction (docs/engines.md).
 
 Printed: each figure beside its goal, per scenario and per method, the episodes that disagree
-(outcome or steps), and both runs' wall time.
+(outcome or steps), and both runs' wall time; besides (not goals) the step agreement by the
+outcome both runs ended on, the outcome changes each way, and how far apart the final pixel
+errors are where both stalled. An engine run against itself with a change inside its own
+tolerance (`--engines pymunk pymunk --set-b ...`) gives the floor an engine comparison can reach
+(docs/engines.md, "Agreement study").
 """
 
 from __future__ import annotations
