@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 
+import pytest
 from paths import REPO
 
 from rodctl.config import validate_config
@@ -58,3 +59,30 @@ def test_both_engines_agree_on_a_small_case() -> None:
     bad = bench_agreement.agreement(rows["pymunk"], worse)
     assert bad["same_outcome"] == 0.75 and bad["steps_within_one"] == 0.75
     assert not bench_agreement.passes(bad) and len(bad["disagreements"]) == 2
+
+
+def test_the_step_agreement_is_split_by_the_outcome_both_runs_ended_on() -> None:
+    """The report's addition (not a goal): the step agreement of the episodes both runs
+    converged apart from those both stalled, and which run ends on which outcome where they
+    differ; crafted rows, no simulation."""
+
+    def row(k: int, outcome: str, steps: int) -> dict:
+        pose = {"target_x": 0.1 * k, "target_y": 0.0, "target_theta": 0.0}
+        return {"scenario": "s", "method": "m", "target": k, **pose, "outcome": outcome,
+                "steps": steps}  # fmt: skip
+
+    a = [row(0, "converged", 10), row(1, "converged", 12), row(2, "stalled", 30),
+         row(3, "stalled", 40), row(4, "stalled", 25), row(5, "converged", 9)]  # fmt: skip
+    b = [row(0, "converged", 11), row(1, "converged", 15), row(2, "stalled", 30),
+         row(3, "stalled", 60), row(4, "converged", 25), row(5, "stalled", 30)]  # fmt: skip
+    result = bench_agreement.agreement(a, b)
+    assert result["by_outcome"] == {"converged": (2, 1), "stalled": (2, 1)}
+    assert result["outcome_changes"] == {("stalled", "converged"): 1, ("converged", "stalled"): 1}
+    assert result["stalled_error_gaps"] == []  # the crafted rows have no final pixel error
+    errors = [0.5, 0.6, 1.5, 1.2, 1.4, 0.9, 0.5, 0.6, 1.6, 1.7, 0.9, 1.3]
+    for r, px in zip(a + b, errors, strict=True):
+        r["final_pixel_error"] = px
+    gaps = bench_agreement.agreement(a, b)["stalled_error_gaps"]
+    assert gaps == pytest.approx([0.1, 0.5])  # targets 2 and 3, both stalled
+    text = bench_agreement.report(result, names=("pymunk", "pymunk-b"))
+    assert "stalled -> converged: 1" in text and "pymunk vs pymunk-b" in text
