@@ -10,8 +10,9 @@ appended to results.jsonl the moment it finishes and `--resume` to finish an int
 
 Outputs, in one new folder: results.jsonl (the journal), results.csv (one row per episode, a
 column per swept key), summary.json / summary.md (one line per point and method, ranked by
-`rank_by`), figures/<metric>_vs_<key>.png (each ranking metric against each swept key),
-targets_seed<S>.yaml.
+`rank_by`), sensitivity.json (how far each ranking metric moves across each knob's range,
+`rodctl/sensitivity.py`, also a section of summary.md), figures/<metric>_vs_<key>.png (each
+ranking metric against each swept key), targets_seed<S>.yaml.
 """
 
 from __future__ import annotations
@@ -450,6 +451,10 @@ def _report(
         markdown_table(header, lines),
         "",
     ]
+    # sensitivity.json + its summary section; lazy: it loads scipy, only a report needs it
+    from rodctl.sensitivity import write_sensitivity  # noqa: PLC0415
+
+    text += write_sensitivity(folder, ranked, keys, cfg.rank_by)
     (folder / "summary.md").write_text("\n".join(text), encoding="utf-8")
     if rows:
         for metric in cfg.rank_by:

@@ -315,7 +315,16 @@ def test_sweep_results_summary_and_figures(smoke_sweep):
     assert all(g["episodes"] == 2 and g["success_rate"] == 1.0 for g in ranking)
     steps = [g["steps_median"] for g in ranking]
     assert steps == sorted(steps)
-    assert "| rank | point | method | estimator.p0 |" in (smoke_sweep / "summary.md").read_text()
+    text = (smoke_sweep / "summary.md").read_text()
+    assert "| rank | point | method | estimator.p0 |" in text
+    # the sensitivity hook: sensitivity.json and its section, from the same ranking
+    sens = json.loads((smoke_sweep / "sensitivity.json").read_text())
+    assert sens["objective"] == ["success_rate", "steps_median"]
+    knob = sens["methods"]["base"]["knobs"]["estimator.p0"]
+    assert (knob["low"], knob["high"]) == (10.0, 1000.0)
+    by_p0 = {g["estimator.p0"]: g["steps_median"] for g in ranking}
+    assert knob["steps_median"]["spread"] == pytest.approx(abs(by_p0[10.0] - by_p0[1000.0]))
+    assert "## Sensitivity" in text and "| estimator.p0 | 10–1e+03 |" in text
     for metric in ("success_rate", "steps_median"):  # one figure per ranking metric and key
         assert (smoke_sweep / "figures" / f"{metric}_vs_estimator_p0.png").stat().st_size > 5000
     assert len(journal(smoke_sweep)) == 4
