@@ -315,6 +315,9 @@ def test_sweep_results_summary_and_figures(smoke_sweep):
     assert all(g["episodes"] == 2 and g["success_rate"] == 1.0 for g in ranking)
     steps = [g["steps_median"] for g in ranking]
     assert steps == sorted(steps)
+    for g in ranking:  # steps_mean: over the point's converged episodes
+        mine = [int(r["steps_to_converge"]) for r in got if r["point"] == str(g["point"])]
+        assert g["steps_mean"] == pytest.approx(sum(mine) / len(mine))
     text = (smoke_sweep / "summary.md").read_text()
     assert "| rank | point | method | estimator.p0 |" in text
     # the sensitivity hook: sensitivity.json and its section, from the same ranking
