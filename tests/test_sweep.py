@@ -52,7 +52,9 @@ def test_the_fair_tuning_gives_every_method_the_same_budget_and_targets():
 
     suite = load_compare_config(REPO / "configs/benchmarks/suite.yaml")
     configs = {
-        p.stem: load_sweep_config(p) for p in (REPO / "configs/benchmarks/tuning").glob("*.yaml")
+        p.stem: load_sweep_config(p)
+        for p in (REPO / "configs/benchmarks/tuning").glob("*.yaml")
+        if not p.stem.endswith("-random")
     }
     assert set(configs) == {"paper", "ma2022", "ma2022-wls", "aghajanzadeh2022"}
     assert configs["paper"].base.feature.type == "autoencoder"
@@ -66,6 +68,67 @@ def test_the_fair_tuning_gives_every_method_the_same_budget_and_targets():
             assert getattr(method, stage).type == getattr(cfg.base, stage).type, (name, stage)
         chosen = {k: v for k, v in _suite_values(method).items() if k in cfg.parameters}
         assert sweep_points(cfg)[_rank_one(name)] == chosen, (name, chosen)
+
+
+#: The knobs issue #25 asks the random-search tuning to vary, per method.
+TUNED_KNOBS = {
+    "paper": {
+        "estimator.p0",
+        "estimator.q0",
+        "estimator.r0",
+        "estimator.c0",
+        "estimator.c1",
+        "estimator.forgetting",
+        "estimator.alpha_floor",
+        "controller.weights",
+    },
+    "ma2022": {"estimator.gamma", "controller.gain", "controller.error_limit"},
+    "ma2022-wls": {"estimator.window", "controller.gain", "controller.error_limit"},
+    "aghajanzadeh2022": {"controller.gain", "controller.r_weights", "estimator.nodes"},
+    "yu2023": {
+        "estimator.learning_rate",
+        "estimator.window",
+        "controller.gain",
+        "controller.reg",
+        "controller.error_limit",
+    },
+}
+
+
+def test_the_random_search_tuning_gives_every_method_the_same_budget_over_all_its_knobs():
+    """configs/benchmarks/tuning/*-random.yaml: one per tuned method of the suite, the current
+    setting (point 0, the suite's own) + the same number of draws over every knob, the same
+    held-out targets (a seed the suite does not use), the suite's engine."""
+    from rodctl.compare import load_compare_config
+
+    suite = load_compare_config(REPO / "configs/benchmarks/suite.yaml")
+    folder = REPO / "configs/benchmarks/tuning"
+    configs = {
+        p.stem[: -len("-random")]: load_sweep_config(p) for p in folder.glob("*-random.yaml")
+    }
+    assert set(configs) == set(TUNED_KNOBS)
+    first = configs["paper"]
+    assert first.samples >= 64 and first.targets.count >= 16
+    for name, cfg in configs.items():
+        assert set(cfg.parameters) == TUNED_KNOBS[name], name
+        assert cfg.search == "random" and cfg.include_base, name
+        assert (cfg.samples, cfg.targets, cfg.seeds, cfg.rank_by) == (
+            first.samples,
+            first.targets,
+            first.seeds,
+            first.rank_by,
+        ), name
+        assert not set(cfg.seeds) & set(suite.seeds), name
+        assert cfg.base.rod.engine == suite.base.rod.engine == "quasistatic"
+        method = suite.methods[name]
+        for stage in ("feature", "estimator", "controller"):
+            assert getattr(cfg.base, stage) == getattr(method, stage), (name, stage)
+        points = sweep_points(cfg)
+        assert len(points) == cfg.samples + 1
+        assert points[0] == {k: _suite_values(method)[k] for k in cfg.parameters}, name
+        # every knob varies (an integer range has fewer values than draws)
+        for key in cfg.parameters:
+            assert len({json.dumps(p[key]) for p in points}) > 8, (name, key)
 
 
 def _rank_one(method: str) -> int:
@@ -113,6 +176,45 @@ def test_random_search_is_seeded_and_stays_in_range(tmp_path):
     assert sweep_points(load_sweep_config(_write(tmp_path, data))) != a
 
 
+def test_random_search_draws_a_list_element_by_element_and_normalizes_it(tmp_path):
+    """`elements`: each element its own range; `normalize`: divided by the sum (the MFAC
+    weights must sum to 1, so every draw validates as a controller)."""
+    data = _smoke()
+    data.update(search="random", samples=16, include_base=True)
+    data["parameters"] = {
+        "controller.weights": {
+            "normalize": True,
+            "elements": [
+                {"low": 0.2, "high": 0.9},
+                {"low": 1e-5, "high": 1e-3, "log": True},
+                {"values": [0.1, 0.3]},
+                {"low": 0.01, "high": 0.2},
+                {"low": 1e-5, "high": 1e-3, "log": True},
+                {"low": 0.01, "high": 0.3},
+                {"low": 0.01, "high": 0.3},
+            ],
+        },
+        "estimator.p0": {"low": 1.0, "high": 100.0, "log": True},
+    }
+    cfg = load_sweep_config(_write(tmp_path, data))  # every point validated as an experiment
+    points = sweep_points(cfg)
+    assert len(points) == 17
+    assert points[0] == {
+        "controller.weights": _smoke()["base"]["controller"]["weights"],
+        "estimator.p0": 10.0,
+    }
+    weights = [p["controller.weights"] for p in points[1:]]
+    assert all(len(w) == 7 and abs(sum(w) - 1.0) < 1e-12 for w in weights)
+    assert len({w[0] for w in weights}) == 16  # drawn, not one value repeated
+    # normalised: the ratio of two elements is the ratio of their draws (in their ranges)
+    assert all(1e-5 / 1e-3 <= w[1] / w[4] <= 1e-3 / 1e-5 for w in weights)
+    assert all(0.2 / 0.3 <= w[0] / w[2] <= 0.9 / 0.1 for w in weights)
+    # without `normalize` the draws do not sum to 1: refused up front, naming the key
+    data["parameters"]["controller.weights"]["normalize"] = False
+    with pytest.raises(ConfigError, match=r"controller\.weights.*sum to 1"):
+        load_sweep_config(_write(tmp_path, data))
+
+
 @pytest.mark.parametrize(
     "change, match",
     [
@@ -123,6 +225,28 @@ def test_random_search_is_seeded_and_stays_in_range(tmp_path):
         ({"rank_by": ["speed"]}, r"rank_by.*unknown metric"),
         ({"parameters": {"estimator.p0": {"values": [1.0], "low": 1}}}, "either `values`"),
         ({"parameters": {}}, "parameters"),
+        (
+            {"parameters": {"estimator.p0": {"values": [1.0], "normalize": True}}},
+            "`normalize` applies to a list drawn by `elements`",
+        ),
+        (
+            {"parameters": {"x.y": {"normalize": True, "elements": [{"low": -1, "high": 1}]}}},
+            r"normalize.*positive.*elements \[0\]",
+        ),
+        (
+            {"parameters": {"x.y": {"elements": [{"values": [1]}], "low": 0, "high": 1}}},
+            "leave `values`, `low`/`high`",
+        ),
+        ({"include_base": True}, "`include_base` is for search: random"),
+        (
+            {
+                "search": "random",
+                "samples": 2,
+                "include_base": True,
+                "parameters": {"estimator.nope": {"low": 1.0, "high": 2.0}},
+            },
+            r"parameters\.estimator\.nope: include_base",
+        ),
         ({"paramters": {}}, "paramters: unknown key"),
     ],
 )
@@ -191,7 +315,19 @@ def test_sweep_results_summary_and_figures(smoke_sweep):
     assert all(g["episodes"] == 2 and g["success_rate"] == 1.0 for g in ranking)
     steps = [g["steps_median"] for g in ranking]
     assert steps == sorted(steps)
-    assert "| rank | point | method | estimator.p0 |" in (smoke_sweep / "summary.md").read_text()
+    for g in ranking:  # steps_mean: over the point's converged episodes
+        mine = [int(r["steps_to_converge"]) for r in got if r["point"] == str(g["point"])]
+        assert g["steps_mean"] == pytest.approx(sum(mine) / len(mine))
+    text = (smoke_sweep / "summary.md").read_text()
+    assert "| rank | point | method | estimator.p0 |" in text
+    # the sensitivity hook: sensitivity.json and its section, from the same ranking
+    sens = json.loads((smoke_sweep / "sensitivity.json").read_text())
+    assert sens["objective"] == ["success_rate", "steps_median"]
+    knob = sens["methods"]["base"]["knobs"]["estimator.p0"]
+    assert (knob["low"], knob["high"]) == (10.0, 1000.0)
+    by_p0 = {g["estimator.p0"]: g["steps_median"] for g in ranking}
+    assert knob["steps_median"]["spread"] == pytest.approx(abs(by_p0[10.0] - by_p0[1000.0]))
+    assert "## Sensitivity" in text and "| estimator.p0 | 10–1e+03 |" in text
     for metric in ("success_rate", "steps_median"):  # one figure per ranking metric and key
         assert (smoke_sweep / "figures" / f"{metric}_vs_estimator_p0.png").stat().st_size > 5000
     assert len(journal(smoke_sweep)) == 4

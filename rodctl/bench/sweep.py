@@ -11,8 +11,9 @@ appended to results.jsonl the moment it finishes and `--resume` to finish an int
 
 Outputs, in one new folder: results.jsonl (the journal), results.csv (one row per episode, a
 column per swept key), summary.json / summary.md (one line per point and method, ranked by
-`rank_by`), figures/<metric>_vs_<key>.png (each ranking metric against each swept key),
-targets_seed<S>.yaml.
+`rank_by`), sensitivity.json (how far each ranking metric moves across each knob's range,
+`rodctl/sensitivity.py`, also a section of summary.md), figures/<metric>_vs_<key>.png (each
+ranking metric against each swept key), targets_seed<S>.yaml.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ from rodctl.config.loading import (
     format_validation_error,
     load_config,
 )
-from rodctl.config.sweep import MAX_POINTS, METRICS, SweepConfig
+from rodctl.config.sweep import MAX_POINTS, METRICS, ParameterConfig, SweepConfig
 from rodctl.display import stderr
 from rodctl.errors import UserError
 from rodctl.executors.base import Executor
@@ -85,7 +86,8 @@ def sweep_points(cfg: SweepConfig) -> list[dict[str, Any]]:
 
     Grid: the product of every key's `values`, first key slowest. Random: `samples` draws from
     the 'sweep' stream of the seed, each key independently (a choice among `values`, or uniform
-    / log-uniform in [low, high], rounded when `integer`).
+    / log-uniform in [low, high], rounded when `integer`; a list drawn element by element when
+    `elements`, divided by its sum when `normalize`).
     """
     keys = list(cfg.parameters)
     if cfg.search == "grid":
@@ -93,22 +95,51 @@ def sweep_points(cfg: SweepConfig) -> list[dict[str, Any]]:
         combos = itertools.product(*(cfg.parameters[k].values or [] for k in keys))
         return [dict(zip(keys, c, strict=True)) for c in combos]
     gen = rng(cfg.seed, "sweep")
-    points = []
-    for _ in range(cfg.samples or 0):
-        point = {}
-        for k in keys:
-            p = cfg.parameters[k]
-            if p.values is not None:
-                point[k] = p.values[int(gen.integers(len(p.values)))]
-                continue
-            assert p.low is not None and p.high is not None  # `ParameterConfig` checks it
-            if p.log:
-                v = float(math.exp(gen.uniform(math.log(p.low), math.log(p.high))))
+    drawn = [{k: _draw(cfg.parameters[k], gen) for k in keys} for _ in range(cfg.samples or 0)]
+    return [_base_point(cfg), *drawn] if cfg.include_base else drawn
+
+
+def _base_point(cfg: SweepConfig) -> dict[str, Any]:
+    """The base's own value of every swept key (`include_base`: the current setting).
+
+    Raises:
+        ConfigError: a swept key the base does not set (named).
+    """
+    data = cfg.base.model_dump(mode="json")
+    point = {}
+    for key in cfg.parameters:
+        node: Any = data
+        for part in key.split("."):
+            if isinstance(node, dict) and part in node:
+                node = node[part]
+            elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
+                node = node[int(part)]
             else:
-                v = float(gen.uniform(p.low, p.high))
-            point[k] = int(round(v)) if p.integer else v
-        points.append(point)
-    return points
+                raise ConfigError(
+                    f"parameters.{key}: include_base takes the base's value, but the base has "
+                    "no such key"
+                )
+        point[key] = node
+    return point
+
+
+def _draw(p: ParameterConfig, gen: np.random.Generator) -> Any:
+    """One random-search value of a parameter: a choice, a (log-)uniform draw, or a list drawn
+    element by element (then divided by its sum when `normalize`)."""
+    if p.elements is not None:
+        drawn = [_draw(e, gen) for e in p.elements]
+        if p.normalize:
+            total = float(sum(drawn))
+            drawn = [float(v) / total for v in drawn]
+        return drawn
+    if p.values is not None:
+        return p.values[int(gen.integers(len(p.values)))]
+    assert p.low is not None and p.high is not None  # `ParameterConfig` checks it
+    if p.log:
+        v = float(math.exp(gen.uniform(math.log(p.low), math.log(p.high))))
+    else:
+        v = float(gen.uniform(p.low, p.high))
+    return int(round(v)) if p.integer else v
 
 
 def _method_data(cfg: SweepConfig) -> dict[str, dict[str, Any]]:
@@ -147,7 +178,10 @@ def load_sweep_config(path: str | Path, overrides: list[str] | None = None) -> S
     """
     cfg = load_config(path, overrides, model=SweepConfig)
     source = config_source(path, overrides)
-    points = sweep_points(cfg)
+    try:
+        points = sweep_points(cfg)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
     if len(points) > MAX_POINTS:
         raise ConfigError(f"{source}: {len(points)} points; at most {MAX_POINTS} (split it)")
     methods = _method_data(cfg)
@@ -177,11 +211,17 @@ def group_stats(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "errors": sum(r.get("outcome") == "error" for r in rows),
         "success_rate": len(conv) / len(rows) if rows else None,
         "steps_median": med([r.get("steps_to_converge") for r in conv]),
+        "steps_mean": _mean([r.get("steps_to_converge") for r in conv]),
         "final_pixel_error_median": med([r.get("final_pixel_error") for r in rows]),
         "smoothness_median": med([r.get("smoothness") for r in conv]),
         "path_length_median": med([r.get("path_length") for r in conv]),
         "wall_time_median": med([r.get("wall_time_s") for r in rows]),
     }
+
+
+def _mean(values: list[Any]) -> float | None:
+    kept = [float(v) for v in values if v is not None]
+    return float(np.mean(kept)) if kept else None
 
 
 def rank_groups(groups: list[dict[str, Any]], rank_by: list[str]) -> list[dict[str, Any]]:
@@ -367,6 +407,10 @@ def _report(
     header, lines = _summary_table(ranked, keys, cfg.rank_by)
     table = markdown_table(header, lines)
     text = _summary_md(cfg, summary, table, len(method_names), targets, wall)
+    # sensitivity.json + its summary section; lazy: it loads scipy, only a report needs it
+    from rodctl.sensitivity import write_sensitivity  # noqa: PLC0415
+
+    text += write_sensitivity(folder, ranked, keys, cfg.rank_by)
     (folder / "summary.md").write_text("\n".join(text), encoding="utf-8")
     if rows:
         for metric in cfg.rank_by:

@@ -27,6 +27,7 @@ _KEY = r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*$"
 METRICS: dict[str, bool] = {
     "success_rate": True,
     "steps_median": False,
+    "steps_mean": False,
     "final_pixel_error_median": False,
     "smoothness_median": False,
     "path_length_median": False,
@@ -50,10 +51,43 @@ class ParameterConfig(StrictModel):
     high: float | None = Field(None, description="Random search: upper end of the range.")
     log: bool = Field(False, description="Random search: draw uniformly in log(value).")
     integer: bool = Field(False, description="Random search: round the draw to an integer.")
+    elements: list[ParameterConfig] | None = Field(
+        None,
+        min_length=1,
+        description="Random search: a list value drawn element by element, each element its own "
+        "`values` or range (e.g. the seven MFAC weights, each on its own log range).",
+    )
+    normalize: bool = Field(
+        False,
+        description="With `elements`: divide the drawn list by its sum, so that it sums to 1 "
+        "(the MFAC weights must); every element must then be positive.",
+    )
 
     @model_validator(mode="after")
     def _one_kind(self) -> ParameterConfig:
         ranged = self.low is not None or self.high is not None
+        if self.elements is not None:
+            if ranged or self.values is not None or self.log or self.integer:
+                raise ValueError(
+                    "`elements` gives each element its own values or range: leave `values`, "
+                    "`low`/`high`, `log` and `integer` to the elements"
+                )
+            if self.normalize:
+                bad = [
+                    i
+                    for i, e in enumerate(self.elements)
+                    if e.elements is not None
+                    or (e.values is not None and not all(_positive(v) for v in e.values))
+                    or (e.low is not None and e.low <= 0)
+                ]
+                if bad:
+                    raise ValueError(
+                        f"`normalize` needs positive numbers in every element; elements {bad} "
+                        "may draw something else"
+                    )
+            return self
+        if self.normalize:
+            raise ValueError("`normalize` applies to a list drawn by `elements` only")
         if (self.values is None) == (not ranged):
             raise ValueError("give either `values` or a range `low`/`high`, not both or neither")
         if ranged:
@@ -66,6 +100,10 @@ class ParameterConfig(StrictModel):
         elif self.log or self.integer:
             raise ValueError("`log` and `integer` apply to a range (`low`/`high`) only")
         return self
+
+
+def _positive(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and v > 0
 
 
 @depends_on_stages
@@ -97,6 +135,11 @@ class SweepConfig(StrictModel):
         "grid", description="grid: every combination of `values`; random: `samples` draws."
     )
     samples: PositiveInt | None = Field(None, description="Random search: number of points.")
+    include_base: bool = Field(
+        False,
+        description="Random search: point 0 is the base's own values of the swept keys (the "
+        "current setting, run on the same targets), before the `samples` draws.",
+    )
     seeds: list[Annotated[int, Field(ge=0, le=MAX_SEED)]] = Field(
         [0],
         min_length=1,
@@ -154,11 +197,13 @@ class SweepConfig(StrictModel):
             ranged = [k for k, p in self.parameters.items() if p.values is None]
             if ranged:
                 raise ValueError(
-                    f"grid search needs `values` for every key; {ranged} give a range "
-                    "(use search: random, or list values)"
+                    f"grid search needs `values` for every key; {ranged} give a range or "
+                    "`elements` (use search: random, or list values)"
                 )
             if self.samples is not None:
                 raise ValueError("`samples` is for search: random; a grid runs every point")
+            if self.include_base:
+                raise ValueError("`include_base` is for search: random (a grid lists its values)")
         elif self.samples is None:
             raise ValueError("search: random needs `samples` (the number of points to draw)")
         if self.base.run.target.pose is not None:
