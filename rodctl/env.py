@@ -364,7 +364,7 @@ class ShapeServoEnv(gym.Env):
             raise UserError(
                 f"initial frame: the rod's centerline could not be extracted ({self.frame.note})"
             )
-        self.task = self._task(rod)
+        self.task = self._task(rod, self.target)
         return self._observation(np.zeros(self.q)), {
             **self._info(None),
             "target": self.target,
@@ -537,10 +537,10 @@ class ShapeServoEnv(gym.Env):
 
     # --- internals -----------------------------------------------------------------------------
 
-    def _task(self, rod: Any) -> Task:
+    def _task(self, rod: Any, target: Target) -> Task:
         """What the method is told of the episode that `reset` has just set up on `rod`."""
         return Task(
-            target_pixels=self.target.pixels,
+            target_pixels=target.pixels,
             home_pose=self.home_pose,
             clamp_pose=np.asarray(rod.clamp_pose, dtype=float),  # dual-arm: start_pose may move it
             max_step=self.max_step,
