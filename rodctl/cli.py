@@ -275,6 +275,36 @@ OutOpt = Annotated[
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or table.")]
 
 
+JsonOpt = Annotated[
+    bool,
+    typer.Option(
+        "--json",
+        help="Print the summary as one JSON object on stdout (with `run_dir`) instead of "
+        "the table and the run directory.",
+    ),
+]
+LiveOpt = Annotated[
+    bool,
+    typer.Option(
+        "--live",
+        help="Stream the run to Foxglove (WebSocket, localhost); the run starts when a "
+        "client subscribes. docs/reports.md.",
+    ),
+]
+LivePortOpt = Annotated[
+    int, typer.Option("--live-port", help="Port of the --live server (0: any free one).")
+]
+LiveRerunOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--live-rerun",
+        metavar="URL",
+        help="Also stream the run to a Rerun viewer already listening at URL, e.g. "
+        "rerun+http://127.0.0.1:9876/proxy (start it with `rerun`). docs/reports.md.",
+    ),
+]
+
+
 @app.command()
 @user_errors
 def simulate(
@@ -282,34 +312,10 @@ def simulate(
     set_: SetOpt = None,
     out: OutOpt = "runs",
     quiet: QuietOpt = False,
-    as_json: Annotated[
-        bool,
-        typer.Option(
-            "--json",
-            help="Print the summary as one JSON object on stdout (with `run_dir`) instead of "
-            "the table and the run directory.",
-        ),
-    ] = False,
-    live: Annotated[
-        bool,
-        typer.Option(
-            "--live",
-            help="Stream the run to Foxglove (WebSocket, localhost); the run starts when a "
-            "client subscribes. docs/reports.md.",
-        ),
-    ] = False,
-    live_port: Annotated[
-        int, typer.Option("--live-port", help="Port of the --live server (0: any free one).")
-    ] = 8765,
-    live_rerun: Annotated[
-        str | None,
-        typer.Option(
-            "--live-rerun",
-            metavar="URL",
-            help="Also stream the run to a Rerun viewer already listening at URL, e.g. "
-            "rerun+http://127.0.0.1:9876/proxy (start it with `rerun`). docs/reports.md.",
-        ),
-    ] = None,
+    as_json: JsonOpt = False,
+    live: LiveOpt = False,
+    live_port: LivePortOpt = 8765,
+    live_rerun: LiveRerunOpt = None,
 ) -> None:
     """Run one shape-servoing experiment; print the run directory as the last line.
 
@@ -326,12 +332,7 @@ def simulate(
     from rodctl.records import RunSummary
     from rodctl.simulate import simulate as run_simulation
 
-    model = _config_model(config)
-    if model is not ExperimentConfig:
-        command = "sweep" if model.__name__ == "SweepConfig" else "compare"
-        raise UserError(
-            f"{config}: this is a {command} config; run it with `rodctl {command} {config}`"
-        )
+    _experiment_config_only(config)
     cfg = load_config(config, set_ or [])
     table = not (quiet or as_json)
     rerun_view = _live_rerun(cfg, live_rerun) if live_rerun else None
@@ -363,6 +364,17 @@ def simulate(
     raise typer.Exit(code=result.exit_code)
 
 
+def _experiment_config_only(config: str) -> None:
+    """`simulate` runs an experiment config; a compare or sweep config is a `UserError` naming
+    the command that runs it."""
+    model = _config_model(config)
+    if model is not ExperimentConfig:
+        command = "sweep" if model.__name__ == "SweepConfig" else "compare"
+        raise UserError(
+            f"{config}: this is a {command} config; run it with `rodctl {command} {config}`"
+        )
+
+
 def _live_rerun(cfg: ExperimentConfig, url: str) -> Any:
     """`simulate --live-rerun URL`: the run's Rerun recording, streamed to that viewer too."""
     from rodctl.logs.rerun import RerunSink, check_viewer
@@ -391,36 +403,45 @@ def _live_view(cfg: ExperimentConfig, port: int) -> Any:
     return view
 
 
+VerifyOpt = Annotated[
+    bool, typer.Option("--verify", help="Re-run the simulation and compare every step.")
+]
+RecoverOpt = Annotated[
+    bool, typer.Option("--recover", help="Read an unfinished MCAP up to its last whole step.")
+]
+ReplayOutOpt = Annotated[
+    str | None, typer.Option("--out", "-o", help="Write run.rrd and figures here instead.")
+]
+FiguresOpt = Annotated[bool, typer.Option("--figures/--no-figures", help="Redraw figures.")]
+OpenOpt = Annotated[
+    bool, typer.Option("--open", help="Open the rebuilt run.rrd in the Rerun viewer.")
+]
+ToleranceOpt = Annotated[
+    float,
+    typer.Option(
+        "--tolerance",
+        min=0.0,
+        help="With --verify, accept numbers that differ by at most TOL * max(1, |value|) "
+        "(a rerun on another CPU or BLAS kernel). 0 = bit for bit.",
+        metavar="TOL",
+    ),
+]
+ReplayQuietOpt = Annotated[
+    bool, typer.Option("--quiet", "-q", help="No summary table: only the verdict and errors.")
+]
+
+
 @app.command()
 @user_errors
 def replay(
     path: Annotated[str, typer.Argument(help="A run directory or its run.mcap.")],
-    verify: Annotated[
-        bool, typer.Option("--verify", help="Re-run the simulation and compare every step.")
-    ] = False,
-    recover: Annotated[
-        bool, typer.Option("--recover", help="Read an unfinished MCAP up to its last whole step.")
-    ] = False,
-    out: Annotated[
-        str | None, typer.Option("--out", "-o", help="Write run.rrd and figures here instead.")
-    ] = None,
-    figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Redraw figures.")] = True,
-    open_viewer: Annotated[
-        bool, typer.Option("--open", help="Open the rebuilt run.rrd in the Rerun viewer.")
-    ] = False,
-    tolerance: Annotated[
-        float,
-        typer.Option(
-            "--tolerance",
-            min=0.0,
-            help="With --verify, accept numbers that differ by at most TOL * max(1, |value|) "
-            "(a rerun on another CPU or BLAS kernel). 0 = bit for bit.",
-            metavar="TOL",
-        ),
-    ] = 0.0,
-    quiet: Annotated[
-        bool, typer.Option("--quiet", "-q", help="No summary table: only the verdict and errors.")
-    ] = False,
+    verify: VerifyOpt = False,
+    recover: RecoverOpt = False,
+    out: ReplayOutOpt = None,
+    figures: FiguresOpt = True,
+    open_viewer: OpenOpt = False,
+    tolerance: ToleranceOpt = 0.0,
+    quiet: ReplayQuietOpt = False,
 ) -> None:
     """Rebuild run.rrd and the figures from a run's MCAP alone and print its summary.
 

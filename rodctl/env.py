@@ -202,6 +202,18 @@ def _home_sim(rod: Any) -> RodSim:
     return RodSim.at_home(rod)
 
 
+def _given_target(options: dict[str, Any]) -> Target | None:
+    """`reset`'s `target` option (a `Target` from `make_target`) or None; an unknown option or
+    a target of another type is a ValueError."""
+    unknown = set(options) - {"target_pose", "start_pose", "target"}
+    if unknown:
+        raise ValueError(f"reset: unknown options {sorted(unknown)}")
+    given = options.get("target")
+    if given is not None and not isinstance(given, Target):
+        raise ValueError("reset: options['target'] must be a Target (from make_target)")
+    return given
+
+
 def _as_config(config: ExperimentConfig | dict | str | None) -> ExperimentConfig:
     if config is None:
         return ExperimentConfig()
@@ -335,14 +347,9 @@ class ShapeServoEnv(gym.Env):
         else:
             rod = cfg.rod
         self._rod_cfg = rod
-        unknown = set(options) - {"target_pose", "start_pose", "target"}
-        if unknown:
-            raise ValueError(f"reset: unknown options {sorted(unknown)}")
+        given = _given_target(options)
         self.times = StageTimes()
         self._new_camera(seed)
-        given = options.get("target")
-        if given is not None and not isinstance(given, Target):
-            raise ValueError("reset: options['target'] must be a Target (from make_target)")
         # A target made earlier (`make_target`) is reused as is: the clean camera that sees it
         # has no noise stream, so it is the same target this episode would make.
         self.target = given or self._make_target(options.get("target_pose"), seed)
@@ -355,16 +362,7 @@ class ShapeServoEnv(gym.Env):
             raise UserError(
                 f"initial frame: the rod's centerline could not be extracted ({self.frame.note})"
             )
-        self.task = Task(
-            target_pixels=self.target.pixels,
-            home_pose=self.home_pose,
-            clamp_pose=np.asarray(rod.clamp_pose, dtype=float),  # dual-arm: start_pose may move it
-            max_step=self.max_step,
-            probe_size=np.tile(np.asarray(cfg.run.probe_size, dtype=float), self.q // Q),
-            camera=self.camera,
-            points=cfg.camera.points,
-            true_jacobian=self.true_jacobian,
-        )
+        self.task = self._task(rod, self.target)
         return self._observation(np.zeros(self.q)), {
             **self._info(None),
             "target": self.target,
@@ -546,6 +544,19 @@ class ShapeServoEnv(gym.Env):
         return self._make_target(pose, seed, band, generator)
 
     # --- internals -----------------------------------------------------------------------------
+
+    def _task(self, rod: Any, target: Target) -> Task:
+        """What the method is told of the episode that `reset` has just set up on `rod`."""
+        return Task(
+            target_pixels=target.pixels,
+            home_pose=self.home_pose,
+            clamp_pose=np.asarray(rod.clamp_pose, dtype=float),  # dual-arm: start_pose may move it
+            max_step=self.max_step,
+            probe_size=np.tile(np.asarray(self.cfg.run.probe_size, dtype=float), self.q // Q),
+            camera=self.camera,
+            points=self.cfg.camera.points,
+            true_jacobian=self.true_jacobian,
+        )
 
     def _new_camera(self, seed: int) -> None:
         """A camera with a fresh noise stream for episode `seed`, and its extractor; and the

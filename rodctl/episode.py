@@ -206,50 +206,12 @@ def run_episode(
     base = _servo_env(env)
     wall0 = time.perf_counter()
     obs, info = env.reset(seed=base.config.seed if seed is None else seed, options=options)
-    cfg = base.config  # after reset: `options` may have replaced it
-    stop_rule = stop_rule or StopRule.from_config(cfg)
+    # base.config after reset: `options` may have replaced it
+    stop_rule = stop_rule or StopRule.from_config(base.config)
     stop_rule.reset()
-    task = base.task
-    if task is None:
-        raise TypeError(f"run_episode: {type(base).__name__}.reset() left its `task` unset")
-    method.start(task)
-    loop = _Loop(base, cfg, task, info, method, sinks, on_step, wall0)
+    loop = _open(base, info, method, sinks, on_step, wall0, run_id)
     try:
-        loop.open(run_id)  # closes what it opened if one sink fails to open
-    except Exception as exc:
-        if isinstance(exc, UserError):
-            raise
-        raise EpisodeFailed(loop.finish(Outcome.ERROR, error=exc, close=False)) from exc
-    outcome: Outcome | None = None
-    try:
-        u = method.act(obs)
-        rec = loop.record(info, u=np.zeros(base.q), u_raw=np.zeros(base.q), phase=INITIAL)
-        loop.emit(rec)
-        k = 0
-        while outcome is None and k < cfg.run.max_steps:
-            reason = stop_requested() if stop_requested is not None else None
-            if reason:
-                raise Interrupted(reason)
-            k += 1
-            phase = method.phase
-            if not np.all(np.isfinite(u)):
-                # A NaN estimate or feature: the method has broken down; do not move the robot.
-                rec = loop.record(loop.info, u=np.zeros(base.q), u_raw=u, phase=phase, moved=False)
-                loop.emit(rec)
-                outcome = Outcome.DIVERGED
-                loop.reason = divergence(rec, False)
-                break
-            obs, _, _, truncated, info = env.step(u)
-            u_raw = u
-            u = method.act(obs)
-            rec = loop.record(info, u=obs["applied"], u_raw=u_raw, phase=phase)
-            loop.emit(rec)
-            outcome = stop_rule.check(rec, method, diverged=info["diverged"])
-            if outcome is Outcome.DIVERGED:
-                loop.reason = divergence(rec, info["diverged"])
-            elif outcome is None and truncated:
-                outcome = Outcome.STEP_LIMIT  # a time limit: run.max_steps or a wrapper's
-        outcome = outcome or Outcome.STEP_LIMIT
+        outcome = _steps(env, loop, stop_rule, obs, info, stop_requested)
     except (Interrupted, KeyboardInterrupt) as exc:
         outcome = Outcome.INTERRUPTED
         loop.note = f"interrupted by {exc or 'SIGINT'}"
@@ -263,6 +225,76 @@ def run_episode(
     if result.error is not None:  # the logs could not be finalised
         raise EpisodeFailed(result)
     return result
+
+
+def _open(
+    base: ServoEnv,
+    info: dict[str, Any],
+    method: Method,
+    sinks: Sequence[Sink],
+    on_step: Callable[[StepRecord], None] | None,
+    wall0: float,
+    run_id: str,
+) -> _Loop:
+    """The episode's bookkeeping after `reset`: the method started on the env's task, the sinks
+    opened with the header (closed again if one fails to open; a `UserError` passes)."""
+    cfg = base.config
+    task = base.task
+    if task is None:
+        raise TypeError(f"run_episode: {type(base).__name__}.reset() left its `task` unset")
+    method.start(task)
+    loop = _Loop(base, cfg, task, info, method, sinks, on_step, wall0)
+    try:
+        loop.open(run_id)  # closes what it opened if one sink fails to open
+    except Exception as exc:
+        if isinstance(exc, UserError):
+            raise
+        raise EpisodeFailed(loop.finish(Outcome.ERROR, error=exc, close=False)) from exc
+    return loop
+
+
+def _steps(
+    env: gym.Env,
+    loop: _Loop,
+    stop_rule: StopRule,
+    obs: dict[str, Any],
+    info: dict[str, Any],
+    stop_requested: Callable[[], str | None] | None,
+) -> Outcome:
+    """The steps of a started episode, record 0 (the initial observation) first, until the stop
+    rule, the step limit or a wrapper's `truncated` ends it; the outcome.
+
+    Raises:
+        Interrupted: `stop_requested` gave a reason between two steps.
+    """
+    method, q, max_steps = loop.method, loop.env.q, loop.cfg.run.max_steps
+    u = method.act(obs)
+    loop.emit(loop.record(info, u=np.zeros(q), u_raw=np.zeros(q), phase=INITIAL))
+    outcome: Outcome | None = None
+    k = 0
+    while outcome is None and k < max_steps:
+        reason = stop_requested() if stop_requested is not None else None
+        if reason:
+            raise Interrupted(reason)
+        k += 1
+        phase = method.phase
+        if not np.all(np.isfinite(u)):
+            # A NaN estimate or feature: the method has broken down; do not move the robot.
+            rec = loop.record(loop.info, u=np.zeros(q), u_raw=u, phase=phase, moved=False)
+            loop.emit(rec)
+            loop.reason = divergence(rec, False)
+            return Outcome.DIVERGED
+        obs, _, _, truncated, info = env.step(u)
+        u_raw = u
+        u = method.act(obs)
+        rec = loop.record(info, u=obs["applied"], u_raw=u_raw, phase=phase)
+        loop.emit(rec)
+        outcome = stop_rule.check(rec, method, diverged=info["diverged"])
+        if outcome is Outcome.DIVERGED:
+            loop.reason = divergence(rec, info["diverged"])
+        elif outcome is None and truncated:
+            outcome = Outcome.STEP_LIMIT  # a time limit: run.max_steps or a wrapper's
+    return outcome or Outcome.STEP_LIMIT
 
 
 def _servo_env(env: gym.Env) -> ServoEnv:

@@ -451,8 +451,6 @@ def estimate(
         settings: explicit settings per estimator name (override both).
         progress: called with each estimator's name before it runs.
     """
-    from rodctl.registry import BuildContext
-
     try:
         J0 = fit_jacobian(pairs.init_ds, pairs.init_dr)
     except ValueError as exc:
@@ -464,34 +462,8 @@ def estimate(
     for name, model in online_estimators(names).items():
         if progress is not None:
             progress(name)
-        try:
-            cfg = model(**chosen.get(name, {}))
-            from rodctl.registry import ESTIMATORS
-
-            est = ESTIMATORS.build(cfg, BuildContext(points=0, p=pairs.p, q=pairs.q))
-        except Exception as exc:  # noqa: BLE001 - e.g. the oracle needs a simulator
-            from pydantic import ValidationError
-
-            if isinstance(exc, ValidationError):  # e.g. `learned` without its checkpoint
-                fields = ", ".join(".".join(map(str, e["loc"])) for e in exc.errors())
-                note = f"needs settings that `rodctl estimate` does not take: {fields}"
-            else:
-                note = " ".join(str(exc).split())[:200]
-            runs.append(
-                EstimatorRun(name, "not_applicable", np.full(len(pairs.ds), np.nan), note=note)
-            )
-            continue
-        if getattr(est, "prepare", None) is not None:
-            runs.append(
-                EstimatorRun(
-                    name,
-                    "not_applicable",
-                    np.full(len(pairs.ds), np.nan),
-                    note="an offline model of the rod and camera, not an online estimate",
-                )
-            )
-            continue
-        runs.append(_one(name, est, pairs, J0))
+        est = _build(name, model, chosen.get(name, {}), pairs)
+        runs.append(est if isinstance(est, EstimatorRun) else _one(name, est, pairs, J0))
     zero = np.sqrt((pairs.ds**2).sum(axis=1))
     try:
         J_ls = fit_jacobian(pairs.ds, pairs.dr)
@@ -501,6 +473,36 @@ def estimate(
     except ValueError:
         J_ls, hind = None, np.full(len(zero), np.nan)
     return EstimateResult(pairs, runs, zero, hind, J_ls, chosen)
+
+
+def _build(name: str, model: Any, settings: dict[str, Any], pairs: Pairs) -> Any:
+    """The estimator `name` built with `settings` for the pairs' p and q, or, when it cannot
+    run here (it needs a simulator or settings `rodctl estimate` does not take, or it is an
+    offline model), its `not_applicable` row saying why."""
+    from rodctl.registry import BuildContext
+
+    try:
+        cfg = model(**settings)
+        from rodctl.registry import ESTIMATORS
+
+        est = ESTIMATORS.build(cfg, BuildContext(points=0, p=pairs.p, q=pairs.q))
+    except Exception as exc:  # noqa: BLE001 - e.g. the oracle needs a simulator
+        from pydantic import ValidationError
+
+        if isinstance(exc, ValidationError):  # e.g. `learned` without its checkpoint
+            fields = ", ".join(".".join(map(str, e["loc"])) for e in exc.errors())
+            note = f"needs settings that `rodctl estimate` does not take: {fields}"
+        else:
+            note = " ".join(str(exc).split())[:200]
+        return EstimatorRun(name, "not_applicable", np.full(len(pairs.ds), np.nan), note=note)
+    if getattr(est, "prepare", None) is not None:
+        return EstimatorRun(
+            name,
+            "not_applicable",
+            np.full(len(pairs.ds), np.nan),
+            note="an offline model of the rod and camera, not an online estimate",
+        )
+    return est
 
 
 def _fmt(v: Any) -> str:

@@ -15,7 +15,7 @@ step and field that differ beyond the tolerance, or a step count, flag or text t
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -497,56 +497,29 @@ def compare_runs(
     """
     if not tolerance >= 0.0:
         raise ValueError(f"tolerance must be >= 0, got {tolerance}")
-    units = FIELD_UNITS
     differences = compare_records(logged, fresh, images=images)
     worst: dict[str, Deviation] = {}
-    mismatch: str | None = None
     numbers_only = len(logged) == len(fresh)
-    if not numbers_only:
-        mismatch = f"step count differs: logged {len(logged)}, rerun {len(fresh)}"
+    mismatch = None if numbers_only else _count_mismatch(logged, fresh)
     for a, b in zip(logged, fresh, strict=False):
-        for f in fields(StepRecord):
-            if f.name == "image" and not (images and a.image is not None and b.image is not None):
+        for name, xv, yv in _values(a, b, images):
+            if _same(xv, yv):
                 continue
-            x, y = getattr(a, f.name), getattr(b, f.name)
-            if isinstance(x, dict) and isinstance(y, dict) and x.keys() == y.keys():
-                pairs = [(f"{f.name}.{k}", x[k], y[k]) for k in x]
-            else:
-                pairs = [(f.name, x, y)]
-            for name, xv, yv in pairs:
-                if _same(xv, yv):
-                    continue
-                unit = units.get(name.split(".")[0], "")
-                dev = _deviation(xv, yv)
-                if dev is None:
-                    numbers_only = False
-                    if mismatch is None:
-                        mismatch = f"step {a.step}: {name} differs"
-                    continue
-                absdev, scaled = dev
-                within = scaled <= tolerance
-                prev = worst.get(name)
-                if prev is None or absdev > prev.max_abs:
-                    worst[name] = Deviation(
-                        name,
-                        unit,
-                        absdev,
-                        a.step,
-                        within and (prev is None or prev.within),
-                        max(scaled, prev.max_scaled if prev else 0.0),
-                    )
-                else:
-                    prev.within = prev.within and within
-                    prev.max_scaled = max(prev.max_scaled, scaled)
-                if not within and mismatch is None:
-                    by = f"{absdev:.3g} {unit}".strip()
-                    mismatch = f"step {a.step}: {name} differs (by {by})"
-    if mismatch is not None:
-        verdict: Literal["identical", "within_tolerance", "mismatch"] = "mismatch"
-    elif differences:
-        verdict = "within_tolerance"
-    else:
-        verdict = "identical"
+            unit = FIELD_UNITS.get(name.split(".")[0], "")
+            dev = _deviation(xv, yv)
+            if dev is None:
+                numbers_only = False
+                mismatch = mismatch or f"step {a.step}: {name} differs"
+                continue
+            absdev, scaled = dev
+            within = scaled <= tolerance
+            _note_deviation(worst, Deviation(name, unit, absdev, a.step, within, scaled))
+            if not within and mismatch is None:
+                by = f"{absdev:.3g} {unit}".strip()
+                mismatch = f"step {a.step}: {name} differs (by {by})"
+    verdict: Literal["identical", "within_tolerance", "mismatch"] = (
+        "mismatch" if mismatch is not None else "within_tolerance" if differences else "identical"
+    )
     return VerifyResult(
         verdict=verdict,
         steps=min(len(logged), len(fresh)),
@@ -558,6 +531,39 @@ def compare_runs(
         fresh_env=fresh_env,
         numbers_only=numbers_only,
     )
+
+
+def _count_mismatch(logged: Sequence[StepRecord], fresh: Sequence[StepRecord]) -> str:
+    return f"step count differs: logged {len(logged)}, rerun {len(fresh)}"
+
+
+def _values(a: StepRecord, b: StepRecord, images: bool) -> Iterator[tuple[str, Any, Any]]:
+    """(field name, logged value, rerun value) of every field of two records; a dict field whose
+    keys agree (`estimator_info`) gives one per key, as `field.key`. The camera image only with
+    `images` and when both records carry one."""
+    for f in fields(StepRecord):
+        if f.name == "image" and not (images and a.image is not None and b.image is not None):
+            continue
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, dict) and isinstance(y, dict) and x.keys() == y.keys():
+            yield from ((f"{f.name}.{k}", x[k], y[k]) for k in x)
+        else:
+            yield f.name, x, y
+
+
+def _note_deviation(worst: dict[str, Deviation], dev: Deviation) -> None:
+    """Fold one step's deviation of a field into `worst`, the field's largest so far: its size
+    and step are the largest's, `within` holds only if every step's was within the tolerance,
+    `max_scaled` is the largest scaled deviation of any step."""
+    prev = worst.get(dev.field)
+    if prev is None or dev.max_abs > prev.max_abs:
+        if prev is not None:
+            dev.within = dev.within and prev.within
+            dev.max_scaled = max(dev.max_scaled, prev.max_scaled)
+        worst[dev.field] = dev
+    else:
+        prev.within = prev.within and dev.within
+        prev.max_scaled = max(prev.max_scaled, dev.max_scaled)
 
 
 def verify(run: ReadRun, *, tolerance: float = 0.0, progress: bool = False) -> VerifyResult:

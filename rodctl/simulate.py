@@ -21,7 +21,7 @@ from typing import Any
 from rodctl import signals
 from rodctl.config import ExperimentConfig
 from rodctl.env import ShapeServoEnv
-from rodctl.episode import EpisodeFailed, Outcome, run_episode
+from rodctl.episode import EpisodeFailed, EpisodeResult, Outcome, run_episode
 from rodctl.errors import UserError, describe_os_error
 from rodctl.figure_worker import FiguresFailed, FigureWorker, save_figures
 from rodctl.logs.base import Sink
@@ -109,39 +109,8 @@ def simulate(
         method = Method.from_config(cfg)
         run = RunDir.create(out, cfg, command="simulate", argv=argv)
         _embed_encoder(cfg, run)
-        try:
-            # The figure process first: it gets the records before the logs are closed.
-            sinks = ([figures] if figures else []) + make_sinks(cfg, run.path)
-            if live is not None:
-                sinks += list(live) if isinstance(live, list | tuple) else [live]
-            result = run_episode(
-                env,
-                method,
-                sinks=sinks,
-                run_id=run.run_id,
-                on_step=on_step,
-                stop_requested=stops.reason,
-            )
-        except EpisodeFailed as exc:
-            result = exc.result
-            _best_effort(lambda: (run.path / "error.txt").write_text(result.traceback or ""))
-        except UserError as exc:
-            # Bad input found before the first step: nothing to keep, nothing left behind.
-            if not run.discard_if_empty():
-                run.finish("failed", error=str(exc))
-            raise
-        error = (
-            result.error
-            or result.reason
-            or (
-                f"interrupted by {stops.reason() or 'SIGINT'}"
-                if result.outcome is Outcome.INTERRUPTED
-                else None
-            )
-        )
-        if result.reason and not result.error:  # diverged: no traceback, the reason says it
-            text = result.reason + "\n"
-            _best_effort(lambda: (run.path / "error.txt").write_text(text))
+        result = _run(env, method, cfg, run, figures, live, on_step, stops)
+        error = _episode_error(result, stops, run)
         summary = result.summary
         problems = [write_json_best_effort(run.path / "summary.json", summary.to_json())]
         shown: Exception | None = None  # a display error waits until meta.json is final
@@ -152,23 +121,91 @@ def simulate(
                 shown = exc
         if figures and result.records and result.error is None:
             problems.append(_figures(figures, result, run.path / "figures"))
-        lost = [p for p in problems if p]
-        status = result.status
-        if lost:
-            # The run itself may have been fine; what it could not write makes it a failure.
-            error = "; ".join(filter(None, [error, *lost]))
-            status = "failed" if status == "completed" else status
-        extra: dict[str, Any] = {"error": error} if error else {}
-        if result.header is not None:
-            extra["numeric_env"] = result.header.numeric_env
-        meta_error = run.finish(status, outcome=summary.outcome, **extra)
-        if meta_error:
-            error = "; ".join(filter(None, [error, f"meta.json not updated: {meta_error}"]))
-            status = "failed" if status == "completed" else status
+        status, error = _finish(run, result, problems, error)
     if shown is not None:
         raise shown
     code = EXIT_OK if status == "completed" else EXIT_RUN_FAILED
     return SimulateResult(run=run, summary=summary, exit_code=code, error=error)
+
+
+def _run(
+    env: ShapeServoEnv,
+    method: Method,
+    cfg: ExperimentConfig,
+    run: RunDir,
+    figures: Any,
+    live: Sink | Sequence[Sink] | None,
+    on_step: Callable[[StepRecord], None] | None,
+    stops: StopRequests,
+) -> EpisodeResult:
+    """The episode into `run`; a failed one's result, with its traceback in error.txt.
+
+    Raises:
+        UserError: bad input found before the first step; the run folder is removed (marked
+            failed instead when it is not empty).
+    """
+    try:
+        # The figure process first: it gets the records before the logs are closed.
+        sinks = ([figures] if figures else []) + make_sinks(cfg, run.path)
+        if live is not None:
+            sinks += list(live) if isinstance(live, list | tuple) else [live]
+        return run_episode(
+            env,
+            method,
+            sinks=sinks,
+            run_id=run.run_id,
+            on_step=on_step,
+            stop_requested=stops.reason,
+        )
+    except EpisodeFailed as exc:
+        result = exc.result
+        _best_effort(lambda: (run.path / "error.txt").write_text(result.traceback or ""))
+        return result
+    except UserError as exc:
+        # Bad input found before the first step: nothing to keep, nothing left behind.
+        if not run.discard_if_empty():
+            run.finish("failed", error=str(exc))
+        raise
+
+
+def _episode_error(result: EpisodeResult, stops: StopRequests, run: RunDir) -> str | None:
+    """Why the episode did not complete (its error, its divergence, its stop signal), else None;
+    a divergence's reason goes into error.txt."""
+    error = (
+        result.error
+        or result.reason
+        or (
+            f"interrupted by {stops.reason() or 'SIGINT'}"
+            if result.outcome is Outcome.INTERRUPTED
+            else None
+        )
+    )
+    if result.reason and not result.error:  # diverged: no traceback, the reason says it
+        text = result.reason + "\n"
+        _best_effort(lambda: (run.path / "error.txt").write_text(text))
+    return error
+
+
+def _finish(
+    run: RunDir, result: EpisodeResult, problems: list[str | None], error: str | None
+) -> tuple[str, str | None]:
+    """meta.json made final; (the run's status, its error). What could not be written
+    (`problems`: summary.json, the figures, meta.json itself) turns a completed run into a
+    failed one."""
+    lost = [p for p in problems if p]
+    status = result.status
+    if lost:
+        # The run itself may have been fine; what it could not write makes it a failure.
+        error = "; ".join(filter(None, [error, *lost]))
+        status = "failed" if status == "completed" else status
+    extra: dict[str, Any] = {"error": error} if error else {}
+    if result.header is not None:
+        extra["numeric_env"] = result.header.numeric_env
+    meta_error = run.finish(status, outcome=result.summary.outcome, **extra)
+    if meta_error:
+        error = "; ".join(filter(None, [error, f"meta.json not updated: {meta_error}"]))
+        status = "failed" if status == "completed" else status
+    return status, error
 
 
 def _embed_encoder(cfg: ExperimentConfig, run: RunDir) -> None:

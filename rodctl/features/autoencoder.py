@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, TypeGuard
@@ -334,6 +335,52 @@ def config_key_differences(
     return out
 
 
+#: The entries every serialised checkpoint has (`EncoderCheckpoint.from_dict`).
+_CHECKPOINT_KEYS = (
+    "state_dict",
+    "architecture",
+    "input_mean",
+    "input_scale",
+    "latent_scale",
+    "fingerprint",
+)
+
+
+def _checked_weights(
+    arch: Any, state_dict: Any, bad: Callable[[str], UserError]
+) -> tuple[int, int, list[int], dict[str, tuple[int, ...]], dict[str, np.ndarray]]:
+    """(inputs, latent_dim, hidden sizes, parameter shapes, weights) of a serialised checkpoint,
+    the weights checked to have the architecture's names and shapes; `bad(why)` is raised."""
+    try:
+        inputs, latent = int(arch["inputs"]), int(arch["latent_dim"])
+        hidden = [int(h) for h in arch["hidden"]]
+        shapes = parameter_shapes(arch)
+        weights = {k: _as_numpy(v) for k, v in dict(state_dict).items()}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise bad(f"unreadable architecture or weights ({exc})") from None
+    if set(weights) != set(shapes) or any(weights[k].shape != shape for k, shape in shapes.items()):
+        raise bad("weights do not match the recorded architecture")
+    return inputs, latent, hidden, shapes, weights
+
+
+def _checked_normalisation(
+    data: dict[str, Any], inputs: int, latent: int, bad: Callable[[str], UserError]
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """(input mean (inputs,), input scale > 0, latent scale (latent,)) of a serialised
+    checkpoint, finite and of the architecture's sizes; `bad(why)` is raised."""
+    try:
+        mean = _as_numpy(data["input_mean"]).astype(np.float64)
+        lat = _as_numpy(data["latent_scale"]).astype(np.float64)
+        scale = float(data["input_scale"])
+    except (TypeError, ValueError) as exc:
+        raise bad(f"unreadable normalisation ({exc})") from None
+    if mean.shape != (inputs,) or lat.shape != (latent,) or not scale > 0.0:
+        raise bad("normalisation does not match the architecture")
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(lat)) and math.isfinite(scale)):
+        raise bad("normalisation holds non-finite values")
+    return mean, scale, lat
+
+
 @dataclass
 class EncoderCheckpoint:
     """A trained autoencoder with everything needed to use and to trust it.
@@ -467,39 +514,12 @@ class EncoderCheckpoint:
             raise bad(f"expected a mapping with format={FORMAT!r}")
         if data.get("version") != VERSION:
             raise bad(f"format version {data.get('version')!r}, this rodctl reads {VERSION}")
-        keys = (
-            "state_dict",
-            "architecture",
-            "input_mean",
-            "input_scale",
-            "latent_scale",
-            "fingerprint",
-        )
-        missing = [k for k in keys if k not in data]
+        missing = [k for k in _CHECKPOINT_KEYS if k not in data]
         if missing:
             raise bad(f"missing {', '.join(missing)}")
         arch = data["architecture"]
-        try:
-            inputs, latent = int(arch["inputs"]), int(arch["latent_dim"])
-            hidden = [int(h) for h in arch["hidden"]]
-            shapes = parameter_shapes(arch)
-            weights = {k: _as_numpy(v) for k, v in dict(data["state_dict"]).items()}
-        except (KeyError, TypeError, ValueError) as exc:
-            raise bad(f"unreadable architecture or weights ({exc})") from None
-        if set(weights) != set(shapes) or any(
-            weights[k].shape != shape for k, shape in shapes.items()
-        ):
-            raise bad("weights do not match the recorded architecture")
-        try:
-            mean = _as_numpy(data["input_mean"]).astype(np.float64)
-            lat = _as_numpy(data["latent_scale"]).astype(np.float64)
-            scale = float(data["input_scale"])
-        except (TypeError, ValueError) as exc:
-            raise bad(f"unreadable normalisation ({exc})") from None
-        if mean.shape != (inputs,) or lat.shape != (latent,) or not scale > 0.0:
-            raise bad("normalisation does not match the architecture")
-        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(lat)) and math.isfinite(scale)):
-            raise bad("normalisation holds non-finite values")
+        inputs, latent, hidden, shapes, weights = _checked_weights(arch, data["state_dict"], bad)
+        mean, scale, lat = _checked_normalisation(data, inputs, latent, bad)
         for name, w in weights.items():
             if not np.all(np.isfinite(w)):
                 raise bad(f"weight {name} holds non-finite values")

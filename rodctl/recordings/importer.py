@@ -121,6 +121,39 @@ def import_bag(
     return write_run(rec, src, out, name, source), notes
 
 
+def _listed(v: str | list[str] | None) -> list[str]:
+    """An option given once or repeated, as a list (empty entries dropped)."""
+    return [v] if isinstance(v, str) else [x for x in v or [] if x]
+
+
+def _image_ends(
+    src: Path,
+    pose_topics: list[str],
+    tf_frames: list[str],
+    tf_topic: str,
+    tf_world: str | None,
+    clamp_pose: list[float] | None,
+) -> list[Any]:
+    """The camera frames' one or two end effectors (`PoseSource`s), checked with `clamp_pose`:
+    needed with one (where the rod starts), refused with two (end effector 0 is the start)."""
+    from rodctl.recordings.ros2 import pose_sources
+
+    ends = pose_sources(pose_topics, tf_frames, tf_topic, tf_world)
+    if not 1 <= len(ends) <= 2:
+        raise UserError(
+            f"{src}: camera frames need one or two end effectors (--pose-topic, --tf-frame); "
+            f"got {len(ends)}"
+        )
+    if len(ends) == 2 and clamp_pose is not None:
+        raise UserError(
+            "--clamp-pose: with two end effectors the rod's walk starts at end effector 0's "
+            "pose in each frame; leave --clamp-pose out"
+        )
+    if len(ends) == 1:
+        _need_clamp(src, clamp_pose)
+    return ends
+
+
 def import_bag_images(
     bag: str | Path,
     out: str | Path,
@@ -147,27 +180,12 @@ def import_bag_images(
     replaces the HSV threshold; `calibration` (`rodctl.recordings.calibration`) replaces the
     camera file's pose. The world centerline is the extracted one unprojected onto the rod's
     plane by the calibrated camera."""
-    from rodctl.recordings.ros2 import camera_config, pose_sources, read_bag_images
-
-    def listed(v: str | list[str] | None) -> list[str]:
-        return [v] if isinstance(v, str) else [x for x in v or [] if x]
+    from rodctl.recordings.ros2 import camera_config, read_bag_images
 
     src = Path(bag)
     cam_cfg = camera_config(camera)
-    pose_topics, tf_frames = listed(pose_topic), listed(tf_frame)
-    ends = pose_sources(pose_topics, tf_frames, tf_topic, tf_world)
-    if not 1 <= len(ends) <= 2:
-        raise UserError(
-            f"{src}: camera frames need one or two end effectors (--pose-topic, --tf-frame); "
-            f"got {len(ends)}"
-        )
-    if len(ends) == 2 and clamp_pose is not None:
-        raise UserError(
-            "--clamp-pose: with two end effectors the rod's walk starts at end effector 0's "
-            "pose in each frame; leave --clamp-pose out"
-        )
-    if len(ends) == 1:
-        _need_clamp(src, clamp_pose)
+    pose_topics, tf_frames = _listed(pose_topic), _listed(tf_frame)
+    ends = _image_ends(src, pose_topics, tf_frames, tf_topic, tf_world, clamp_pose)
     rec, world, used, notes = read_bag_images(
         src, image_topic, info_topic, ends, cam_cfg, clamp_pose,
         hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,

@@ -63,6 +63,35 @@ def _check(path: Path, rec: PointsRecording) -> PointsRecording:
 
 
 def _read_csv(path: Path) -> PointsRecording:
+    units, header, rows = _csv_rows(path)
+    points, ends = _csv_columns(path, header)
+    try:
+        data = np.array([[float(v) for v in row] for row in rows], dtype=float)
+    except ValueError as exc:
+        raise UserError(f"{path}: a value is not a number ({exc})") from None
+    if data.size == 0:
+        raise UserError(f"{path}: no frames after the header")
+    t = data[:, header.index("t")]
+    pts = np.stack(
+        [
+            np.stack([data[:, points[k]["x"]], data[:, points[k]["y"]]], axis=-1)
+            for k in range(len(points))
+        ],
+        axis=1,
+    )
+    poses = np.stack(
+        [
+            np.stack([data[:, ends[e][f]] for f in ("x", "y", "theta")], axis=-1)
+            for e in sorted(ends)
+        ],
+        axis=1,
+    )
+    return PointsRecording(t=t, points=pts, poses=poses, units=units)
+
+
+def _csv_rows(path: Path) -> tuple[str, list[str], list[list[str]]]:
+    """(units (a `# units: px` comment, else m), the header's column names, the data rows as
+    text) of a points CSV; blank lines and other comments are skipped."""
     units = "m"
     rows: list[list[str]] = []
     header: list[str] | None = None
@@ -88,6 +117,14 @@ def _read_csv(path: Path) -> PointsRecording:
         raise UserError(f"{path}: cannot read: {exc}") from None
     if header is None:
         raise UserError(f"{path}: empty file (no header row)")
+    return units, header, rows
+
+
+def _csv_columns(
+    path: Path, header: list[str]
+) -> tuple[dict[int, dict[str, int]], dict[int, dict[str, int]]]:
+    """The column index of each point's x and y ({i: {"x": col, "y": col}}) and of each end
+    effector's pose ({e: {"x": col, "y": col, "theta": col}}), every one checked present."""
     if "t" not in header:
         raise UserError(f"{path}: no column t (the frame time in seconds)")
     points: dict[int, dict[str, int]] = {}
@@ -115,25 +152,7 @@ def _read_csv(path: Path) -> PointsRecording:
         for f in ("x", "y", "theta"):
             if f not in cols:
                 raise UserError(f"{path}: no column e{end}_{f}")
-    try:
-        data = np.array([[float(v) for v in row] for row in rows], dtype=float)
-    except ValueError as exc:
-        raise UserError(f"{path}: a value is not a number ({exc})") from None
-    if data.size == 0:
-        raise UserError(f"{path}: no frames after the header")
-    t = data[:, header.index("t")]
-    pts = np.stack(
-        [np.stack([data[:, points[k]["x"]], data[:, points[k]["y"]]], axis=-1) for k in range(n)],
-        axis=1,
-    )
-    poses = np.stack(
-        [
-            np.stack([data[:, ends[e][f]] for f in ("x", "y", "theta")], axis=-1)
-            for e in sorted(ends)
-        ],
-        axis=1,
-    )
-    return PointsRecording(t=t, points=pts, poses=poses, units=units)
+    return points, ends
 
 
 def _read_npz(path: Path) -> PointsRecording:

@@ -570,33 +570,9 @@ def read_bag_points(
             f"(got {len(sources)}: {', '.join(s.label for s in sources) or 'none'})"
         )
     poses = _Poses(sources)
-    frames: list[tuple[int, np.ndarray]] = []
-    need = [(points_topic, POINTS_TYPES), *poses.need()]
-    for topic, msgtype, log_ns, msg in _bag_messages(path, need, poses.optional()):
-        if topic == points_topic:
-            t = _stamp_ns(msg, log_ns)
-            where = f"{path}: {points_topic}: frame {len(frames)} (t = {t / 1e9:.6f} s)"
-            frames.append((t, _xy(msg, msgtype, where)))
-        if topic in poses.topics():
-            poses.add(topic, msgtype, log_ns, msg)
-    if not frames:
-        raise UserError(f"{path}: topic {points_topic} has no messages")
-    frames.sort(key=lambda f: f[0])
-    n = len(frames[0][1])
+    frames = _point_frames(path, points_topic, poses)
     ft = np.array([f[0] for f in frames], dtype=np.int64)
     t0 = int(ft[0])
-    for k, (t, xy) in enumerate(frames):
-        if len(xy) != n or n < 2:
-            raise UserError(
-                f"{path}: {points_topic}: frame {k} (t = {(t - t0) / 1e9:.6f} s) has {len(xy)} "
-                f"points, frame 0 has {n} (need the same N >= 2 in every frame)"
-            )
-        if not np.isfinite(xy).all():
-            i = int(np.argmax(~np.isfinite(xy).all(axis=1)))
-            raise UserError(
-                f"{path}: {points_topic}: frame {k} (t = {(t - t0) / 1e9:.6f} s): point {i} is "
-                "not a finite number"
-            )
     frame_t = (ft - t0) / 1e9
     mask = np.ones(len(frames), dtype=bool)
     synced = []
@@ -618,6 +594,38 @@ def read_bag_points(
     if len(times) < 3:
         raise UserError(f"{path}: only {len(times)} frames overlap the poses; need at least 3")
     return PointsRecording(t=times, points=pts, poses=pose_arr, units="m"), notes
+
+
+def _point_frames(path: Path, points_topic: str, poses: _Poses) -> list[tuple[int, np.ndarray]]:
+    """The frames (time in ns, (N, 2) points) of `points_topic` in time order, the same N >= 2
+    finite points in each; the pose topics' messages go into `poses` on the way."""
+    frames: list[tuple[int, np.ndarray]] = []
+    need = [(points_topic, POINTS_TYPES), *poses.need()]
+    for topic, msgtype, log_ns, msg in _bag_messages(path, need, poses.optional()):
+        if topic == points_topic:
+            t = _stamp_ns(msg, log_ns)
+            where = f"{path}: {points_topic}: frame {len(frames)} (t = {t / 1e9:.6f} s)"
+            frames.append((t, _xy(msg, msgtype, where)))
+        if topic in poses.topics():
+            poses.add(topic, msgtype, log_ns, msg)
+    if not frames:
+        raise UserError(f"{path}: topic {points_topic} has no messages")
+    frames.sort(key=lambda f: f[0])
+    n = len(frames[0][1])
+    t0 = frames[0][0]
+    for k, (t, xy) in enumerate(frames):
+        if len(xy) != n or n < 2:
+            raise UserError(
+                f"{path}: {points_topic}: frame {k} (t = {(t - t0) / 1e9:.6f} s) has {len(xy)} "
+                f"points, frame 0 has {n} (need the same N >= 2 in every frame)"
+            )
+        if not np.isfinite(xy).all():
+            i = int(np.argmax(~np.isfinite(xy).all(axis=1)))
+            raise UserError(
+                f"{path}: {points_topic}: frame {k} (t = {(t - t0) / 1e9:.6f} s): point {i} is "
+                "not a finite number"
+            )
+    return frames
 
 
 # --- camera images from a bag ---------------------------------------------------------------
@@ -729,6 +737,52 @@ def read_bag_images(
     topics = [pose_topic] if isinstance(pose_topic, str | PoseSource) else pose_topic
     srcs = [p if isinstance(p, PoseSource) else PoseSource(p) for p in topics]
     poses = _Poses(srcs)
+    frames, masks, info = _image_messages(path, image_topic, info_topic, mask_topic, poses)
+    series = [poses.get(path, s) for s in srcs]
+    if info_topic and info is None:
+        raise UserError(f"{path}: topic {info_topic} has no messages")
+    frames, masks = _decoded(frames, masks, image_topic, mask_topic)
+    KD = None
+    if info is not None:
+        KD = camera_intrinsics(info, f"{path}: {info_topic}")
+        camera = camera.model_copy(
+            update={"width": int(info.width) or camera.width,
+                    "height": int(info.height) or camera.height}
+        )  # fmt: skip
+    return extract_frames(
+        str(path), image_topic, frames, series, camera, clamp_pose, KD,
+        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
+        masks=(mask_topic, masks) if mask_topic else None,
+    )  # fmt: skip
+
+
+def _decoded(
+    frames: list[tuple[int, Any]],
+    masks: list[tuple[int, Any]],
+    image_topic: str,
+    mask_topic: str | None,
+) -> tuple[list[tuple[int, Any]], list[tuple[int, Any]]]:
+    """The frames as (t_ns, (H, W, 3) RGB) and the masks as (t_ns, (H, W) bool), each in time
+    order; an error names the frame's or mask's time from frame 0."""
+    frames = sorted(frames, key=lambda f: f[0])
+    t0 = frames[0][0]
+    images = [
+        (t, _rgb(m, mt, f"{image_topic}: frame {i} (t = {(t - t0) / 1e9:.6f} s)"))
+        for i, (t, (m, mt)) in enumerate(frames)
+    ]
+    masks = sorted(masks, key=lambda m: m[0])
+    bools = [
+        (t, _mask(m, f"{mask_topic}: mask {i} (t = {(t - t0) / 1e9:.6f} s)"))
+        for i, (t, m) in enumerate(masks)
+    ]
+    return images, bools
+
+
+def _image_messages(
+    path: Path, image_topic: str, info_topic: str | None, mask_topic: str | None, poses: _Poses
+) -> tuple[list[tuple[int, Any]], list[tuple[int, Any]], Any]:
+    """A bag's camera messages as read, not yet decoded: ([(t_ns, (Image, its type))], [(t_ns,
+    mask Image)], the first CameraInfo or None); the pose topics' go into `poses`."""
     frames: list[tuple[int, Any]] = []
     masks: list[tuple[int, Any]] = []
     info = None
@@ -750,32 +804,7 @@ def read_bag_images(
         raise UserError(f"{path}: topic {image_topic} has no messages")
     if mask_topic and not masks:
         raise UserError(f"{path}: topic {mask_topic} has no messages")
-    series = [poses.get(path, s) for s in srcs]
-    if info_topic and info is None:
-        raise UserError(f"{path}: topic {info_topic} has no messages")
-    frames.sort(key=lambda f: f[0])
-    t0 = frames[0][0]
-    frames = [
-        (t, _rgb(m, mt, f"{image_topic}: frame {i} (t = {(t - t0) / 1e9:.6f} s)"))
-        for i, (t, (m, mt)) in enumerate(frames)
-    ]
-    masks.sort(key=lambda m: m[0])
-    masks = [
-        (t, _mask(m, f"{mask_topic}: mask {i} (t = {(t - t0) / 1e9:.6f} s)"))
-        for i, (t, m) in enumerate(masks)
-    ]
-    KD = None
-    if info is not None:
-        KD = camera_intrinsics(info, f"{path}: {info_topic}")
-        camera = camera.model_copy(
-            update={"width": int(info.width) or camera.width,
-                    "height": int(info.height) or camera.height}
-        )  # fmt: skip
-    return extract_frames(
-        str(path), image_topic, frames, series, camera, clamp_pose, KD,
-        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
-        masks=(mask_topic, masks) if mask_topic else None,
-    )  # fmt: skip
+    return frames, masks, info
 
 
 #: CameraInfo distortion models read, with the number of D coefficients each has.

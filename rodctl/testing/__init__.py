@@ -146,17 +146,7 @@ def check_stage(
     name = str(cfg.type)  # type: ignore[attr-defined]
     if experiment is None:
         experiment = ExperimentConfig()
-    rng = np.random.default_rng(seed)
-    j_true = rng.normal(0.0, 30.0, (p, q))
-    ctx = BuildContext(
-        points=points,
-        p=p,
-        q=q,
-        home_pose=np.array([0.4, 0.2, 0.0]),
-        max_step=np.array([0.01, 0.01, 0.05]),
-        oracle=lambda: j_true,
-        experiment=experiment,
-    )
+    ctx = _context(points, p, q, experiment, seed)
     run = {"feature": _run_feature, "estimator": _run_estimator, "controller": _run_controller}
     report = StageReport(kind, name)
     first = run[kind](cfg, ctx, report, steps, seed)
@@ -165,6 +155,22 @@ def check_stage(
         if not np.array_equal(value, again[key]):
             raise _fail(kind, name, f"not deterministic: {key} differs between two builds")
     return report
+
+
+def _context(points: int, p: int, q: int, experiment: Any, seed: int) -> BuildContext:
+    """The synthetic case's build context: a fixed home pose and step size, and an oracle that
+    gives a true map J drawn from `seed`."""
+    rng = np.random.default_rng(seed)
+    j_true = rng.normal(0.0, 30.0, (p, q))
+    return BuildContext(
+        points=points,
+        p=p,
+        q=q,
+        home_pose=np.array([0.4, 0.2, 0.0]),
+        max_step=np.array([0.01, 0.01, 0.05]),
+        oracle=lambda: j_true,
+        experiment=experiment,
+    )
 
 
 def _build(kind: str, cfg: BaseModel, ctx: BuildContext) -> Any:

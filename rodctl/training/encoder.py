@@ -234,24 +234,8 @@ def train_encoder(
             f"{cfg.feature.type!r}; set feature.type=autoencoder"
         )
     fingerprint = encoder_fingerprint(cfg)
-    t0 = time.perf_counter()
-    if dataset is None:
-        dataset_path = run.path / "dataset.npz"
-        # Interrupted, the chunks collected so far are kept there (reuse with --dataset).
-        try:
-            data = collect_dataset(
-                cfg, progress=progress, keep_partial=dataset_path, fingerprint=fingerprint
-            )
-        except CollectionFailed as exc:  # the system failed: one line, exit 1, the run kept
-            raise RunFailed(f"train-encoder ({run.path}): {exc}") from None
-        data.save(dataset_path, fingerprint=fingerprint)
-        collected = True
-    else:
-        dataset_path = Path(dataset)
-        data = CenterlineDataset.load(dataset_path, expected=fingerprint)
-        collected = False
-    collect_time = time.perf_counter() - t0
-
+    data, dataset_path, collect_time = _dataset(cfg, run, dataset, fingerprint, progress)
+    collected = dataset is None
     train_idx, val_idx = split_by_chunk(
         data, cfg.feature.training.validation_fraction, rng(cfg.seed, "data")
     )
@@ -271,6 +255,37 @@ def train_encoder(
         collection_rate_per_s=(len(data) / collect_time) if collected and collect_time else None,
         collection_attempts=data.attempts if collected else None,
     )
+    return _write_checkpoint(ckpt, run)
+
+
+def _dataset(
+    cfg: ExperimentConfig,
+    run: RunDir,
+    dataset: Path | None,
+    fingerprint: dict[str, Any],
+    progress: bool,
+) -> tuple[CenterlineDataset, Path, float]:
+    """(the centerlines, where they are, the seconds it took): collected into the run's
+    `dataset.npz` when `dataset` is None, else loaded from it (checked against `fingerprint`)."""
+    t0 = time.perf_counter()
+    if dataset is None:
+        dataset_path = run.path / "dataset.npz"
+        # Interrupted, the chunks collected so far are kept there (reuse with --dataset).
+        try:
+            data = collect_dataset(
+                cfg, progress=progress, keep_partial=dataset_path, fingerprint=fingerprint
+            )
+        except CollectionFailed as exc:  # the system failed: one line, exit 1, the run kept
+            raise RunFailed(f"train-encoder ({run.path}): {exc}") from None
+        data.save(dataset_path, fingerprint=fingerprint)
+    else:
+        dataset_path = Path(dataset)
+        data = CenterlineDataset.load(dataset_path, expected=fingerprint)
+    return data, dataset_path, time.perf_counter() - t0
+
+
+def _write_checkpoint(ckpt: EncoderCheckpoint, run: RunDir) -> dict[str, Any]:
+    """Write the checkpoint and metrics.json into the run folder; the metrics written."""
     # The same checkpoint twice: encoder.npz for experiments (loads without torch) and
     # encoder.pt for torch tools (module doc of rodctl.features.autoencoder).
     checkpoint_path = run.path / "encoder.npz"

@@ -58,75 +58,86 @@ def collect_walk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> dic
         {"pixels": (F, N, 2), "poses": (F, q) (q = 6 dual-arm: both ends), "segment": (F,) int
         (a new segment after the simulator was rebuilt: no pair spans two), "attempts": int}.
     """
-    cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
-    clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
-    jitter = float(cfg.estimator.data.jitter)
-    frames, poses, segments = [], [], []
-    segment = attempts = 0
-    dual = cfg.rod.arms == 2  # dual-arm: both ends walk, poses and moves are (6,)
-    if dual:
-        max_step = sim.max_steps
-        goal = sample_end_goals(gen, sim, cfg, goal)
-
-    def look() -> bool:
-        if dual:
-            return _look_dual()
-        pose = np.asarray(sim.gripper_pose, dtype=float)
-        ext = extractor.extract(camera.render(sim.centerline(), pose, clamp), pose)
-        if ext.ok:
-            frames.append(np.asarray(ext.points, dtype=np.float32))
-            poses.append(pose)
-            segments.append(segment)
-        return bool(ext.ok)
-
-    def _look_dual() -> bool:
-        grip, at = sim.gripper_pose, sim.clamp_pose
-        ext = CenterlineExtractor(cfg.camera, camera, at).extract(
-            camera.render(sim.centerline(), grip, at), grip
-        )
-        if ext.ok:
-            frames.append(np.asarray(ext.points, dtype=np.float32))
-            poses.append(sim.end_poses)
-            segments.append(segment)
-        return bool(ext.ok)
-
-    def new_goal() -> np.ndarray:
-        goal = sample_goal(gen, sim, cfg)
-        return sample_end_goals(gen, sim, cfg, goal) if dual else goal
-
-    look()
-    while len(frames) < count + 1:
+    walk = _Walk(cfg_json, seed)
+    walk.look()
+    attempts = 0
+    while len(walk.frames) < count + 1:
         attempts += 1
         if attempts > _MAX_ATTEMPTS_PER_SAMPLE * count + 100:
             raise RuntimeError(
-                f"model data: {attempts} control steps gave only {len(frames)} usable frames; "
-                "the simulator or the extractor fails on most shapes"
+                f"model data: {attempts} control steps gave only {len(walk.frames)} usable "
+                "frames; the simulator or the extractor fails on most shapes"
             )
-        pose = np.asarray(sim.end_poses if dual else sim.gripper_pose, dtype=float)
-        delta = goal - pose
-        if np.max(np.abs(delta) / max_step) < 0.5:
-            goal = new_goal()
-            continue
-        move = (1.0 - jitter) * np.clip(delta, -max_step, max_step)
-        move = np.clip(move + jitter * gen.uniform(-max_step, max_step), -max_step, max_step)
-        res = sim.apply(move)
-        if res.diverged:
-            sim = RodSim(cfg.rod)
-            segment += 1
-            goal = new_goal()
-            look()
-            continue
-        if res.refused:
-            goal = new_goal()
-            continue
-        if res.settled:
-            look()
+        walk.step()
     return {
-        "pixels": np.array(frames),
-        "poses": np.array(poses),
-        "segment": np.array(segments, dtype=np.int64),
+        "pixels": np.array(walk.frames),
+        "poses": np.array(walk.poses),
+        "segment": np.array(walk.segments, dtype=np.int64),
         "attempts": attempts,
     }
+
+
+class _Walk:
+    """One model-data walk (see the module docstring): the simulator, the goal pose, and the
+    good frames seen so far with their poses and segments."""
+
+    def __init__(self, cfg_json: str, seed: np.random.SeedSequence) -> None:
+        cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
+        self.cfg, self.gen, self.camera, self.extractor, self.sim = cfg, gen, camera, extractor, sim
+        self.clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
+        self.jitter = float(cfg.estimator.data.jitter)
+        self.frames: list[np.ndarray] = []
+        self.poses: list[np.ndarray] = []
+        self.segments: list[int] = []
+        self.segment = 0
+        self.dual = cfg.rod.arms == 2  # dual-arm: both ends walk, poses and moves are (6,)
+        if self.dual:
+            max_step = sim.max_steps
+            goal = sample_end_goals(gen, sim, cfg, goal)
+        self.max_step, self.goal = max_step, goal
+
+    def look(self) -> bool:
+        """Render and extract the rod; a good frame is kept with its pose (both ends' dual-arm)."""
+        sim, camera = self.sim, self.camera
+        if self.dual:
+            grip, at = sim.gripper_pose, sim.clamp_pose
+            extractor = CenterlineExtractor(self.cfg.camera, camera, at)
+            ext = extractor.extract(camera.render(sim.centerline(), grip, at), grip)
+            pose = sim.end_poses
+        else:
+            pose = np.asarray(sim.gripper_pose, dtype=float)
+            ext = self.extractor.extract(camera.render(sim.centerline(), pose, self.clamp), pose)
+        if ext.ok:
+            self.frames.append(np.asarray(ext.points, dtype=np.float32))
+            self.poses.append(pose)
+            self.segments.append(self.segment)
+        return bool(ext.ok)
+
+    def new_goal(self) -> None:
+        goal = sample_goal(self.gen, self.sim, self.cfg)
+        self.goal = sample_end_goals(self.gen, self.sim, self.cfg, goal) if self.dual else goal
+
+    def step(self) -> None:
+        """One control step towards the goal (a new goal once it is reached, refused, or the
+        simulator diverged and was rebuilt: a new segment); a settled step is looked at."""
+        sim, max_step, jitter = self.sim, self.max_step, self.jitter
+        pose = np.asarray(sim.end_poses if self.dual else sim.gripper_pose, dtype=float)
+        delta = self.goal - pose
+        if np.max(np.abs(delta) / max_step) < 0.5:
+            self.new_goal()
+            return
+        move = (1.0 - jitter) * np.clip(delta, -max_step, max_step)
+        move = np.clip(move + jitter * self.gen.uniform(-max_step, max_step), -max_step, max_step)
+        res = sim.apply(move)
+        if res.diverged:
+            self.sim = RodSim(self.cfg.rod)
+            self.segment += 1
+            self.new_goal()
+            self.look()
+        elif res.refused:
+            self.new_goal()
+        elif res.settled:
+            self.look()
 
 
 def _collect_task(args: tuple[str, int, np.random.SeedSequence]) -> dict[str, Any]:
