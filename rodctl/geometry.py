@@ -34,9 +34,35 @@ def resample_polyline(points: np.ndarray, n: int) -> np.ndarray:
         raise ValueError(f"points must be (M >= 2, 2), got {pts.shape}")
     if n < 2:
         raise ValueError(f"need n >= 2 points, got {n}")
-    seg = np.hypot(*np.diff(pts, axis=0).T)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    if s[-1] <= 0.0:
+    d = pts[1:] - pts[:-1]
+    s = np.empty(len(pts))
+    s[0] = 0.0
+    np.cumsum(np.hypot(d[:, 0], d[:, 1]), out=s[1:])
+    total = float(s[-1])
+    if total <= 0.0:
         return np.repeat(pts[:1], n, axis=0)
-    q = np.linspace(0.0, s[-1], n)
-    return np.column_stack([np.interp(q, s, pts[:, 0]), np.interp(q, s, pts[:, 1])])
+    q = _linspace_from_zero(total, n)
+    out = np.empty((n, 2))
+    out[:, 0] = np.interp(q, s, pts[:, 0])
+    out[:, 1] = np.interp(q, s, pts[:, 1])
+    return out
+
+
+#: np.arange(n, dtype=float) for the last few n (`_linspace_from_zero`); do not modify.
+_ARANGES: dict[int, np.ndarray] = {}
+
+
+def _linspace_from_zero(stop: float, n: int) -> np.ndarray:
+    """``np.linspace(0.0, stop, n)`` bit for bit (numpy's own steps: arange(n) times
+    stop / (n - 1), the last value set to `stop`), without its per-call overhead."""
+    step = stop / (n - 1)
+    if step == 0.0:  # numpy's branch for subnormal steps
+        return np.linspace(0.0, stop, n)
+    ramp = _ARANGES.get(n)
+    if ramp is None:
+        if len(_ARANGES) >= 16:
+            _ARANGES.clear()
+        ramp = _ARANGES[n] = np.arange(n, dtype=np.float64)
+    q = ramp * step
+    q[-1] = stop
+    return q

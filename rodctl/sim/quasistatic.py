@@ -707,7 +707,7 @@ class QuasiStaticChain:
 
     def _finite(self) -> bool:
         """Whether the angles are all finite (their sum is: NaN and inf propagate)."""
-        return math.isfinite(float(self.theta.sum()))
+        return math.isfinite(float(_SUM(self.theta)))
 
     def _joints(self) -> np.ndarray:
         """The joint points of the current state (cached per state: do not modify)."""
@@ -1003,16 +1003,19 @@ def _mat2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (a[:, :, None] * b[None, :, :]).sum(axis=1)
 
 
+@functools.lru_cache(maxsize=8)
 def resample_matrix(segments: int, n: int) -> np.ndarray:
     """(n, N+1) the linear map from the joints of a chain of N equal segments to `n` points
     equally spaced in arc length (what `resample_polyline` does for such a chain). Its
-    derivative along any inextensible motion is this same matrix: arc length does not change."""
+    derivative along any inextensible motion is this same matrix: arc length does not change.
+    Cached per (N, n) and read-only (the env asks for it every control step)."""
     q = np.linspace(0.0, float(segments), n)
     idx = np.minimum(np.floor(q).astype(int), segments - 1)
     frac = q - idx
     w = np.zeros((n, segments + 1))
     w[np.arange(n), idx] = 1.0 - frac
     w[np.arange(n), idx + 1] += frac
+    w.flags.writeable = False
     return w
 
 

@@ -213,62 +213,78 @@ def collect_chunk(cfg_json: str, count: int, seed: np.random.SeedSequence) -> di
         CollectionFailed: the walk needed more than 20 control steps per sample (plus 100); the
             message counts the skipped steps by reason.
     """
-    from rodctl.sim import RodSim  # noqa: PLC0415 (lazily: `random_walk_start`)
-    from rodctl.vision import CenterlineExtractor  # noqa: PLC0415 (lazily: `random_walk_start`)
-
-    cfg, gen, camera, extractor, max_step, sim, goal = random_walk_start(cfg_json, seed)
-    clamp = np.asarray(cfg.rod.clamp_pose, dtype=float)
-    dual = cfg.rod.arms == 2  # dual-arm: both ends walk, each over its own workspace
-    if dual:
-        max_step = sim.max_steps
-        goal = sample_end_goals(gen, sim, cfg, goal)
-
-    def new_goal() -> np.ndarray:
-        grip = sample_goal(gen, sim, cfg)
-        return sample_end_goals(gen, sim, cfg, grip) if dual else grip
-
-    points = np.empty((count, cfg.camera.points, 2), dtype=np.float32)
+    walk = _Walk(cfg_json, seed)
+    points = np.empty((count, walk.cfg.camera.points, 2), dtype=np.float32)
     poses = np.empty((count, 3))
     n = attempts = 0
-    skipped = {"goal reached": 0, "diverged": 0, "refused": 0, "unsettled": 0, "not extracted": 0}
-    notes: dict[str, int] = {}
     while n < count:
         attempts += 1
         if attempts > _MAX_ATTEMPTS_PER_SAMPLE * count + _MAX_ATTEMPTS_SLACK:
-            raise CollectionFailed(_failure_message(attempts - 1, n, skipped, notes))
-        delta = goal - np.asarray(sim.end_poses if dual else sim.gripper_pose, dtype=float)
-        if np.max(np.abs(delta) / max_step) < _ARRIVED:
-            skipped["goal reached"] += 1
-            goal = new_goal()
-            continue
-        res = sim.apply(np.clip(delta, -max_step, max_step))
-        if res.diverged:
-            skipped["diverged"] += 1
-            sim = RodSim(cfg.rod)
-            goal = new_goal()
-            continue
-        if res.refused:
-            skipped["refused"] += 1
-            goal = new_goal()
-            continue
-        if not res.settled:
-            skipped["unsettled"] += 1
-            continue
-        pose = np.asarray(sim.gripper_pose, dtype=float)
-        if dual:  # the extractor starts at the x0 end, wherever it is now
-            clamp = sim.clamp_pose
-            extractor = CenterlineExtractor(cfg.camera, camera, clamp)
-        image = camera.render(sim.centerline(), pose, clamp)
-        ext = extractor.extract(image, pose)
-        if not ext.ok:
-            skipped["not extracted"] += 1
-            note = ext.note or "no note"
-            notes[note] = notes.get(note, 0) + 1
-            continue
-        points[n] = ext.points
-        poses[n] = pose
-        n += 1
+            raise CollectionFailed(_failure_message(attempts - 1, n, walk.skipped, walk.notes))
+        sample = walk.step()
+        if sample is not None:
+            points[n], poses[n] = sample
+            n += 1
     return {"centerlines": points, "poses": poses, "attempts": attempts}
+
+
+class _Walk:
+    """The random walk of `collect_chunk`: the rod, the camera, the goal, and why steps were
+    skipped. Dual-arm (`rod.arms: 2`): both ends walk, each over its own workspace, and the
+    extractor starts at the x0 end, wherever it is."""
+
+    def __init__(self, cfg_json: str, seed: np.random.SeedSequence) -> None:
+        from rodctl.sim import RodSim  # noqa: PLC0415 (lazily: `random_walk_start`)
+        from rodctl.vision import CenterlineExtractor  # noqa: PLC0415 (lazily, as RodSim)
+
+        self._sim_type, self._extractor_type = RodSim, CenterlineExtractor
+        start = random_walk_start(cfg_json, seed)
+        self.cfg, self.gen, self.camera, self.extractor, self.max_step, self.sim, goal = start
+        self.clamp = np.asarray(self.cfg.rod.clamp_pose, dtype=float)
+        self.dual = self.cfg.rod.arms == 2
+        if self.dual:
+            self.max_step = self.sim.max_steps
+            goal = sample_end_goals(self.gen, self.sim, self.cfg, goal)
+        self.goal = goal
+        self.skipped = dict.fromkeys(
+            ("goal reached", "diverged", "refused", "unsettled", "not extracted"), 0
+        )
+        self.notes: dict[str, int] = {}
+
+    def new_goal(self) -> np.ndarray:
+        grip = sample_goal(self.gen, self.sim, self.cfg)
+        return sample_end_goals(self.gen, self.sim, self.cfg, grip) if self.dual else grip
+
+    def _skip(self, why: str, goal: bool = False) -> None:
+        self.skipped[why] += 1
+        if goal:
+            self.goal = self.new_goal()
+
+    def step(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """One control step towards the goal: (extracted points, gripper pose), or None when
+        the step is skipped (counted in `skipped`, the extractor's note in `notes`)."""
+        sim = self.sim
+        delta = self.goal - np.asarray(sim.end_poses if self.dual else sim.gripper_pose, float)
+        if np.max(np.abs(delta) / self.max_step) < _ARRIVED:
+            return self._skip("goal reached", goal=True)
+        res = sim.apply(np.clip(delta, -self.max_step, self.max_step))
+        if res.diverged:
+            self.sim = self._sim_type(self.cfg.rod)
+            return self._skip("diverged", goal=True)
+        if res.refused:
+            return self._skip("refused", goal=True)
+        if not res.settled:
+            return self._skip("unsettled")
+        pose = np.asarray(sim.gripper_pose, dtype=float)
+        if self.dual:  # the extractor starts at the x0 end, wherever it is now
+            self.clamp = sim.clamp_pose
+            self.extractor = self._extractor_type(self.cfg.camera, self.camera, self.clamp)
+        ext = self.extractor.extract(self.camera.render(sim.centerline(), pose, self.clamp), pose)
+        if not ext.ok:
+            note = ext.note or "no note"
+            self.notes[note] = self.notes.get(note, 0) + 1
+            return self._skip("not extracted")
+        return ext.points, pose
 
 
 def _failure_message(steps: int, n: int, skipped: dict[str, int], notes: dict[str, int]) -> str:

@@ -53,6 +53,17 @@ _GRIPPER_BOXES = (
 )
 
 
+def _box_corners(boxes: tuple) -> np.ndarray:
+    """(4 K, 2) corners of K boxes ((a0, a1), (l0, l1)) in the frame of their pose."""
+    return np.array(
+        [[[a0, l0], [a1, l0], [a1, l1], [a0, l1]] for (a0, a1), (l0, l1) in boxes]
+    ).reshape(-1, 2)
+
+
+#: `_box_corners` of the fixtures, per boxes tuple (do not modify).
+_CORNERS = {boxes: _box_corners(boxes) for boxes in (_CLAMP_BOXES, _GRIPPER_BOXES)}
+
+
 def _pixel_box(fixed: np.ndarray, margin: int) -> tuple[int, int, int, int]:
     """Pixel box [u0, u1) x [v0, v1) holding everything OpenCV draws through the points `fixed`
     (1/16 px units) grown by `margin` px (half a line's thickness): two more pixels on each side
@@ -101,7 +112,8 @@ class Camera:
         cx, cy = principal_point(cfg)
         self.camera_matrix = np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
         self._noise_key: tuple[float, int] | None = None
-        self._noise_pool = np.empty(0, np.int16)
+        # The noise pool as its saturated positive and negative parts (`_add_noise`).
+        self._noise_up = self._noise_down = np.empty(0, np.uint8)
         self._scratch = np.empty(0, np.uint8)  # the frame drawn before a blur, reused
         self._set_extrinsics(cfg)
 
@@ -131,8 +143,13 @@ class Camera:
         self.homography /= self.homography[2, 2]
         self._homography_inv = fla.inv3(self.homography)
         self._background = self._make_background()
-        self._blurred_key: tuple[float, int] | None = None  # the blurred background is stale
+        # The background with the clamp drawn (`_base`), for a clamp that stays put.
+        self._base: np.ndarray | None = None
+        self._base_key: tuple | None = None
+        self._clamp_seen: tuple | None = None
+        self._blurred_key: tuple | None = None  # the blurred base is stale
         self._blurred = self._background
+        self._blurred_base: np.ndarray | None = None
 
     # ------------------------------------------------------------------ mid-run changes
     def _with(self, **changes: object) -> CameraConfig:
@@ -325,18 +342,20 @@ class Camera:
         drawn: list[tuple[np.ndarray, int]],
     ) -> None:
         """Fill fixture boxes given in the frame of `pose`; append their corners to `drawn`."""
-        x, y, th = (float(c) for c in pose)
+        x, y, th = (float(c) for c in np.asarray(pose, dtype=float).tolist())
         c, s = math.cos(th), math.sin(th)
         # every box's four corners in one projection (element-wise: the same bits box by box)
-        local = np.array(
-            [[[a0, l0], [a1, l0], [a1, l1], [a0, l1]] for (a0, a1), (l0, l1) in boxes]
-        ).reshape(-1, 2)
-        world = np.column_stack(
-            [x + c * local[:, 0] - s * local[:, 1], y + s * local[:, 0] + c * local[:, 1]]
-        )
+        local = _CORNERS.get(boxes)
+        if local is None:
+            local = _box_corners(boxes)
+        world = np.empty_like(local)
+        world[:, 0] = x + c * local[:, 0] - s * local[:, 1]
+        world[:, 1] = y + s * local[:, 0] + c * local[:, 1]
         pix = self.project(world).reshape(-1, 4, 2)
         finite = np.isfinite(pix).all(axis=(1, 2))
-        fixed = np.round(np.where(finite[:, None, None], pix, 0.0) * _SCALE).astype(np.int32)
+        if not finite.all():
+            pix = np.where(finite[:, None, None], pix, 0.0)
+        fixed = np.rint(pix * _SCALE).astype(np.int32)  # np.round with 0 decimals is rint
         for corners, ok in zip(fixed, finite.tolist(), strict=True):
             if ok:
                 cv2.fillConvexPoly(img, corners, color, cv2.LINE_AA, _SHIFT)
@@ -362,18 +381,19 @@ class Camera:
         pts = self.project(_as_points(centerline_world, "centerline_world"))
         if len(pts) < 2 or not np.isfinite(pts).all():
             raise ValueError("centerline_world needs >= 2 points, all in front of the camera")
+        base = self._base_with_clamp(np.asarray(clamp_pose), r)
         if r.blur_sigma > 0:  # drawn on a scratch frame; the blur writes the returned one
             if self._scratch.shape != self._background.shape:
                 self._scratch = np.empty_like(self._background)
             img = self._scratch
-            np.copyto(img, self._background)
+            np.copyto(img, base)
         else:
-            img = self._background.copy()
-        # What was drawn over the background, for the blur: (points in 1/16 px, half-thickness)
+            img = base.copy()
+        # What was drawn over the base, for the blur: (points in 1/16 px, half-thickness)
         # and pixel boxes [u0, u1) x [v0, v1).
         drawn: list[tuple[np.ndarray, int]] = []
         rects: list[tuple[int, int, int, int]] = []
-        if r.draw_clamp:
+        if r.draw_clamp and base is self._background:
             self._fill_world_boxes(
                 img, np.asarray(clamp_pose), _CLAMP_BOXES, r.fixture_color, drawn
             )
@@ -382,7 +402,8 @@ class Camera:
                 img, np.asarray(gripper_pose), _GRIPPER_BOXES, r.fixture_color, drawn
             )
         # Keep coordinates inside int32 even for absurd inputs; OpenCV clips the drawing itself.
-        fixed = np.clip(np.round(pts * _SCALE), -(2**28), 2**28).astype(np.int32)
+        # np.clip(np.round(...)) of finite values, in fewer calls
+        fixed = np.minimum(np.maximum(np.rint(pts * _SCALE), -(2**28)), 2**28).astype(np.int32)
         width = int(r.rod_width_px)
         cv2.polylines(img, [fixed], False, r.rod_color, width, cv2.LINE_AA, _SHIFT)
         drawn.append((fixed, width // 2 + 1))
@@ -401,21 +422,43 @@ class Camera:
             cv2.rectangle(img, c0, c1, r.occluder_color, thickness=-1)
             rects.append((c0[0], c0[1], c1[0] + 1, c1[1] + 1))
         if r.blur_sigma > 0:
-            img = self._blur(img, drawn, rects, float(r.blur_sigma))
+            img = self._blur(img, base, drawn, rects, float(r.blur_sigma))
         if self.rng is not None and r.noise_std > 0:
             img = self._add_noise(img, float(r.noise_std))
         return img
 
+    def _base_with_clamp(self, clamp_pose: np.ndarray, r: object) -> np.ndarray:
+        """What a frame is drawn on: the background, or, for a clamp seen at the same pose in
+        the frame before, the background with the clamp already drawn (read-only, kept until
+        the pose, the colour or the background changes). The clamp is drawn first either way,
+        so the frame is the same; a clamp that moves every frame (dual-arm) never pays for
+        building a base it cannot reuse."""
+        if not r.draw_clamp:  # type: ignore[attr-defined]
+            return self._background
+        key = (clamp_pose.tobytes(), tuple(r.fixture_color))  # type: ignore[attr-defined]
+        if self._base is not None and self._base_key == key:
+            return self._base
+        if self._clamp_seen != key:
+            self._clamp_seen = key
+            return self._background
+        base = self._background.copy()
+        self._fill_world_boxes(base, clamp_pose, _CLAMP_BOXES, key[1], [])
+        base.flags.writeable = False
+        self._base, self._base_key = base, key
+        return base
+
     def _blur(
         self,
         img: np.ndarray,
+        base: np.ndarray,
         drawn: list[tuple[np.ndarray, int]],
         rects: list[tuple[int, int, int, int]],
         sigma: float,
     ) -> np.ndarray:
-        """`cv2.GaussianBlur(img, (0, 0), sigma)`, bit for bit, computed only near what was drawn.
+        """`cv2.GaussianBlur(img, (0, 0), sigma)`, bit for bit, computed only near what was drawn
+        over `base` (the background, or the background with the clamp).
 
-        The background is blurred once (per pose and sigma) and copied; only the tiles within the
+        The base is blurred once (per base and sigma) and copied; only the tiles within the
         kernel's reach of a drawn box are blurred again, each from a source window one kernel
         radius larger on every side (clipped at the image's edge, where the window's own border
         reflection is the full image's). OpenCV's 8-bit Gaussian is fixed-point integer
@@ -425,10 +468,11 @@ class Camera:
         # OpenCV's own kernel size for 8-bit images and ksize (0, 0) (cv::createGaussianKernels)
         ksize = int(round(sigma * 3 * 2 + 1)) | 1
         rad = ksize // 2
-        key = (sigma, ksize)
-        if self._blurred_key != key:
-            self._blurred = cv2.GaussianBlur(self._background, (ksize, ksize), sigma)
+        key = (sigma, ksize, id(base))
+        if self._blurred_key != key or self._blurred_base is not base:
+            self._blurred = cv2.GaussianBlur(base, (ksize, ksize), sigma)
             self._blurred_key = key
+            self._blurred_base = base
         out = self._blurred.copy()
         dirty = list(rects)
         for fixed, margin in drawn:
@@ -490,8 +534,16 @@ class Camera:
             pool = np.empty((_NOISE_POOL_FRAMES * size, 1), np.int16)
             # cv2's stubs type mean and stddev as arrays; scalars are what it takes
             cv2.randn(pool, 0.0, std)  # type: ignore[call-overload]
-            self._noise_pool = pool.ravel()
+            pool = pool.ravel()
+            # Kept as two uint8 parts, up = min(max(n, 0), 255) and down = min(max(-n, 0), 255):
+            # for a uint8 pixel p, saturate(p + n) = saturate(saturate(p + up) - down) (one of
+            # the two is 0), and two 8-bit saturating passes cost less than a third of one
+            # mixed 8/16-bit one.
+            self._noise_up = np.clip(pool, 0, 255).astype(np.uint8)
+            self._noise_down = (-np.clip(pool, -255, 0)).astype(np.uint8)
             self._noise_key = (std, size)
-        offset = draw % (len(self._noise_pool) - size + 1)
-        noise = self._noise_pool[offset : offset + size].reshape(img.shape)
-        return cv2.add(img, noise, dst=img, dtype=cv2.CV_8U)  # saturating, in place: img is new
+        offset = draw % (len(self._noise_up) - size + 1)
+        up = self._noise_up[offset : offset + size].reshape(img.shape)
+        down = self._noise_down[offset : offset + size].reshape(img.shape)
+        cv2.add(img, up, dst=img)  # saturating, in place: img is new
+        return cv2.subtract(img, down, dst=img)

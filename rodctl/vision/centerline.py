@@ -72,6 +72,8 @@ _MERGE_PX = 1.5
 # same numbers (tests/vision/test_centerline.py checks it).
 _SCALAR_ROWS = 8
 _OK, _AMBIGUOUS, _LOST = 0, 1, 2
+# `_find_end` samples this many points of its arc first, the rest only if needed.
+_END_FIRST = 64
 
 
 @dataclass(frozen=True)
@@ -100,7 +102,11 @@ def _cos_sin(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     (docs/reproducibility.md). The arrays here hold a few dozen angles.
     """
     values = angles.tolist()
-    return np.array([math.cos(v) for v in values]), np.array([math.sin(v) for v in values])
+    n = len(values)
+    return (
+        np.fromiter(map(math.cos, values), np.float64, n),
+        np.fromiter(map(math.sin, values), np.float64, n),
+    )
 
 
 def _min_norm_lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -227,6 +233,93 @@ def _locate_row(
     if touches or width > max_width:
         return offset, width, (_AMBIGUOUS if s[c] >= 0.5 else _LOST)
     return offset, width, _OK
+
+
+#: Per half-width m: (T, 1..T, T..1) as int16 (int64 for very long rows), `_analyse_rows`.
+_ROW_TABLES: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _row_tables(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    tables = _ROW_TABLES.get(m)
+    if tables is None:
+        n = 2 * m + 1
+        idx = np.arange(n)
+        kind = np.int16 if n < 16_000 else np.int64
+        # nearness to the prediction (index m): larger is nearer, >= 1; i + 1; n - i
+        tables = (
+            (n - np.abs(idx - m)).astype(kind),
+            (idx + 1).astype(kind),
+            (n - idx).astype(kind),
+        )
+        if len(_ROW_TABLES) >= 16:
+            _ROW_TABLES.clear()
+        _ROW_TABLES[m] = tables
+    return tables
+
+
+def _analyse_rows(
+    s: np.ndarray, m: int, t: np.ndarray, max_width: float, band: float | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The vectorised analysis of `CenterlineExtractor._cross_sections`: (K, 2m + 1) float32
+    coverage rows -> offsets, widths, status (see there), the numbers of `_locate_row` row by
+    row up to float32 rounding.
+
+    For each row: j, the "rod" sample nearest the prediction (the first of a tie); a row
+    without one is lost. left/right: the nearest non-rod samples on either side of j (-1 and
+    2m + 1 when the run reaches the window's end), read from running maxima of the non-rod
+    samples' positions (from the left and from the right) at j.
+    """
+    k, n = s.shape
+    near, up, down = _row_tables(m)
+    above = s >= 0.5
+    notab = ~above
+    rows = np.arange(k)
+    at_j = rows * n + np.multiply(above, near).argmax(axis=1)
+    lost = notab.ravel()[at_j]
+    left = np.maximum.accumulate(np.multiply(notab, up), axis=1).ravel()[at_j].astype(np.intp)
+    left -= 1
+    right = np.maximum.accumulate(np.multiply(notab, down)[:, ::-1], axis=1)[:, ::-1]
+    right = n - right.ravel()[at_j].astype(np.intp)
+    if lost.any():  # no rod sample at all: j = 0, whose left is -1 and right 1
+        left[lost] = -1
+        right[lost] = 1
+    lc = np.minimum(np.maximum(left, 0), 2 * m - 1)
+    rc = np.minimum(np.maximum(right, 1), 2 * m)
+    flat = s.ravel()
+    base = rows * n
+    s0, s1 = flat[base + lc], flat[base + lc + 1]
+    d = s1 - s0
+    t_left = t[lc] + (0.5 - s0) / np.where(d > 1e-6, d, 1.0) * _DT
+    r0, r1 = flat[base + rc - 1], flat[base + rc]
+    d = r0 - r1
+    t_right = t[rc - 1] + (r0 - 0.5) / np.where(d > 1e-6, d, 1.0) * _DT
+    width = t_right - t_left
+    offset = 0.5 * (t_left + t_right)
+    status = np.zeros(k, dtype=np.int64)  # _OK
+    left_off, right_off = left < 0, right > 2 * m
+    both_off = left_off & right_off
+    if band is not None:
+        # Wider than the rod but bounded on both sides: another stretch of rod touches ours
+        # on one side. The other edge is still ours: put the centre half a band inside the
+        # edge whose implied centre is nearer the prediction. A run that runs off one end of
+        # the window is located from its free edge alike.
+        merged = (width > band + _MERGE_PX) & ~both_off
+        if merged.any():
+            from_left = t_left + 0.5 * band
+            from_right = t_right - 0.5 * band
+            nearer = np.where(np.abs(from_left) < np.abs(from_right), from_left, from_right)
+            one_sided = np.where(left_off, from_right, np.where(right_off, from_left, nearer))
+            offset = np.where(merged, one_sided, offset)
+            width = np.where(merged, band, width)
+        touches = both_off
+    else:
+        touches = left_off | right_off
+    wide = touches | (width > max_width)
+    status[wide] = _AMBIGUOUS
+    # Too wide and not even under the prediction: something beside the rod, not a crossing.
+    status[wide & notab[:, m]] = _LOST
+    status[lost] = _LOST
+    return offset, width, status
 
 
 #: cv2.remap refuses maps of SHRT_MAX (32767) columns or more; longer samplings go in rows.
@@ -383,55 +476,13 @@ class CenterlineExtractor:
         """
         m = int(round(half / _DT))
         t = np.arange(-m, m + 1) * _DT
-        c = m
         k = len(centres)
         s = self._sample_map(image, _section_map(centres, normals, t))
         if k <= _SCALAR_ROWS:
             rows_out = [_locate_row(row, m, band, max_width) for row in s.tolist()]
             off_w_st = np.array(rows_out, dtype=np.float64).reshape(k, 3)
             return off_w_st[:, 0], off_w_st[:, 1], off_w_st[:, 2].astype(np.int64)
-        above = s >= 0.5
-        idx = np.arange(2 * m + 1)
-        # j: the "rod" sample nearest the prediction (the first of a tie, as in `_locate_row`);
-        # a row without one gets j = 0 and is lost. left/right: the nearest non-rod samples on
-        # either side of j (-1 and 2m + 1 when the run reaches the window's end).
-        dist = np.where(above, np.abs(idx - c), 2 * m + 1)
-        j = dist.argmin(axis=1)
-        rows = np.arange(k)
-        lost = ~above[rows, j]
-        jc = j[:, None]
-        left = np.where(above | (idx >= jc), -1, idx).max(axis=1)
-        right = np.where(above | (idx <= jc), 2 * m + 1, idx).min(axis=1)
-        touches = (left < 0) | (right > 2 * m)
-        lc = np.clip(left, 0, 2 * m - 1)
-        rc = np.clip(right, 1, 2 * m)
-        s0, s1 = s[rows, lc], s[rows, lc + 1]
-        t_left = t[lc] + (0.5 - s0) / np.where(s1 - s0 > 1e-6, s1 - s0, 1.0) * _DT
-        r0, r1 = s[rows, rc - 1], s[rows, rc]
-        t_right = t[rc - 1] + (r0 - 0.5) / np.where(r0 - r1 > 1e-6, r0 - r1, 1.0) * _DT
-        width = t_right - t_left
-        offset = 0.5 * (t_left + t_right)
-        status = np.full(k, _OK)
-        # Wider than the rod but bounded on both sides: another stretch of rod touches ours on
-        # one side. The other edge is still ours: put the centre half a band inside the edge
-        # whose implied centre is nearer the prediction.
-        # A run that runs off one end of the window is located from its free edge alike.
-        if band is not None:
-            left_off, right_off = left < 0, right > 2 * m
-            merged = (width > band + _MERGE_PX) & ~(left_off & right_off)
-            from_left = t_left + 0.5 * band
-            from_right = t_right - 0.5 * band
-            nearer = np.where(np.abs(from_left) < np.abs(from_right), from_left, from_right)
-            one_sided = np.where(left_off, from_right, np.where(right_off, from_left, nearer))
-            offset = np.where(merged, one_sided, offset)
-            width = np.where(merged, band, width)
-            touches = left_off & right_off
-        wide = touches | (width > max_width)
-        status[wide] = _AMBIGUOUS
-        # Too wide and not even under the prediction: something beside the rod, not a crossing.
-        status[wide & ~above[:, c]] = _LOST
-        status[lost] = _LOST
-        return offset, width, status
+        return _analyse_rows(s, m, t, max_width, band)
 
     # ------------------------------------------------------------------ the walk
     def _inside(self, p: np.ndarray) -> bool:
@@ -552,9 +603,16 @@ class CenterlineExtractor:
         crossing of coverage (the tip of the round cap), then step back by the cap radius."""
         span = self._step * _LOOKAHEAD + self._band_prior + 2.0
         t = np.arange(0.0, span, 0.25)
-        pos, dirs = self._arc(p, d, turn, t)
+        # Sampled in two parts, the second only when the first has no crossing (the crossing
+        # is usually within a band or two of p): every point's position and sample depend on
+        # its own t and on t[0] only, so the first crossing is the same as in one call.
+        pos, dirs = self._arc(p, d, turn, t[:_END_FIRST])
         s = self._sample(image, pos)
         drop = np.nonzero(s < 0.5)[0]
+        if len(drop) == 0 and len(t) > _END_FIRST:
+            rest = self._arc(p, d, turn, np.concatenate([t[:1], t[_END_FIRST:]]))[0][1:]
+            s = np.concatenate([s, self._sample(image, rest)])
+            drop = np.nonzero(s < 0.5)[0]
         if len(drop) == 0 or drop[0] == 0:
             return p.copy(), dirs[0]
         i = drop[0]
