@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -295,6 +296,42 @@ def plan(
         hi = np.minimum(ws_hi, home + k * m * (1 - 1e-9))
         return lo, np.maximum(lo, hi)
 
+    levels, found, best_err = _descend(model, box, home, t_pose, m, k0, tol)
+    if not found:
+        best_err = _search_workspace(env, model, box, home, t_pose, m, tol, found, best_err)
+        levels.append((-1, best_err))
+    result = Plan(None, None, math.nan, k0, best_err, levels=levels)
+    candidates = sorted(found.items())
+    if k0 >= 1 and not any(np.allclose(p, t_pose, atol=1e-12) for _, p in candidates):
+        candidates.append((k0, t_pose))  # the straight path to the target pose itself
+    for kk, pose in candidates:
+        steps, err, snaps = _verify(env, target, home, pose, kk, tol, seed)
+        if steps is not None:
+            result.steps, result.pose, result.pixel_error, result.snaps = steps, pose, err, snaps
+            result.move = (np.asarray(pose, dtype=float) - home) / max(kk, 1)
+            break
+        result.rejected.append((kk, err))
+    result.evaluations = model.evaluations
+    result.cpu_s = time.process_time() - t_cpu
+    return result
+
+
+_Box = Callable[[float], tuple[np.ndarray, np.ndarray]]
+
+
+def _descend(
+    model: _Model,
+    box: _Box,
+    home: np.ndarray,
+    t_pose: np.ndarray,
+    m: np.ndarray,
+    k0: int,
+    tol: float,
+) -> tuple[list[tuple[int, float]], dict[int, np.ndarray], float]:
+    """Budgets from `pose_steps` down: at each, the best fit within k speed-limited steps of
+    home, from the previous best, the target pose and the point k steps along the straight path;
+    stops at the first budget nothing meets the tolerance in. Returns (the best error per budget,
+    {steps: pose} of the poses within tolerance (projected), the best error seen)."""
     levels: list[tuple[int, float]] = []
     found: dict[int, np.ndarray] = {}  # budget -> best pose (projected error < tol)
     best_pose, best_err = t_pose.copy(), model.error(t_pose)
@@ -319,37 +356,37 @@ def plan(
         kk = pose_steps(home, level_pose, m)
         found[kk] = level_pose
         k = min(k, kk) - 1
-    if not found:
-        # The target pose's box does not reach the tolerance: the whole workspace, and the
-        # diagnosis's own search from the start (what would call the target `unreachable`).
-        starts = [t_pose, home]
-        snap = env.sim.snapshot() if env.sim is not None else None
-        searched, _, _ = pose_search(env, SEARCH_ITERATIONS)
-        if env.sim is not None:
-            starts.append(np.asarray(env.sim.gripper_pose, dtype=float))
-            best_err = min(best_err, searched)
-            env.sim.restore(snap)
-        lo, hi = box(math.inf)
-        for x0 in starts:
-            pose, err = _fit(model, x0, lo, hi)
-            best_err = min(best_err, err)
-            if err < tol:
-                found[pose_steps(home, pose, m)] = pose
-        levels.append((-1, best_err))
-    result = Plan(None, None, math.nan, k0, best_err, levels=levels)
-    candidates = sorted(found.items())
-    if k0 >= 1 and not any(np.allclose(p, t_pose, atol=1e-12) for _, p in candidates):
-        candidates.append((k0, t_pose))  # the straight path to the target pose itself
-    for kk, pose in candidates:
-        steps, err, snaps = _verify(env, target, home, pose, kk, tol, seed)
-        if steps is not None:
-            result.steps, result.pose, result.pixel_error, result.snaps = steps, pose, err, snaps
-            result.move = (np.asarray(pose, dtype=float) - home) / max(kk, 1)
-            break
-        result.rejected.append((kk, err))
-    result.evaluations = model.evaluations
-    result.cpu_s = time.process_time() - t_cpu
-    return result
+    return levels, found, best_err
+
+
+def _search_workspace(
+    env: ShapeServoEnv,
+    model: _Model,
+    box: _Box,
+    home: np.ndarray,
+    t_pose: np.ndarray,
+    m: np.ndarray,
+    tol: float,
+    found: dict[int, np.ndarray],
+    best_err: float,
+) -> float:
+    """The target pose's box does not reach the tolerance: fits over the whole workspace, from
+    the target pose, home and the end of the diagnosis's own search from the start (what would
+    call the target `unreachable`); poses within tolerance go into `found`. The best error."""
+    starts = [t_pose, home]
+    snap = env.sim.snapshot() if env.sim is not None else None
+    searched, _, _ = pose_search(env, SEARCH_ITERATIONS)
+    if env.sim is not None:
+        starts.append(np.asarray(env.sim.gripper_pose, dtype=float))
+        best_err = min(best_err, searched)
+        env.sim.restore(snap)
+    lo, hi = box(math.inf)
+    for x0 in starts:
+        pose, err = _fit(model, x0, lo, hi)
+        best_err = min(best_err, err)
+        if err < tol:
+            found[pose_steps(home, pose, m)] = pose
+    return best_err
 
 
 def _verify(
