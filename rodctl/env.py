@@ -333,7 +333,13 @@ class ShapeServoEnv(gym.Env):
             update: dict[str, Any] = {"home_pose": start[:3]}
             if self.dual_arm and len(start) == 6:  # both ends' start poses
                 update["clamp_pose"] = start[3:]
-            rod = cfg.rod.model_copy(update=update)
+            # Validated as the config's own start poses are: each end in its arm's workspace,
+            # the gripper within reach of the x0 end (a bad one is a UserError naming it).
+            rod = validate_config(
+                {**cfg.rod.model_dump(), **update},
+                f"reset: start_pose {list(start)}",
+                model=type(cfg.rod),
+            )
         else:
             rod = cfg.rod
         self._rod_cfg = rod
