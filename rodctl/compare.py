@@ -66,6 +66,7 @@ from rodctl.executors.base import (
     stop_reason,
 )
 from rodctl.executors.local import CANCELLED
+from rodctl.registry import component_provenance
 from rodctl.report import markdown_table
 from rodctl.runs import RunDir, jsonable, seed_sequence, write_json_atomic
 
@@ -609,13 +610,17 @@ def start_run(
     command: str,
     hashed: dict[str, Any],
     resume: str | None,
+    executor: str | None = None,
 ) -> RunDir:
-    """A new run folder (config hash in meta.json), or the `--resume` one reopened."""
+    """A new run folder (config hash in meta.json; `executor`: the `--executor` kind, its
+    factory recorded as the run's `executor`), or the `--resume` one reopened."""
     if resume is not None:
         return open_resumed_run(resume, command, hashed)
     run = RunDir.create(out, cfg, command=command)
     journal.lock_run_folder(run.path, command)  # held until run.finish
     run.meta["resume"] = {"config_hash": config_hash(hashed), "hashed": jsonable(hashed)}
+    if executor is not None:
+        run.meta.update(component_provenance(None, executor))
     run.write_meta()
     return run
 
@@ -915,7 +920,7 @@ def run_compare(
         raise UserError(f"--workers must be >= 1, got {n_workers}")
     pool = make_executor(executor, n_workers, address)
     hashed = {"config": cfg.model_dump(mode="json", exclude={"workers"}), "targets": given}
-    run = start_run(out, cfg, "compare", hashed, resume)
+    run = start_run(out, cfg, "compare", hashed, resume, executor)
     if on_start is not None:
         on_start(run.path)
     log = ResultsLog(run.path / "results.jsonl")

@@ -238,7 +238,7 @@ def run_sweep(
     n_workers = workers or cfg.workers or os.cpu_count() or 1
     pool = make_executor(executor, n_workers, address)
     hashed = {"config": cfg.model_dump(mode="json", exclude={"workers"}), "targets": given}
-    run = start_run(out, cfg, "sweep", hashed, resume)
+    run = start_run(out, cfg, "sweep", hashed, resume, executor)
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
     failure: str | None = None
