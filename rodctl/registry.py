@@ -610,11 +610,11 @@ def component_provenance(cfg: Any, executor: str | None = None) -> dict[str, Any
     exp = cfg if getattr(cfg, "logging", None) is not None else getattr(cfg, "base", None)
     out: dict[str, Any] = {}
     if exp is not None and getattr(exp, "run", None) is not None:
-        # Lazy: the sink configs live with the sinks, which import this module.
-        from rodctl.logs.sinks import selected_sinks  # noqa: PLC0415
-
+        log = exp.logging  # the sinks in `rodctl.logs.sinks.selected_sinks` order, by name
+        switched = [("figures", log.figures), ("mcap", log.mcap), ("rerun", log.rerun)]
+        sinks = [name for name, on in switched if on] + [s.type for s in log.sinks]
         out["events"] = [EVENTS.provenance(e.type) for e in exp.run.events]
-        out["sinks"] = [SINKS.provenance(s.type) for s in selected_sinks(exp.logging, figures=True)]
+        out["sinks"] = [SINKS.provenance(name) for name in sinks]
     if executor is not None:
         out["executor"] = EXECUTORS.provenance(executor)
     return out

@@ -139,24 +139,27 @@ class SyntheticRun:
             img = np.clip(img + noise, 0, 255).astype(np.uint8)
         return img
 
+    def _command(self, k: int, phase: str, pose: np.ndarray) -> np.ndarray:
+        """(q,) step k's command before the speed limit: none, a probing move, or a noisy
+        quarter of the way to the target."""
+        q = 3 * self.arms
+        if k == 0:
+            return np.zeros(q)
+        if phase == "probe":
+            return np.eye(q)[k - 1] * np.tile([0.01, 0.01, 0.05], self.arms)
+        return 0.25 * (self.target_pose - pose) + self.rng.normal(0, 1e-3, q)
+
     def records(self, n: int) -> list[StepRecord]:
         """The first `n` steps: initial observation, 3 probing steps, then control."""
         out: list[StepRecord] = []
         pose = self.home.copy()
-        q = 3 * self.arms
-        J = self.rng.normal(size=(self.p, q))
-        lo = np.tile([-0.02, -0.02, -0.1], self.arms)
-        if self.arms == 2:
-            lo[3:] = [-0.005, -0.005, -0.02]
+        J = self.rng.normal(size=(self.p, 3 * self.arms))
+        # The speed limits: the gripper's, then (dual-arm) the x0 end's.
+        lo = np.array([-0.02, -0.02, -0.1, -0.005, -0.005, -0.02][: 3 * self.arms])
         period = 0.2
         for k in range(n):
             phase = "initial" if k == 0 else ("probe" if k <= 3 else "control")
-            if k == 0:
-                u_raw = np.zeros(q)
-            elif phase == "probe":
-                u_raw = np.eye(q)[k - 1] * np.tile([0.01, 0.01, 0.05], self.arms)
-            else:
-                u_raw = 0.25 * (self.target_pose - pose) + self.rng.normal(0, 1e-3, q)
+            u_raw = self._command(k, phase, pose)
             u = np.clip(u_raw, lo, -lo)
             pose = pose + u
             world = self._world(pose)
@@ -165,9 +168,8 @@ class SyntheticRun:
             s = self.feature(extracted)
             J = J + self.rng.normal(0.0, 0.01, J.shape)
             err = np.linalg.norm(extracted - self.header.target_pixels, axis=1).mean()
-            image = None
-            if self.image_every and k % self.image_every == 0:
-                image = self.render(truth_px)
+            shown = self.image_every and k % self.image_every == 0
+            image = self.render(truth_px) if shown else None
             out.append(
                 StepRecord(
                     step=k,
