@@ -61,6 +61,7 @@ import numpy as np
 from gymnasium import spaces
 
 from rodctl.config import ExperimentConfig, load_config, validate_config
+from rodctl.config.rod import RodConfig
 from rodctl.errors import UserError
 from rodctl.geometry import resample_polyline
 from rodctl.runs import rng
@@ -338,20 +339,7 @@ class ShapeServoEnv(gym.Env):
         super().reset(seed=seed)
         self._seeded = True
         self.episode_seed = int(seed)
-        cfg = self.cfg
-        if options.get("start_pose") is not None:
-            start = tuple(map(float, options["start_pose"]))
-            if len(start) not in (3, self.q):
-                raise ValueError(
-                    f"reset: start_pose has {len(start)} values; it takes 3 (the gripper's)"
-                    + (" or 6 (both ends')" if self.dual_arm else "")
-                )
-            update: dict[str, Any] = {"home_pose": start[:3]}
-            if self.dual_arm and len(start) == 6:  # both ends' start poses
-                update["clamp_pose"] = start[3:]
-            rod = cfg.rod.model_copy(update=update)
-        else:
-            rod = cfg.rod
+        rod = self._start_rod(options.get("start_pose"))
         self._rod_cfg = rod
         given = _given_target(options)
         self.times = StageTimes()
@@ -373,6 +361,27 @@ class ShapeServoEnv(gym.Env):
             **self._info(None),
             "target": self.target,
         }
+
+    def _start_rod(self, start_pose: Any) -> RodConfig:
+        """The episode's rod config: the config's, or with `start_pose` as the home pose (and,
+        dual-arm with 6 values, the x0 end's clamp pose), validated as the config's own start
+        poses are: each end in its arm's workspace, the gripper within reach of the x0 end (a bad
+        one is a UserError naming it)."""
+        rod = self.cfg.rod
+        if start_pose is None:
+            return rod
+        start = tuple(map(float, start_pose))
+        if len(start) not in (3, self.q):
+            raise ValueError(
+                f"reset: start_pose has {len(start)} values; it takes 3 (the gripper's)"
+                + (" or 6 (both ends')" if self.dual_arm else "")
+            )
+        update: dict[str, Any] = {"home_pose": start[:3]}
+        if self.dual_arm and len(start) == 6:  # both ends' start poses
+            update["clamp_pose"] = start[3:]
+        return validate_config(
+            {**rod.model_dump(), **update}, f"reset: start_pose {list(start)}", model=type(rod)
+        )
 
     def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
         """Move the gripper by `action` = [dx, dy, dtheta] (dual-arm: then the x0 end's), let

@@ -44,7 +44,7 @@ from rodctl.method import CONTROL, INITIAL, Method
 from rodctl.numenv import numeric_environment
 from rodctl.outcome import Outcome
 from rodctl.records import RunHeader, RunSummary, StepRecord
-from rodctl.registry import plugin_provenance
+from rodctl.registry import component_provenance, plugin_provenance
 
 
 class Interrupted(Exception):
@@ -415,6 +415,7 @@ class _Loop:
             provenance={
                 "plugins": plugin_provenance(),
                 "stages": dict(getattr(method, "stages", {})),
+                **component_provenance(cfg),  # the run's mid-run events and sinks
             },
         )
         self.setup_time = time.perf_counter() - self.wall0

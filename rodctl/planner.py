@@ -66,7 +66,7 @@ from rodctl.env import ShapeServoEnv, Target, pixel_error
 from rodctl.errors import UserError
 from rodctl.metrics import pose_steps
 from rodctl.sim import RodSim
-from rodctl.sim.quasistatic import resample_matrix
+from rodctl.sim.quasistatic import QuasiStaticSim, resample_matrix
 
 #: Smoothing of each point's distance in the objective (px): ρ_j² = sqrt(d_j² + ε²) ≈ d_j.
 EPSILON_PX = 0.01
@@ -204,8 +204,13 @@ class _Model:
         joints = self.sim.centerline()
         points = np.einsum("ij,jk->ik", self.w, joints)
         d = self.camera.project(points) - self.target
-        if bool(getattr(self.sim.chain, "converged", False)) and not self.sim.diverged:
-            dpoints = np.einsum("ij,jkq->ikq", self.w, self.sim.centerline_jacobian())
+        sim = self.sim
+        if (
+            isinstance(sim, QuasiStaticSim)
+            and bool(getattr(sim.chain, "converged", False))
+            and not sim.diverged
+        ):
+            dpoints = np.einsum("ij,jkq->ikq", self.w, sim.centerline_jacobian())
             dpix = np.einsum("ikl,ilq->ikq", self.camera.projection_jacobian(points), dpoints)
         else:
             snap = self.sim.snapshot()
@@ -374,12 +379,13 @@ def _search_workspace(
     the target pose, home and the end of the diagnosis's own search from the start (what would
     call the target `unreachable`); poses within tolerance go into `found`. The best error."""
     starts = [t_pose, home]
-    snap = env.sim.snapshot() if env.sim is not None else None
+    sim = env.sim
+    snap = sim.snapshot() if sim is not None else None
     searched, _, _ = pose_search(env, SEARCH_ITERATIONS)
-    if env.sim is not None:
-        starts.append(np.asarray(env.sim.gripper_pose, dtype=float))
+    if sim is not None and snap is not None:
+        starts.append(np.asarray(sim.gripper_pose, dtype=float))
         best_err = min(best_err, searched)
-        env.sim.restore(snap)
+        sim.restore(snap)
     lo, hi = box(math.inf)
     for x0 in starts:
         pose, err = _fit(model, x0, lo, hi)

@@ -111,11 +111,13 @@ def _ticks(ax: Axes, log_y: np.ndarray | None = None) -> None:
         ax.yaxis.set_major_locator(MaxNLocator(nbins=5))
 
 
-def speed_limits(header: RunHeader) -> np.ndarray | None:
-    """(3,) the rod's per-step limits on |Δx|, |Δy|, |Δθ| from the run's config, or None when
-    the config does not say (a synthetic run)."""
+def speed_limits(header: RunHeader, end: str = "gripper") -> np.ndarray | None:
+    """(3,) the per-step limits on |Δx|, |Δy|, |Δθ| of one moved end from the run's config
+    (`end`: "gripper", `rod.max_step`, or "x0", the second arm's `rod.clamp_arm.max_step`), or
+    None when the config does not say (a synthetic run)."""
     try:
-        limits = (yaml.safe_load(header.config_yaml) or {})["rod"]["max_step"]
+        rod = (yaml.safe_load(header.config_yaml) or {})["rod"]
+        limits = rod["max_step"] if end == "gripper" else rod["clamp_arm"]["max_step"]
         out = np.asarray(limits, dtype=float).reshape(3)
     except (yaml.YAMLError, KeyError, TypeError, ValueError):
         return None
@@ -286,56 +288,81 @@ def render_figures(header: RunHeader, records: Sequence[StepRecord]) -> dict[str
         _title(ax, _headline("Deformation error T1", header.method, 6.4), FONT + 1)
         pngs["t1.png"] = _png(fig)
 
-        pngs["commands.png"] = _png(_commands({header.method: records}, speed_limits(header)))
+        commands = _commands(
+            {header.method: records}, speed_limits(header), speed_limits(header, "x0")
+        )
+        pngs["commands.png"] = _png(commands)
     return pngs
 
 
-def _commands(runs: Mapping[str, Sequence[StepRecord]], limits: np.ndarray | None) -> Figure:
+def _commands(
+    runs: Mapping[str, Sequence[StepRecord]],
+    limits: np.ndarray | None,
+    x0_limits: np.ndarray | None = None,
+) -> Figure:
     """Fig. 3: the pose increment Δr = (Δx, Δy, Δθ) commanded each step (a displacement per
     step, applied over the step's duration), one panel per component, the speed limits
-    ±`limits` dashed. With several methods the legend goes below the panels (inside, it would
-    hide curves)."""
-    fig = _figure(6.4, 5.8 if len(runs) == 1 else 6.4)
-    axes = fig.subplots(3, 1, sharex=True)
-    spans = sorted({s for recs in runs.values() for s in _probe_spans(recs)})
+    ±`limits` dashed. Dual-arm (q = 6), a second column of panels for the x0 end, its own
+    limits ±`x0_limits` dashed. With several methods the legend goes below the panels (inside,
+    it would hide curves)."""
+    dual = any(_second_end(recs) is not None for recs in runs.values())
     single = len(runs) == 1
+    fig = _figure(9.6 if dual else 6.4, 5.8 if single else 6.4)
+    grid = fig.subplots(3, 2 if dual else 1, sharex=True, squeeze=False)
+    spans = sorted({s for recs in runs.values() for s in _probe_spans(recs)})
     for i, (name, recs) in enumerate(runs.items()):
         steps, _, _, u = _series(recs)
-        st = style(0 if single else i)
-        other = _second_end(recs) if single else None
-        for j, ax in enumerate(axes):
-            ax.plot(steps, u[:, j], label=name if other is None else "gripper", **st)
-        if other is not None:  # dual-arm: the x0 end's increments beside the gripper's
-            for j, ax in enumerate(axes):
-                ax.plot(steps, other[:, j], label="x0 end (second arm)", **style(1))
-    for j, (ax, label) in enumerate(zip(axes, AXES, strict=True)):
-        shade_probing(ax, spans, label=j == 0)
-        if limits is not None:
-            for sign in (1.0, -1.0):
-                ax.axhline(
-                    sign * limits[j],
-                    color="0.3",
-                    ls="--",
-                    lw=0.9,
-                    label="speed limit" if j == 0 and sign > 0 else None,
-                )
-        _ticks(ax)
-        ax.set_ylabel(label)
-        ax.grid(True, alpha=0.3)
-        ax.axhline(0.0, color="black", lw=0.6)
-    axes[-1].set_xlabel("step")
+        other = _second_end(recs)
+        for j in range(3):
+            grid[j, 0].plot(steps, u[:, j], label=name, **style(0 if single else i))
+            if dual and other is not None:
+                grid[j, 1].plot(steps, other[:, j], label=name, **style(0 if single else i))
+    ends = [(grid[:, 0], limits, "gripper")]
+    if dual:
+        ends.append((grid[:, 1], x0_limits, "x0 end (second arm)"))
+    for column, (axes, lim, end) in enumerate(ends):
+        if dual:
+            _title(axes[0], end)
+        for j, (ax, label) in enumerate(zip(axes, AXES, strict=True)):
+            _command_panel(ax, spans, lim, j, label, legend_entries=column == 0 and j == 0)
+        axes[-1].set_xlabel("step")
     if single:
-        axes[0].legend(fontsize=FONT - 1, loc="best")
+        grid[0, 0].legend(fontsize=FONT - 1, loc="best")
     else:
-        handles, labels = axes[0].get_legend_handles_labels()
+        handles, labels = grid[0, 0].get_legend_handles_labels()
         fig.legend(
             handles, labels, loc="outside lower center", ncol=4, fontsize=FONT - 1, frameon=False
         )
     title = "Pose increment Δr commanded per step"  # the legend names the shading and limits
     if single:
-        title = _headline(title, next(iter(runs)), 6.4)
+        title = _headline(title, next(iter(runs)), 9.6 if dual else 6.4)
     fig.suptitle(title, fontsize=FONT + 1)
     return fig
+
+
+def _command_panel(
+    ax: Axes,
+    spans: Sequence[tuple[int, int]],
+    limits: np.ndarray | None,
+    j: int,
+    label: str,
+    legend_entries: bool,
+) -> None:
+    """One component's panel of Fig. 3: probing shaded, the speed limit ±`limits[j]` dashed."""
+    shade_probing(ax, spans, label=legend_entries)
+    if limits is not None:
+        for sign in (1.0, -1.0):
+            ax.axhline(
+                sign * limits[j],
+                color="0.3",
+                ls="--",
+                lw=0.9,
+                label="speed limit" if legend_entries and sign > 0 else None,
+            )
+    _ticks(ax)
+    ax.set_ylabel(label)
+    ax.grid(True, alpha=0.3)
+    ax.axhline(0.0, color="black", lw=0.6)
 
 
 def write_comparison_figures(
@@ -392,7 +419,9 @@ def write_comparison_figures(
         )
         paths.append(_save(fig, out_dir / "t1.png"))
 
-        limits = speed_limits(runs[names[0]][0])  # the methods share the base's rod
-        commands = _commands({m: runs[m][1] for m in names}, limits)
+        base = runs[names[0]][0]  # the methods share the base's rod
+        commands = _commands(
+            {m: runs[m][1] for m in names}, speed_limits(base), speed_limits(base, "x0")
+        )
         paths.append(_save(commands, out_dir / "commands.png"))
     return paths

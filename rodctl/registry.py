@@ -599,3 +599,22 @@ def stage_provenance(cfg: Any) -> dict[str, Any]:
     if getattr(cfg, "feature", None) is None and getattr(cfg, "base", None) is not None:
         return {"base": one(cfg.base)}  # a sweep of its base's stages
     return one(cfg)
+
+
+def component_provenance(cfg: Any, executor: str | None = None) -> dict[str, Any]:
+    """Which registered factory builds each mid-run event (`run.events`) and each sink (the
+    MCAP and Rerun switches, the figures, `logging.sinks`) of `cfg` (an experiment config, or a
+    compare or sweep config: its `base`'s), and the executor `executor` (`--executor`), plug-ins
+    included: with `stage_provenance`, every registered type a run was made with."""
+    load_plugins()
+    exp = cfg if getattr(cfg, "logging", None) is not None else getattr(cfg, "base", None)
+    out: dict[str, Any] = {}
+    if exp is not None and getattr(exp, "run", None) is not None:
+        log = exp.logging  # the sinks in `rodctl.logs.sinks.selected_sinks` order, by name
+        switched = [("figures", log.figures), ("mcap", log.mcap), ("rerun", log.rerun)]
+        sinks = [name for name, on in switched if on] + [s.type for s in log.sinks]
+        out["events"] = [EVENTS.provenance(e.type) for e in exp.run.events]
+        out["sinks"] = [SINKS.provenance(name) for name in sinks]
+    if executor is not None:
+        out["executor"] = EXECUTORS.provenance(executor)
+    return out

@@ -26,7 +26,7 @@ from pydantic import BaseModel
 
 from rodctl.config import dump_config
 from rodctl.errors import RunFailed, UserError, describe_os_error
-from rodctl.registry import plugin_provenance, stage_provenance
+from rodctl.registry import component_provenance, plugin_provenance, stage_provenance
 from rodctl.runlock import unlock_run_folder
 
 #: Every consumer of randomness, in a fixed order. Each gets its own independent stream derived
@@ -272,6 +272,8 @@ class RunDir:
             # replace, and the registered factory of each stage (docs/reliability.md).
             "plugins": plugin_provenance(),
             "stages": stage_provenance(cfg),
+            # ... and of its mid-run events and sinks (compare, sweep: `executor` too).
+            **component_provenance(cfg),
             "started_at": _now(),
             "ended_at": None,
         }

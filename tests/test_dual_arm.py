@@ -59,6 +59,42 @@ def test_one_arm_dump_is_unchanged_and_clamp_arm_needs_two():
         validate_config({"rod": {"arms": 2, "clamp_pose": [0.3, 0.0, 0.0]}}, "test")
 
 
+def test_start_poses_are_checked_against_each_arms_workspace():
+    """The x0 end's start and target poses lie in rod.clamp_arm.workspace, the gripper's start
+    within the smaller reach of the two arms; a workspace given in part keeps the x0 end's
+    defaults (not the gripper's, which exclude the default clamp pose)."""
+    part = {"rod": {"arms": 2, "clamp_arm": {"workspace": {"max_reach": 0.9}}}}
+    ws = validate_config(part, "test").rod.clamp_arm.workspace
+    assert (ws.x_limits, ws.y_limits, ws.max_reach) == ((-0.2, 0.25), (-0.35, 0.35), 0.9)
+    outside = {"arms": 2, "clamp_arm": {"workspace": {"x_limits": [-0.1, 0.1]}}}
+    with pytest.raises(UserError, match=r"rod\.clamp_pose \[0\.2.*rod\.clamp_arm\.workspace"):
+        validate_config({"rod": {**outside, "clamp_pose": [0.2, 0.0, 0.0]}}, "test")
+    target = {"pose": [0.4, 0.1, 0.3, 0.6, 0.0, 0.0]}  # the x0 end's x beyond 0.25 m
+    with pytest.raises(UserError, match=r"run\.target\.pose: the x0 end's pose \[0\.6.*clamp_arm"):
+        validate_config({"rod": {"arms": 2}, "run": {"target": target}}, "test")
+    far = {"arms": 2, "home_pose": [0.45, 0.0, 0.0]}  # 0.45 m of a 0.5 m rod: 0.9 L
+    validate_config({"rod": far}, "test")
+    with pytest.raises(UserError, match=r"home_pose.*0\.25 m.*smaller of the two arms"):
+        validate_config({"rod": {**far, "clamp_arm": {"workspace": {"max_reach": 0.5}}}}, "test")
+
+
+def test_a_start_pose_given_to_reset_is_checked_too():
+    env = ShapeServoEnv(_env_config())
+    with pytest.raises(UserError, match=r"(?s)start_pose.*clamp_pose \[0\.5.*clamp_arm\.workspace"):
+        env.reset(seed=0, options={"start_pose": [0.4, 0.1, 0.3, 0.5, 0.0, 0.0]})
+    with pytest.raises(UserError, match=r"(?s)start_pose.*home_pose \[0\.9"):
+        env.reset(seed=0, options={"start_pose": [0.9, 0.0, 0.0]})
+
+
+def test_a_target_pose_outside_the_x0_ends_workspace_exits_2_naming_the_field(tmp_path):
+    config = tmp_path / "bad.yaml"
+    config.write_text("rod: {arms: 2}\nrun: {target: {pose: [0.4, 0.1, 0.3, 0.0, 0.5, 0.0]}}\n")
+    res = CliRunner().invoke(app, ["simulate", str(config), "-o", str(tmp_path / "out")])
+    out = " ".join((res.stdout + (res.stderr or "")).split())
+    assert res.exit_code == 2 and "Traceback" not in out, out
+    assert "run.target.pose: the x0 end's pose [0.0, 0.5, 0.0]" in out, out
+
+
 @pytest.mark.parametrize("engine", ["pymunk", "quasistatic"])
 def test_both_ends_move_each_with_its_own_speed_limit(engine):
     sim = RodSim(rod(engine=engine, clamp_arm={"max_step": [0.004, 0.004, 0.02]}))

@@ -32,14 +32,6 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("rodctl/estimation/akf.py", "AdaptiveKalmanJacobian.update"): KERNEL,
     ("rodctl/vision/camera.py", "Camera.render"): KERNEL,
     ("rodctl/vision/camera.py", "Camera._blur"): KERNEL,
-    # Debt: orchestration still to split.
-    (
-        "rodctl/logs/rerun.py",
-        "RerunSink._log_static_scene",
-    ): "debt: orchestration to split like the others",
-    ("rodctl/logs/mcap.py", "McapSink.open"): "debt: orchestration to split like the others",
-    ("rodctl/logs/mcap.py", "check_sizes"): "debt: orchestration to split like the others",
-    ("rodctl/logs/mcap.py", "_assemble"): "debt: orchestration to split like the others",
 }
 
 

@@ -158,6 +158,39 @@ def test_commands_draw_the_speed_limits_and_call_the_command_a_pose_increment():
     assert plots.speed_limits(SyntheticRun(seed=1, image_every=0).header) is None  # not known
 
 
+def _dashed_levels(ax):
+    """The levels of the speed-limit lines (grey, dashed; a method's line may be dashed too)."""
+    return {
+        round(float(line.get_ydata()[0]), 6)
+        for line in ax.lines
+        if line.get_ls() == "--" and line.get_color() == "0.3"
+    }
+
+
+@pytest.mark.parametrize("methods", [1, 2])
+def test_dual_arm_commands_show_both_ends_each_with_its_own_speed_limit(methods):
+    """q = 6: a column of panels per end (one run and a compare of several methods alike), the
+    x0 end's limits those of rod.clamp_arm, not the gripper's."""
+    run = SyntheticRun(seed=2, image_every=0, arms=2)
+    header = run.header
+    runs = {
+        f"m{i}": SyntheticRun(seed=2 + i, image_every=0, arms=2).records(12) for i in range(methods)
+    }
+    fig = plots._commands(runs, plots.speed_limits(header), plots.speed_limits(header, "x0"))
+    assert len(fig.axes) == 6
+    left, right = fig.axes[0::2], fig.axes[1::2]  # row-major: gripper column, x0 end column
+    assert right[0].get_title() == "x0 end (second arm)" and left[0].get_title() == "gripper"
+    for j in range(3):
+        assert _dashed_levels(left[j]) == {v * s for v in [(0.02, 0.02, 0.1)[j]] for s in (1, -1)}
+        assert _dashed_levels(right[j]) == {
+            v * s for v in [(0.005, 0.005, 0.02)[j]] for s in (1, -1)
+        }
+        for i, recs in enumerate(runs.values()):  # every method's x0 end is drawn, as logged
+            drawn = [ln for ln in right[j].lines if ln.get_label() == f"m{i}"]
+            assert len(drawn) == 1
+            assert np.array_equal(drawn[0].get_ydata(), [r.u[3 + j] for r in recs])
+
+
 def test_methods_with_equal_results_stay_apart_in_the_success_figure():
     from rodctl.bench.compare import success_axes
 

@@ -71,6 +71,22 @@ def test_simulate_applies_the_plugin_event_and_writes_the_plugin_sink(tmp_path):
         moved = float(now[f"gripper_{axis}"]) - float(before[f"gripper_{axis}"])
         assert moved == pytest.approx(float(now[f"u_{axis}"]) + knock, abs=1e-9), axis
     assert summary["outcome"] == "converged"
+    # The run says which plug-ins made it: the event's and the sink's factories, in meta.json
+    # and in run.mcap's provenance record, beside the stages'.
+    meta = json.loads((run_dir / "meta.json").read_text())
+    from mcap.reader import make_reader  # noqa: PLC0415
+
+    with (run_dir / "run.mcap").open("rb") as fh:
+        records = {m.name: m.metadata for m in make_reader(fh).iter_metadata()}
+    logged = {k: json.loads(v) for k, v in records["rodctl.provenance"].items()}
+    for where in (meta, logged):
+        (event,) = where["events"]
+        assert event["type"] == "gripper_nudge" and event["origin"] == "plug-in"
+        assert "rodctl-example-kinds" in event["source"]
+        sinks = {s["type"]: s for s in where["sinks"]}
+        assert set(sinks) == {"mcap", "csv"}  # rerun and figures are switched off
+        assert sinks["csv"]["origin"] == "plug-in" and sinks["mcap"]["origin"] == "built-in"
+    assert logged["events"] == meta["events"] and logged["sinks"] == meta["sinks"]
 
 
 @needs_plugin
@@ -84,6 +100,9 @@ def test_compare_on_the_plugin_executor_gives_the_local_results(tmp_path):
         assert res.exit_code == 0, res.output
         folder = Path(res.output.strip().splitlines()[-1])
         results[executor] = _rows(folder / "results.csv")
+        made_by = json.loads((folder / "meta.json").read_text())["executor"]
+        assert made_by["type"] == executor
+        assert made_by["origin"] == ("plug-in" if executor == "thread" else "built-in")
         for episode in sorted((folder / "episodes").glob("*/t*")):  # keep_logs: the csv sink
             assert any("gripper_nudge" in r["events"] for r in _rows(episode / "steps.csv"))
     thread, local = results["thread"], results["local"]

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from rodctl.bench.sweep import rank_groups
 from rodctl.sensitivity import (
     from_sweep_folder,
     knob_sensitivity,
@@ -15,7 +16,6 @@ from rodctl.sensitivity import (
     quantile_bins,
     sensitivity,
 )
-from rodctl.sweep import rank_groups
 
 
 def _synthetic(n: int = 64, seed: int = 3) -> list[dict]:

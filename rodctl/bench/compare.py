@@ -326,7 +326,9 @@ def run_compare(
     given = given_target_poses(cfg, Path(config_path).resolve().parent)
     study = CompareStudy(cfg, configs, given, wall0)
     pool = make_pool(executor, workers, cfg.workers, address)
-    return run_study(study, out, pool, progress=progress, resume=resume, on_start=on_start)
+    return run_study(
+        study, out, pool, progress=progress, resume=resume, on_start=on_start, executor=executor
+    )
 
 
 # --- outputs ------------------------------------------------------------------------------------

@@ -27,6 +27,7 @@ from typing import Any
 
 from rodctl.bench.tasks import EpisodeTask, row_key
 from rodctl.errors import UserError
+from rodctl.registry import component_provenance
 from rodctl.runlock import lock_run_folder
 from rodctl.runs import RunDir, jsonable
 
@@ -214,12 +215,16 @@ def start_run(
     command: str,
     hashed: dict[str, Any],
     resume: str | None,
+    executor: str | None = None,
 ) -> RunDir:
-    """A new run folder (config hash in meta.json), or the `--resume` one reopened."""
+    """A new run folder (config hash in meta.json; `executor`: the `--executor` kind, its
+    factory recorded as the run's `executor`), or the `--resume` one reopened."""
     if resume is not None:
         return open_resumed_run(resume, command, hashed)
     run = RunDir.create(out, cfg, command=command)
     lock_run_folder(run.path, command)  # held until run.finish
     run.meta["resume"] = {"config_hash": config_hash(hashed), "hashed": jsonable(hashed)}
+    if executor is not None:
+        run.meta.update(component_provenance(None, executor))
     run.write_meta()
     return run

@@ -96,17 +96,19 @@ def run_study(
     progress: bool,
     resume: str | None = None,
     on_start: Callable[[Path], None] | None = None,
+    executor: str | None = None,
 ) -> Path:
     """Run `study` on `pool` into a new folder under `out` (or the `resume` folder); return it.
 
-    `on_start`: called with the run's folder as soon as it exists.
+    `on_start`: called with the run's folder as soon as it exists. `executor`: the `--executor`
+    kind `pool` was made from (its factory is recorded in meta.json as the run's `executor`).
 
     Raises:
         UserError: a `resume` folder of another command or config; whatever the study raises.
         RunInterrupted: SIGINT/SIGTERM stopped the run; the finished rows are reported.
         RunFailed: an OS error (a full or read-only disk), in one line.
     """
-    run = start_run(out, study.config, study.command, study.hashed, resume)
+    run = start_run(out, study.config, study.command, study.hashed, resume, executor)
     if on_start is not None:
         on_start(run.path)
     log = ResultsLog(run.path / "results.jsonl")

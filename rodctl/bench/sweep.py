@@ -308,7 +308,7 @@ def run_sweep(
     source = config_source(config_path, overrides)
     study = SweepStudy(cfg, source, Path(config_path).resolve().parent, wall0)
     pool = make_pool(executor, workers, cfg.workers, address)
-    return run_study(study, out, pool, progress=progress, resume=resume)
+    return run_study(study, out, pool, progress=progress, resume=resume, executor=executor)
 
 
 def preflight(methods: dict[str, dict[str, Any]]) -> None:

@@ -89,6 +89,13 @@ class ExperimentConfig(StrictModel):
             raise ValueError(
                 "run.target.pose has 6 values (both ends' poses): that needs rod.arms: 2"
             )
+        ws = self.rod.clamp_arm.workspace
+        if pose is not None and len(pose) == 6 and not ws.contains(pose[3:]):
+            raise ValueError(
+                f"run.target.pose: the x0 end's pose {list(pose[3:])} (values 4-6) is outside "
+                f"rod.clamp_arm.workspace (x in {list(ws.x_limits)} m, y in "
+                f"{list(ws.y_limits)} m, theta in {list(ws.theta_limits)} rad)"
+            )
         return self
 
     @model_validator(mode="after")

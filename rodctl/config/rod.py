@@ -135,17 +135,39 @@ class WorkspaceConfig(StrictModel):
                 raise ValueError(f"{name} must be [low, high] with low < high, got [{lo}, {hi}]")
         return self
 
+    def contains(self, pose: Any) -> bool:
+        """Whether the pose [x, y, theta] lies in the box (limits included; reach not checked)."""
+        x, y, th = (float(v) for v in pose)
+        return (
+            self.x_limits[0] <= x <= self.x_limits[1]
+            and self.y_limits[0] <= y <= self.y_limits[1]
+            and self.theta_limits[0] <= th <= self.theta_limits[1]
+        )
+
+
+#: The x0 end's workspace by default (dual-arm): a box around the clamp, not the gripper's.
+_CLAMP_WORKSPACE = {"x_limits": (-0.2, 0.25), "y_limits": (-0.35, 0.35)}
+
 
 class ClampArmConfig(StrictModel):
     """The second arm of a dual-arm set-up (`rod.arms: 2`): it holds the x0 end (the clamp) and
     moves it in (x, y, theta) like the gripper, with its own speed limit and workspace."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _own_defaults(cls, data: Any) -> Any:
+        """A workspace given in part keeps the x0 end's defaults for the rest (not the
+        gripper's, whose x range [0.05, 0.6] m excludes the default clamp pose)."""
+        if isinstance(data, dict) and isinstance(data.get("workspace"), dict):
+            data = {**data, "workspace": {**_CLAMP_WORKSPACE, **data["workspace"]}}
+        return data
 
     max_step: tuple[_StepMetres, _StepMetres, _StepRadians] = Field(
         (0.01, 0.01, 0.05),
         description="Per-axis limit [dx, dy, dtheta] (m, m, rad) on one step of the x0 end.",
     )
     workspace: WorkspaceConfig = Field(
-        WorkspaceConfig(x_limits=(-0.2, 0.25), y_limits=(-0.35, 0.35)),
+        WorkspaceConfig(**_CLAMP_WORKSPACE),
         description=(
             "Where the x0 end may go (its max_reach and on_violation as for the gripper; the "
             "ends' distance is held within the smaller of the two max_reach)."
@@ -353,38 +375,44 @@ class RodConfig(StrictModel):
     def _clamp_arm_needs_two(self) -> RodConfig:
         if self.arms == 1 and "clamp_arm" in self.model_fields_set:
             raise ValueError("clamp_arm is the second arm's: it needs arms: 2")
-        if self.arms == 2:
-            ws = self.clamp_arm.workspace
-            x, y, th = self.clamp_pose
-            if not (
-                ws.x_limits[0] <= x <= ws.x_limits[1]
-                and ws.y_limits[0] <= y <= ws.y_limits[1]
-                and ws.theta_limits[0] <= th <= ws.theta_limits[1]
-            ):
-                raise ValueError(
-                    f"clamp_pose {list(self.clamp_pose)} (the x0 end's start with arms: 2) is "
-                    "outside rod.clamp_arm.workspace"
-                )
+        if self.arms == 2 and not self.clamp_arm.workspace.contains(self.clamp_pose):
+            raise ValueError(
+                f"rod.clamp_pose {list(self.clamp_pose)} (the x0 end's start with arms: 2) is "
+                f"outside rod.clamp_arm.workspace ({_box_text(self.clamp_arm.workspace)})"
+            )
         return self
+
+    def _reach_m(self) -> float:
+        """Largest distance (m) between the ends at the start: max_reach of the rod length
+        (dual-arm: the smaller of the two arms' max_reach, as `RodSim` clips)."""
+        reach = self.workspace.max_reach
+        if self.arms == 2:
+            reach = min(reach, self.clamp_arm.workspace.max_reach)
+        return reach * self.length
 
     @model_validator(mode="after")
     def _home_inside(self) -> RodConfig:
         if self.home_pose is not None:
-            ws = self.workspace
-            x, y, th = self.home_pose
+            x, y, _ = self.home_pose
             cx, cy, _ = self.clamp_pose
             inside = (
-                ws.x_limits[0] <= x <= ws.x_limits[1]
-                and ws.y_limits[0] <= y <= ws.y_limits[1]
-                and ws.theta_limits[0] <= th <= ws.theta_limits[1]
-                and ((x - cx) ** 2 + (y - cy) ** 2) ** 0.5 <= ws.max_reach * self.length
+                self.workspace.contains(self.home_pose)
+                and ((x - cx) ** 2 + (y - cy) ** 2) ** 0.5 <= self._reach_m()
             )
             if not inside:
                 raise ValueError(
                     f"home_pose {list(self.home_pose)} is outside rod.workspace or beyond "
-                    f"max_reach * length = {ws.max_reach * self.length:.4g} m from the clamp"
+                    f"max_reach * length = {self._reach_m():.4g} m from the clamp"
+                    + (" (the smaller of the two arms' max_reach)" if self.arms == 2 else "")
                 )
         return self
+
+
+def _box_text(ws: WorkspaceConfig) -> str:
+    return (
+        f"x in {list(ws.x_limits)} m, y in {list(ws.y_limits)} m, "
+        f"theta in {list(ws.theta_limits)} rad"
+    )
 
 
 def _close(given: Any, value: float) -> bool:

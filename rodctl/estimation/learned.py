@@ -44,7 +44,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -57,6 +56,7 @@ from rodctl.config.base import StrictModel
 from rodctl.errors import UserError
 from rodctl.estimation.base import DEAD_ZONE_DOC, checked_jacobian
 from rodctl.geometry import resample_polyline
+from rodctl.notices import say_once
 from rodctl.registry import ESTIMATORS, BuildContext
 
 #: Identifies our checkpoints; bump VERSION when the layout changes.
@@ -317,10 +317,6 @@ def _resolve_path(checkpoint: str) -> Path:
     return _resolve(checkpoint)
 
 
-#: Models already reported as used on another set-up, in this process.
-_TRANSFERS_SAID: set[str] = set()
-
-
 # --- the estimator ----------------------------------------------------------------------
 
 
@@ -571,15 +567,11 @@ class LearnedEstimatorConfig(StrictModel):
                     else ", or set estimator.other_setup=accept for a transfer experiment"
                 )
             )
-        key = f"{self.checkpoint}: {diffs}"
-        if key not in _TRANSFERS_SAID:
-            _TRANSFERS_SAID.add(key)
-            print(
-                f"estimator.other_setup=accept: {self.checkpoint} was trained for another "
-                "set-up:\n  " + "\n  ".join(diffs),
-                file=sys.stderr,
-                flush=True,
-            )
+        say_once(  # once per run, not in each worker process again (`rodctl.notices`)
+            f"estimator transfer {self.checkpoint}: {diffs}",
+            f"estimator.other_setup=accept: {self.checkpoint} was trained for another "
+            "set-up:\n  " + "\n  ".join(diffs),
+        )
 
 
 @ESTIMATORS.register(LearnedEstimatorConfig)

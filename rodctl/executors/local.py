@@ -36,6 +36,7 @@ from rodctl.executors.base import (
     request_stop,
     stop_reason,
 )
+from rodctl.notices import share_with_workers
 from rodctl.registry import EXECUTORS
 
 #: Seconds a stopped pool's processes get to exit on their own before they are killed.
@@ -85,6 +86,7 @@ class LocalExecutor(Executor):
             # Children inherit the environment at spawn: one BLAS thread per worker process.
             self._saved_env = {k: os.environ.get(k) for k in THREAD_ENV}
             os.environ.update({k: "1" for k in THREAD_ENV})
+            share_with_workers()  # a notice said here is not said again by each worker
             self._new_pool()
 
     def _new_pool(self) -> None:

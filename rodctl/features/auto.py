@@ -11,9 +11,9 @@ training code: the training is done beforehand by the command that runs the expe
 (`rodctl.training.auto.prepare_feature`, called by simulate, compare, sweep and replay).
 
 The quick encoder is always trained with seed 0, whatever the run's seed, so the cached file does
-not depend on which run happened to create it. The cache key also holds rodctl's version and
-`QUICK_CODE_VERSION`, so that an encoder trained by older collection or training code is not
-reused. Cache folder: `$XDG_CACHE_HOME/rodctl/encoders`
+not depend on which run happened to create it. The cache key also holds the rod's engine (the
+walks settle in it), rodctl's version and `QUICK_CODE_VERSION`, so that an encoder trained by
+older collection or training code is not reused. Cache folder: `$XDG_CACHE_HOME/rodctl/encoders`
 (default `~/.cache/rodctl/encoders`).
 """
 
@@ -49,7 +49,10 @@ QUICK_BATCH = 500
 #: bump it whenever a change makes the same config collect other shapes or train another
 #: encoder, so that a quick encoder cached by older code is trained again instead of reused.
 #: 2 (2026-12-02): dual-arm walks after the reach check against the x0 end's new position.
-QUICK_CODE_VERSION = 2
+#: 3 (2026-12-02): `rod.engine` joined the key (the walks settle in the config's engine, and
+#: the two engines' settled shapes differ slightly: docs/encoders.md); quick encoders cached
+#: before could have been trained in the other engine, so none of them is reused.
+QUICK_CODE_VERSION = 3
 
 
 def cache_dir() -> Path:
@@ -70,6 +73,10 @@ def cache_path(cfg: ExperimentConfig) -> Path:
         "seed": QUICK_SEED,
         "format": VERSION,
         "code": QUICK_CODE_VERSION,
+        # The collection walks settle in this engine (`RodSim(cfg.rod)`): its shapes are the
+        # encoder's data. Not in `encoder_fingerprint`: both engines' shapes are one family
+        # (a checkpoint of either encodes the other's), only the cached training differs.
+        "engine": cfg.rod.engine,
         # The package is imported before any of its modules; read, not imported, here (an
         # import of `rodctl` would make the feature stage import everything it re-exports).
         "rodctl": sys.modules["rodctl"].__version__,

@@ -10,7 +10,6 @@ camera, and how the network is trained. Those settings never change what a train
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -25,6 +24,7 @@ from rodctl.features.autoencoder import (
     architecture_of,
     encoder_fingerprint,
 )
+from rodctl.notices import say_once
 from rodctl.registry import FEATURES, BuildContext
 
 
@@ -171,21 +171,15 @@ def load_autoencoder(cfg: AutoencoderFeatureConfig, *, points: int, experiment=N
     return ckpt.feature_map(source=str(path))
 
 
-#: Checkpoints already reported as used on another set-up, in this process.
-_TRANSFERS_SAID: set[str] = set()
-
-
 def _say_transfer(path: Path, lines: list[str]) -> None:
-    """Say once per process that an encoder runs on a set-up it was not trained for."""
-    key = f"{path}: {lines}"  # one checkpoint may go to several set-ups in one process
-    if not lines or key in _TRANSFERS_SAID:
+    """Say once per run that an encoder runs on a set-up it was not trained for
+    (`rodctl.notices`: not again in each worker process of a compare)."""
+    if not lines:
         return
-    _TRANSFERS_SAID.add(key)
-    print(
+    say_once(
+        f"feature transfer {path}: {lines}",  # one checkpoint may go to several set-ups
         f"feature.other_setup=accept: {path} was trained for another set-up:\n  "
         + "\n  ".join(lines),
-        file=sys.stderr,
-        flush=True,
     )
 
 

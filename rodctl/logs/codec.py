@@ -10,12 +10,12 @@ float64 exactly. JSON has no NaN or infinity, so a non-finite value is written a
 listed with its exact value in the message's `nonfinite` array (`Encoder`, `restore_nonfinite`).
 Camera frames travel as lossless PNG, so a decoded frame equals the logged one byte for byte.
 
-Layout (format version 2): points are arrays of `{x, y}` objects, the Jacobian a flat row-major
-array with its shape beside it, maps arrays of `{key, value}` / `{name, value}` objects, so
-that every schema loads in Foxglove's JSON-schema parser (see `schemas`). The contract fields of
-the three per-step topics (docs/outputs.md, "The MCAP log") come first, exactly as named there;
-fields beyond the contract (phase, health flags, estimator diagnostics...) follow on the same
-messages.
+Layout (format version 3, `FORMAT_VERSION`): points are arrays of `{x, y}` objects, the
+Jacobian a flat row-major array with its shape beside it, maps arrays of `{key, value}` /
+`{name, value}` objects, so that every schema loads in Foxglove's JSON-schema parser (see
+`schemas`). The contract fields of the three per-step topics (docs/outputs.md, "The MCAP log")
+come first, exactly as named there; fields beyond the contract (phase, health flags, estimator
+diagnostics...) follow on the same messages.
 
 Clock: MCAP log_time = `LOG_EPOCH_NS` + simulated time; `FrameSchedule` picks the camera frames
 by simulated time, so their rate holds in log time.
@@ -39,7 +39,13 @@ import numpy as np
 from rodctl.records import FIELD_UNITS, RunHeader, RunSummary, StepRecord
 
 #: Version of the message layout below; bumped when a field changes meaning.
-FORMAT_VERSION = "2"
+#: 3 (2026-12-02, dual-arm): `u`, `u_raw`, `saturated` and the header's `home_pose` and
+#: `target_pose` hold q = 3 or 6 values (version 2: exactly 3; a version-2 reader refuses a
+#: dual-arm log), J is p x 6 at q = 6, and dual-arm runs add `/rod/clamp`. A version-2 log is
+#: a version-3 log of one arm: read as is.
+FORMAT_VERSION = "3"
+#: The versions this rodctl reads (`check_format_version`).
+READABLE_VERSIONS = ("2", FORMAT_VERSION)
 
 # Contract topics (docs/outputs.md, "The MCAP log"), one message per control step.
 TOPIC_ROD_STATE = "/rod/state"
@@ -378,12 +384,14 @@ class FormatVersionError(ValueError):
 
 
 def check_format_version(d: dict[str, Any]) -> None:
-    """Refuse a /run/header of another layout (version 1 logs had nested point arrays)."""
+    """Refuse a /run/header of a layout this rodctl does not read (version 1 logs had nested
+    point arrays); versions 2 and 3 are read alike (`FORMAT_VERSION`)."""
     version = d.get("format_version")
-    if version != FORMAT_VERSION:
+    if version not in READABLE_VERSIONS:
+        readable = " and ".join(repr(v) for v in READABLE_VERSIONS)
         raise FormatVersionError(
-            f"log format version {version!r}, but this rodctl reads format version "
-            f"{FORMAT_VERSION!r} only (version 1 logs, written before the Foxglove-loadable "
+            f"log format version {version!r}, but this rodctl reads format versions "
+            f"{readable} only (version 1 logs, written before the Foxglove-loadable "
             f"schemas, nested their point arrays); run the config again to get a new log"
         )
 

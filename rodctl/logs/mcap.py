@@ -48,7 +48,7 @@ from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import IO, Any
 
@@ -450,6 +450,33 @@ def _snapshot(r: StepRecord) -> StepRecord:
     return replace(r, image=None, estimator_info=dict(r.estimator_info), **copies)
 
 
+def _write_run_metadata(w: Writer, header: RunHeader) -> None:
+    """The metadata records (`rodctl.run`, `rodctl.config`, `rodctl.provenance`) and the
+    config.yaml attachment, at log_time 0."""
+    w.add_metadata(
+        "rodctl.run",
+        {
+            "method": header.method,
+            "format_version": codec.FORMAT_VERSION,
+            "log_time": "ns: 2000-01-01T00:00:00Z + simulated time",
+        },
+    )
+    w.add_metadata("rodctl.config", config_metadata(header.config_yaml))
+    if header.provenance:
+        # Plug-ins loaded and the factory of each stage: a result is traceable to its code.
+        w.add_metadata(
+            "rodctl.provenance",
+            {k: json.dumps(v, sort_keys=True) for k, v in header.provenance.items()},
+        )
+    w.add_attachment(
+        create_time=0,
+        log_time=0,
+        name="config.yaml",
+        media_type="application/yaml",
+        data=header.config_yaml.encode("utf-8"),
+    )
+
+
 class McapSink:
     """Writes a run as run.mcap (see the module docstring for the layout).
 
@@ -488,6 +515,20 @@ class McapSink:
         )
         self._writer = w
         w.start(profile="", library=LIBRARY)
+        self._register_channels(w, header)
+        _write_run_metadata(w, header)
+        t0 = codec.LOG_EPOCH_NS
+        self._add(codec.TOPIC_HEADER, t0, 0, codec.header_to_json(header))
+        self._add(codec.TOPIC_TARGET_SCENE, t0, 0, target_scene(t0, header))
+        self._camera_views = camera_views(header.config_yaml)
+        for topic, msg in camera_messages(self._camera_views, 0, t0):
+            self._add(topic, t0, 0, msg)
+        self._log(t0, *codec.open_log_line(header))
+        self._flush()
+
+    def _register_channels(self, w: Writer, header: RunHeader) -> None:
+        """Every channel with its schema (one schema per title) and unit metadata; dual-arm,
+        `/rod/clamp` last."""
         schema_ids: dict[str, int] = {}
         for topic, schema in CHANNELS:
             name = schema["title"]
@@ -516,36 +557,6 @@ class McapSink:
                 schema_id=sid,
                 metadata={"unit.clamp": FIELD_UNITS["clamp"].described},
             )
-        w.add_metadata(
-            "rodctl.run",
-            {
-                "method": header.method,
-                "format_version": codec.FORMAT_VERSION,
-                "log_time": "ns: 2000-01-01T00:00:00Z + simulated time",
-            },
-        )
-        w.add_metadata("rodctl.config", config_metadata(header.config_yaml))
-        if header.provenance:
-            # Plug-ins loaded and the factory of each stage: a result is traceable to its code.
-            w.add_metadata(
-                "rodctl.provenance",
-                {k: json.dumps(v, sort_keys=True) for k, v in header.provenance.items()},
-            )
-        w.add_attachment(
-            create_time=0,
-            log_time=0,
-            name="config.yaml",
-            media_type="application/yaml",
-            data=header.config_yaml.encode("utf-8"),
-        )
-        t0 = codec.LOG_EPOCH_NS
-        self._add(codec.TOPIC_HEADER, t0, 0, codec.header_to_json(header))
-        self._add(codec.TOPIC_TARGET_SCENE, t0, 0, target_scene(t0, header))
-        self._camera_views = camera_views(header.config_yaml)
-        for topic, msg in camera_messages(self._camera_views, 0, t0):
-            self._add(topic, t0, 0, msg)
-        self._log(t0, *codec.open_log_line(header))
-        self._flush()
 
     def write(self, record: StepRecord) -> None:
         """Queue one step: the three contract messages, the scene, the frame, log lines.
@@ -725,9 +736,6 @@ def check_sizes(f: IO[bytes], path: Path, size: int) -> None:
     Raises:
         UserError: naming the file, the chunk's offset and the sizes.
     """
-    import lz4.frame
-    import zstandard
-
     ceiling = chunk_ceiling(None)
     stream = StreamReader(f, emit_chunks=True, record_size_limit=size)
     records = stream.records
@@ -749,33 +757,41 @@ def check_sizes(f: IO[bytes], path: Path, size: int) -> None:
         if not isinstance(rec, Chunk):
             continue
         chunks += 1
-        where = f"{path}: chunk {chunks}"
-        declared, compressed = rec.uncompressed_size, len(rec.data)
-        limit = min(ceiling, MAX_CHUNK_RATIO * compressed + _MIB)
-        if declared > limit:
+        _check_chunk(rec, f"{path}: chunk {chunks}", ceiling)
+
+
+def _check_chunk(rec: Chunk, where: str, ceiling: int) -> None:
+    """One chunk of `check_sizes`: its declared uncompressed size against `ceiling` and its
+    compressed size, and against what its zstd frame declares or its lz4 data inflates to."""
+    import lz4.frame
+    import zstandard
+
+    declared, compressed = rec.uncompressed_size, len(rec.data)
+    limit = min(ceiling, MAX_CHUNK_RATIO * compressed + _MIB)
+    if declared > limit:
+        raise UserError(
+            f"{where} declares {declared} bytes uncompressed from {compressed}, more than "
+            f"this run can have written ({limit}); refused without decompressing it"
+        )
+    if rec.compression == "zstd":
+        framed = zstandard.frame_content_size(rec.data[:18]) if compressed >= 4 else -1
+        if framed not in (-1, declared):
             raise UserError(
-                f"{where} declares {declared} bytes uncompressed from {compressed}, more than "
-                f"this run can have written ({limit}); refused without decompressing it"
+                f"{where} declares {declared} bytes but its zstd frame {framed}; refused "
+                "without decompressing it"
             )
-        if rec.compression == "zstd":
-            framed = zstandard.frame_content_size(rec.data[:18]) if compressed >= 4 else -1
-            if framed not in (-1, declared):
-                raise UserError(
-                    f"{where} declares {declared} bytes but its zstd frame {framed}; refused "
-                    "without decompressing it"
-                )
-        elif rec.compression == "lz4":
-            out = 0
-            data = rec.data
-            try:
-                while data and out <= declared:
-                    dec = lz4.frame.LZ4FrameDecompressor()
-                    out += len(dec.decompress(data, max_length=declared + 1 - out))
-                    data = dec.unused_data if dec.eof else b""
-            except RuntimeError as exc:
-                raise UserError(f"{where}: damaged lz4 data ({exc})") from None
-            if out > declared:
-                raise UserError(f"{where} inflates past the {declared} bytes it declares; refused")
+    elif rec.compression == "lz4":
+        out = 0
+        data = rec.data
+        try:
+            while data and out <= declared:
+                dec = lz4.frame.LZ4FrameDecompressor()
+                out += len(dec.decompress(data, max_length=declared + 1 - out))
+                data = dec.unused_data if dec.eof else b""
+        except RuntimeError as exc:
+            raise UserError(f"{where}: damaged lz4 data ({exc})") from None
+        if out > declared:
+            raise UserError(f"{where} inflates past the {declared} bytes it declares; refused")
 
 
 def _read_indexed(f: IO[bytes]) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
@@ -898,9 +914,47 @@ def read_mcap(path: str | Path, *, recover: bool = False, images: bool = True) -
     return run
 
 
+#: The three per-step topics whose messages make one StepRecord, in `record_from_messages` order.
+_STEP_TOPICS = (codec.TOPIC_ROD_STATE, codec.TOPIC_CAMERA_CENTERLINE, codec.TOPIC_CONTROL)
+
+
+@dataclass
+class _Messages:
+    """A log's messages sorted by step (`_sort_messages`): what `_records` joins."""
+
+    per_step: dict[int, dict[str, dict[str, Any]]] = field(default_factory=dict)
+    order: list[int] = field(default_factory=list)
+    frames: dict[int, bytes] = field(default_factory=dict)
+    clamps: dict[int, np.ndarray] = field(default_factory=dict)
+    summary: dict[str, Any] | None = None
+
+
 def _assemble(
     path: Path, raw: list[_Raw], meta: dict[str, dict[str, str]], images: bool, notes: list[str]
 ) -> codec.ReadRun:
+    header = _read_header(path, raw, meta)
+    msgs = _sort_messages(path, raw, images, notes)
+    records = _records(path, msgs, notes)
+    summary = msgs.summary
+    status = meta.get("rodctl.end", {}).get("status")
+    if summary is not None:
+        closing = summary.pop("closing_status", None)
+        status = status or closing
+        if len(summary) == 0:
+            summary = None
+    return codec.ReadRun(
+        path=path,
+        header=header,
+        records=records,
+        summary=summary,
+        status=status,
+        complete=True,
+        warnings=notes,
+    )
+
+
+def _read_header(path: Path, raw: list[_Raw], meta: dict[str, dict[str, str]]) -> RunHeader:
+    """The run header of /run/header, its embedded config checked as config files are."""
     header_msgs = [d for topic, _, _, d in raw if topic == codec.TOPIC_HEADER]
     if not header_msgs:
         raise UserError(
@@ -925,75 +979,65 @@ def _assemble(
         raise UserError(
             f"{path}: the config embedded in {codec.TOPIC_HEADER} is unusable: {why}"
         ) from None
+    return header
 
-    per_step: dict[int, dict[str, dict[str, Any]]] = {}
-    order: list[int] = []
-    frames: dict[int, bytes] = {}
-    summary: dict[str, Any] | None = None
-    clamps: dict[int, np.ndarray] = {}
-    wanted = (codec.TOPIC_ROD_STATE, codec.TOPIC_CAMERA_CENTERLINE, codec.TOPIC_CONTROL)
+
+def _sort_messages(path: Path, raw: list[_Raw], images: bool, notes: list[str]) -> _Messages:
+    """The per-step messages by step (a duplicate noted and ignored), the x0 end's poses
+    (dual-arm), the frames (when `images`) and the summary."""
+    out = _Messages()
     for topic, seq, _, data in raw:
         if topic == codec.TOPIC_CLAMP_STATE:  # dual-arm: the x0 end's pose
             msg = codec.restore_nonfinite(_json(path, topic, data))
             try:
-                clamps[int(msg["step"])] = codec.decode_vec(msg["clamp"], 3)
+                out.clamps[int(msg["step"])] = codec.decode_vec(msg["clamp"], 3)
             except (KeyError, TypeError, ValueError) as exc:
                 raise UserError(f"{path}: malformed {topic} message: {exc!r}") from None
-        elif topic in wanted:
+        elif topic in _STEP_TOPICS:
             msg = _json(path, topic, data)
             step = msg.get("step")
             if not isinstance(step, int):
                 raise UserError(f"{path}: message on {topic} without an integer `step`")
-            slot = per_step.get(step)
+            slot = out.per_step.get(step)
             if slot is None:
-                slot = per_step[step] = {}
-                order.append(step)
+                slot = out.per_step[step] = {}
+                out.order.append(step)
             if topic in slot:
                 notes.append(f"step {step}: duplicate {topic} message ignored")
                 continue
             slot[topic] = msg
         elif topic == codec.TOPIC_IMAGE and images:
-            frames.setdefault(seq, data)
+            out.frames.setdefault(seq, data)
         elif topic == codec.TOPIC_SUMMARY:
-            summary = _json(path, topic, data)
+            out.summary = _json(path, topic, data)
+    return out
 
+
+def _records(path: Path, msgs: _Messages, notes: list[str]) -> list[StepRecord]:
+    """One StepRecord per step that has all three per-step messages, in step order (a step
+    missing one is noted and skipped; an unreadable frame noted and left out)."""
     records: list[StepRecord] = []
-    for step in sorted(order):
-        slot = per_step[step]
-        missing = [t for t in wanted if t not in slot]
+    for step in sorted(msgs.order):
+        slot = msgs.per_step[step]
+        missing = [t for t in _STEP_TOPICS if t not in slot]
         if missing:
             notes.append(f"step {step}: skipped, missing {', '.join(missing)}")
             continue
         image = None
-        if step in frames:
+        if step in msgs.frames:
             try:
                 image = codec.decode_png(
-                    _b64decode(_json(path, codec.TOPIC_IMAGE, frames[step])["data"])
+                    _b64decode(_json(path, codec.TOPIC_IMAGE, msgs.frames[step])["data"])
                 )
             except (KeyError, ValueError) as exc:
                 notes.append(f"step {step}: camera frame unreadable ({exc}); left out")
         try:
-            rod, cam, ctl = (slot[t] for t in wanted)
+            rod, cam, ctl = (slot[t] for t in _STEP_TOPICS)
             records.append(codec.record_from_messages(rod, cam, ctl, image))
         except (KeyError, TypeError, ValueError) as exc:
             raise UserError(f"{path}: malformed step {step}: {exc!r}") from None
-        records[-1].clamp = clamps.get(step)
-
-    status = meta.get("rodctl.end", {}).get("status")
-    if summary is not None:
-        closing = summary.pop("closing_status", None)
-        status = status or closing
-        if len(summary) == 0:
-            summary = None
-    return codec.ReadRun(
-        path=path,
-        header=header,
-        records=records,
-        summary=summary,
-        status=status,
-        complete=True,
-        warnings=notes,
-    )
+        records[-1].clamp = msgs.clamps.get(step)
+    return records
 
 
 def _b64decode(text: Any) -> bytes:

@@ -20,7 +20,12 @@ Rerun batches rows into chunks on a background thread):
   target still shows as a green edge around the others. `/camera/legend` (static): one labelled
   dot per overlay in the image's top-left corner, so no label sits on the rod.
 - `/control/T1`, `/control/pixel_error`, `/control/u/{x,y,theta}`: scalars;
-  `/control/probing/{T1,pixel_error}`: violet markers on the probing steps.
+  `/control/probing/{T1,pixel_error}`: violet markers on the probing steps;
+  `/control/jacobian_error` (||J - J_true||_F / ||J_true||_F, the steps that have one,
+  `run.jacobian_error`), with a plot of its own in the final layout when the run logged any.
+- Dual-arm (q = 6, `rod.arms: 2`): the x0 end's command on `/control/u/x0_end/{x,y,theta}`,
+  plotted beside the gripper's (series named "gripper ..." and "x0 end ..."), and its pose as
+  the arrow `/world/clamp_arm`; `/world/clamp` is then where the x0 end started.
 - `/log`: the same log lines as the MCAP's `/log`.
 The blueprint (2D scene, camera with the overlays over the image, T1, pixel error, the command's
 translation (m) and rotation (rad) on two plots of their own scale, the log) gives both 2D views
@@ -56,6 +61,7 @@ _ROD_PROBE = (190, 120, 255)
 _TARGET = (40, 200, 90, 150)
 _CLAMP = (225, 225, 225)
 _GRIPPER = (255, 150, 20)
+_CLAMP_ARM = (230, 90, 160)
 # Camera overlays: the rendered rod is red on a light background.
 _CAM_TARGET = (0, 170, 50, 150)
 _EXTRACTED = (20, 70, 255)
@@ -65,6 +71,12 @@ _CAM_RADII = (4.5, 2.5, 0.8)
 _PROBE_MARK = _ROD_PROBE
 _AXES = ("x", "y", "theta")
 _AXIS_COLORS = ((220, 50, 47), (38, 139, 210), (133, 153, 0))
+#: The x0 end's axes (dual-arm), lighter shades of the gripper's.
+_X0_AXIS_COLORS = ((255, 140, 130), (130, 195, 255), (200, 215, 90))
+_AXIS_NAMES = ("Δx (m)", "Δy (m)", "Δθ (rad)")
+#: Entity of the x0 end's command components (dual-arm), under `/control/u`.
+X0_END = "x0_end"
+TOPIC_JACOBIAN_ERROR = "/control/jacobian_error"
 #: Arrow length of the gripper, as a fraction of the rod length.
 _GRIPPER_SIZE = 0.12
 _MARGIN = 0.10
@@ -77,6 +89,28 @@ def flip_y(points: np.ndarray) -> np.ndarray:
     out = np.array(points, dtype=np.float64, copy=True).reshape(-1, 2)
     out[:, 1] *= -1.0
     return out
+
+
+def dual_arm(header: RunHeader) -> bool:
+    """Whether the run moves both ends (q = 6): its header's home pose holds both ends'."""
+    return np.asarray(header.home_pose).size == 6
+
+
+def u_entities(header: RunHeader) -> list[tuple[str, str, tuple[int, int, int]]]:
+    """(entity path, series name, colour) of each command component, in the order of `u`: the
+    gripper's x, y, theta, then (dual-arm) the x0 end's."""
+    if not dual_arm(header):
+        return [
+            (f"/control/u/{a}", n, c)
+            for a, n, c in zip(_AXES, _AXIS_NAMES, _AXIS_COLORS, strict=True)
+        ]
+    return [
+        (f"/control/u/{a}", f"gripper {n}", c)
+        for a, n, c in zip(_AXES, _AXIS_NAMES, _AXIS_COLORS, strict=True)
+    ] + [
+        (f"/control/u/{X0_END}/{a}", f"x0 end {n}", c)
+        for a, n, c in zip(_AXES, _AXIS_NAMES, _X0_AXIS_COLORS, strict=True)
+    ]
 
 
 def _gripper_size(header: RunHeader) -> float:
@@ -109,11 +143,53 @@ def reach_bounds(header: RunHeader) -> rrb.VisualBounds2D:
     return _box([corners, flip_y(header.target_centerline)], margin=0.0)
 
 
-def blueprint(header: RunHeader, scene_bounds: rrb.VisualBounds2D | None = None) -> rrb.Blueprint:
+def _series_views(header: RunHeader, jacobian_error: bool) -> list[rrb.TimeSeriesView]:
+    """T1, pixel error, the command's translations and rotations (dual-arm: both ends' on the
+    same two plots) and, when the run logged one, the Jacobian error."""
+    u = [path for path, _, _ in u_entities(header)]
+    views = [
+        rrb.TimeSeriesView(
+            origin="/control",
+            contents=["/control/T1", "/control/probing/T1"],
+            name="T1 (probing steps marked)",
+        ),
+        rrb.TimeSeriesView(
+            origin="/control",
+            contents=["/control/pixel_error", "/control/probing/pixel_error"],
+            name="pixel error (px)",
+        ),
+        rrb.TimeSeriesView(
+            origin="/control/u",
+            contents=[p for p in u if not p.endswith("theta")],
+            name="command: translation Δx, Δy (m per step)",
+        ),
+        rrb.TimeSeriesView(
+            origin="/control/u",
+            contents=[p for p in u if p.endswith("theta")],
+            name="command: rotation Δθ (rad per step)",
+        ),
+    ]
+    if jacobian_error:
+        views.append(
+            rrb.TimeSeriesView(
+                origin="/control",
+                contents=[TOPIC_JACOBIAN_ERROR],
+                name="Jacobian error ||J − J_true||_F / ||J_true||_F",
+            )
+        )
+    return views
+
+
+def blueprint(
+    header: RunHeader,
+    scene_bounds: rrb.VisualBounds2D | None = None,
+    jacobian_error: bool = False,
+) -> rrb.Blueprint:
     """The layout: scene and camera on the left, time series and log on the right.
 
     Both 2D views have fixed bounds (`scene_bounds`, by default `reach_bounds`; the camera view
     the image frame with a small margin) so that they do not refit to the data every step.
+    `jacobian_error`: add the Jacobian error's plot (the run logged it).
     """
     w, h = header.image_size
     pad = 0.03 * max(w, h)
@@ -134,26 +210,7 @@ def blueprint(header: RunHeader, scene_bounds: rrb.VisualBounds2D | None = None)
                 ),
             ),
             rrb.Vertical(
-                rrb.TimeSeriesView(
-                    origin="/control",
-                    contents=["/control/T1", "/control/probing/T1"],
-                    name="T1 (probing steps marked)",
-                ),
-                rrb.TimeSeriesView(
-                    origin="/control",
-                    contents=["/control/pixel_error", "/control/probing/pixel_error"],
-                    name="pixel error (px)",
-                ),
-                rrb.TimeSeriesView(
-                    origin="/control/u",
-                    contents=["/control/u/x", "/control/u/y"],
-                    name="command: translation Δx, Δy (m per step)",
-                ),
-                rrb.TimeSeriesView(
-                    origin="/control/u",
-                    contents=["/control/u/theta"],
-                    name="command: rotation Δθ (rad per step)",
-                ),
+                *_series_views(header, jacobian_error),
                 rrb.TextLogView(origin="/log", name="log"),
             ),
         ),
@@ -178,6 +235,7 @@ def _empty_buffer() -> dict[str, list]:
             "clamp_vector",
             "pixel_error",
             "u",
+            "jacobian_error",
         )
     }
 
@@ -217,6 +275,27 @@ def _bounded(call: Callable[[], object], timeout: float) -> BaseException | None
     return box[0]
 
 
+def _log_static_series(rec: rr.RecordingStream, header: RunHeader) -> None:
+    """The time series' names and colours: T1, pixel error, their probing marks, and each
+    component of the command (dual-arm: both ends', named by end)."""
+    rec.log("/control/T1", rr.SeriesLines(names="T1", colors=[_ROD]), static=True)
+    rec.log(
+        "/control/pixel_error",
+        rr.SeriesLines(names="pixel error", colors=[_ROD]),
+        static=True,
+    )
+    for name in ("T1", "pixel_error"):
+        rec.log(
+            f"/control/probing/{name}",
+            rr.SeriesPoints(
+                names="probing", colors=[_PROBE_MARK], markers="diamond", marker_sizes=4.0
+            ),
+            static=True,
+        )
+    for entity, name, color in u_entities(header):
+        rec.log(entity, rr.SeriesLines(names=name, colors=[color]), static=True)
+
+
 class RerunSink:
     """Writes a run as a Rerun recording (see the module docstring for the entities).
 
@@ -240,6 +319,7 @@ class RerunSink:
         self._last_step = 0
         self._last_time: np.timedelta64 = np.timedelta64(0, "ns")
         self._closed = False
+        self._jacobian_error = False  # a step with a Jacobian error was sent (its plot, style)
         self._buf = _empty_buffer()
         self._frames = codec.FrameSchedule(self.cfg.image_rate_hz)
         self._worker: ThreadPoolExecutor | None = None
@@ -293,11 +373,18 @@ class RerunSink:
     def _log_static_scene(self, rec: rr.RecordingStream, header: RunHeader) -> None:
         """What does not change during the run: the target, the clamp, and each entity's style
         (colours, radii, draw order, series names), so the per-step batches carry data only."""
+        self._log_static_world(rec, header)
+        self._log_static_camera(rec, header)
+        _log_static_series(rec, header)
+
+    def _log_static_world(self, rec: rr.RecordingStream, header: RunHeader) -> None:
+        """The scene's target and clamp, and the style of the rod and the moved ends' arrows."""
         target = flip_y(header.target_centerline)
         clamp = flip_y(header.clamp_pose[:2])
         self._extend(target)
         self._extend(clamp)
         L = float(header.rod_length) if np.isfinite(header.rod_length) else 0.5
+        dual = dual_arm(header)
         rec.log(
             "/world/target",
             rr.LineStrips2D([target], colors=[_TARGET], radii=0.012 * L, draw_order=10.0),
@@ -305,9 +392,39 @@ class RerunSink:
         )
         rec.log(
             "/world/clamp",
-            rr.Points2D(clamp, colors=[_CLAMP], radii=0.025 * L, labels=["clamp"], draw_order=40.0),
+            rr.Points2D(
+                clamp,
+                colors=[_CLAMP],
+                radii=0.025 * L,
+                labels=["x0 end at start" if dual else "clamp"],
+                draw_order=40.0,
+            ),
             static=True,
         )
+        rec.log(
+            "/world/rod",
+            rr.LineStrips2D.from_fields(colors=[_ROD], radii=0.005 * L, draw_order=20.0),
+            static=True,
+        )
+        # Dual-arm: both ends are arrows, labelled so that a user sees which is which.
+        ends = [("/world/gripper", _GRIPPER, "gripper")]
+        if dual:
+            ends.append(("/world/clamp_arm", _CLAMP_ARM, "x0 end"))
+        for entity, color, label in ends:
+            rec.log(
+                entity,
+                rr.Arrows2D.from_fields(
+                    colors=[color],
+                    radii=0.006 * L,
+                    draw_order=30.0,
+                    labels=[label] if dual else None,
+                    show_labels=True if dual else None,
+                ),
+                static=True,
+            )
+
+    def _log_static_camera(self, rec: rr.RecordingStream, header: RunHeader) -> None:
+        """The camera's target, its legend, and the style of the per-step overlays."""
         rec.log(
             "/camera/target",
             rr.LineStrips2D(
@@ -332,16 +449,6 @@ class RerunSink:
             static=True,
         )
         rec.log(
-            "/world/rod",
-            rr.LineStrips2D.from_fields(colors=[_ROD], radii=0.005 * L, draw_order=20.0),
-            static=True,
-        )
-        rec.log(
-            "/world/gripper",
-            rr.Arrows2D.from_fields(colors=[_GRIPPER], radii=0.006 * L, draw_order=30.0),
-            static=True,
-        )
-        rec.log(
             "/camera/centerline",
             rr.LineStrips2D.from_fields(colors=[_EXTRACTED], radii=_CAM_RADII[2], draw_order=30.0),
             static=True,
@@ -351,24 +458,6 @@ class RerunSink:
             rr.LineStrips2D.from_fields(colors=[_TRUTH], radii=_CAM_RADII[1], draw_order=25.0),
             static=True,
         )
-        rec.log("/control/T1", rr.SeriesLines(names="T1", colors=[_ROD]), static=True)
-        rec.log(
-            "/control/pixel_error",
-            rr.SeriesLines(names="pixel error", colors=[_ROD]),
-            static=True,
-        )
-        for name in ("T1", "pixel_error"):
-            rec.log(
-                f"/control/probing/{name}",
-                rr.SeriesPoints(
-                    names="probing", colors=[_PROBE_MARK], markers="diamond", marker_sizes=4.0
-                ),
-                static=True,
-            )
-        for axis, name, color in zip(
-            _AXES, ("Δx (m)", "Δy (m)", "Δθ (rad)"), _AXIS_COLORS, strict=True
-        ):
-            rec.log(f"/control/u/{axis}", rr.SeriesLines(names=name, colors=[color]), static=True)
 
     def write(self, record: StepRecord) -> None:
         """Buffer one step; every `flush_every_steps` steps the buffer is sent as columns.
@@ -413,11 +502,15 @@ class RerunSink:
         b["projected_truth"].append(np.array(r.projected_truth, dtype=np.float64))
         b["T1"].append(float(r.T1))
         b["pixel_error"].append(float(r.pixel_error))
-        b["u"].append(np.array(r.u, dtype=np.float64)[:3])
+        b["u"].append(np.array(r.u, dtype=np.float64))  # q values: dual-arm, both ends'
+        b["jacobian_error"].append(float(r.jacobian_error))
         if r.clamp is not None:  # dual-arm: the second arm's end, an arrow into the rod
             c = np.asarray(r.clamp, dtype=np.float64)
-            b["clamp_origin"].append((c[0], -c[1]))
-            b["clamp_vector"].append((size * np.cos(c[2]), -size * np.sin(c[2])))
+            c_origin = (c[0], -c[1])
+            c_vector = (size * np.cos(c[2]), -size * np.sin(c[2]))
+            self._extend(np.array([c_origin, np.add(c_origin, c_vector)]))
+            b["clamp_origin"].append(c_origin)
+            b["clamp_vector"].append(c_vector)
         self._prev = r
         self._steps += 1
         if len(b["step"]) >= self.cfg.flush_every_steps:
@@ -508,25 +601,48 @@ class RerunSink:
             )
         rec.send_columns("/control/T1", idx, rr.Scalars.columns(scalars=b["T1"]))
         rec.send_columns("/control/pixel_error", idx, rr.Scalars.columns(scalars=b["pixel_error"]))
-        u = np.asarray(b["u"], dtype=np.float64).reshape(n, 3)
-        for i, axis in enumerate(_AXES):
-            rec.send_columns(f"/control/u/{axis}", idx, rr.Scalars.columns(scalars=u[:, i]))
+        self._send_commands(rec, idx, b["u"])
         if probe.any():
-            pidx = [
-                rr.TimeColumn("step", sequence=np.asarray(b["step"], dtype=np.int64)[probe]),
-                rr.TimeColumn(
-                    "sim_time",
-                    duration=np.asarray(b["sim_time"], dtype="timedelta64[ns]")[probe],
-                ),
-            ]
+            pidx = _time_columns(b, probe)
             for name in ("T1", "pixel_error"):
                 values = np.asarray(b[name], dtype=np.float64)[probe]
                 rec.send_columns(
                     f"/control/probing/{name}", pidx, rr.Scalars.columns(scalars=values)
                 )
+        self._send_jacobian_error(rec, b)
         # The batched rows become chunks here, and reach the file. Bounded: a full disk can make
         # the file writer stop accepting data, and an unbounded flush then waits for ever.
         rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+
+    def _send_commands(self, rec: rr.RecordingStream, idx: list, u_rows: list) -> None:
+        """Each component of the applied command u, on its entity (`u_entities`)."""
+        assert self._header is not None
+        entities = u_entities(self._header)
+        u = np.asarray(u_rows, dtype=np.float64).reshape(len(u_rows), -1)
+        if u.shape[1] != len(entities):
+            raise ValueError(
+                f"u has {u.shape[1]} values a step, but the run's header is for q = {len(entities)}"
+            )
+        for i, (entity, _, _) in enumerate(entities):
+            rec.send_columns(entity, idx, rr.Scalars.columns(scalars=u[:, i]))
+
+    def _send_jacobian_error(self, rec: rr.RecordingStream, b: dict[str, list]) -> None:
+        """The Jacobian error of the steps that have one (NaN: none, `StepRecord`); its style
+        with the first."""
+        values = np.asarray(b["jacobian_error"], dtype=np.float64)
+        have = np.isfinite(values)
+        if not have.any():
+            return
+        if not self._jacobian_error:
+            self._jacobian_error = True
+            rec.log(
+                TOPIC_JACOBIAN_ERROR,
+                rr.SeriesLines(names="||J − J_true||_F / ||J_true||_F", colors=[_GRIPPER]),
+                static=True,
+            )
+        rec.send_columns(
+            TOPIC_JACOBIAN_ERROR, _time_columns(b, have), rr.Scalars.columns(scalars=values[have])
+        )
 
     def close(self, summary: RunSummary | None, status: str) -> None:
         """Log the closing line and finish the file (footer). Idempotent.
@@ -570,7 +686,9 @@ class RerunSink:
             if self._header is not None and np.isfinite(self._lo).all():
                 bounds = _box([np.array([self._lo, self._hi])])
                 rec.send_blueprint(
-                    blueprint(self._header, bounds), make_active=True, make_default=True
+                    blueprint(self._header, bounds, jacobian_error=self._jacobian_error),
+                    make_active=True,
+                    make_default=True,
                 )
         except Exception as exc:  # noqa: BLE001 - collected, see docstring
             errors.append(exc)
@@ -583,6 +701,16 @@ class RerunSink:
             errors.append(error)
         where = self.path if self.path is not None else self.url
         raise_or_warn(errors, status, f"{where}: closing the Rerun recording failed")
+
+
+def _time_columns(b: dict[str, list], mask: np.ndarray) -> list[rr.TimeColumn]:
+    """The `step` and `sim_time` columns of the buffered steps where `mask` holds."""
+    return [
+        rr.TimeColumn("step", sequence=np.asarray(b["step"], dtype=np.int64)[mask]),
+        rr.TimeColumn(
+            "sim_time", duration=np.asarray(b["sim_time"], dtype="timedelta64[ns]")[mask]
+        ),
+    ]
 
 
 def check_viewer(url: str, timeout: float = 3.0) -> None:

@@ -5,6 +5,8 @@ independently of the physics, vision and control stages. The run here has the sh
 magnitudes of a real one — a 0.6 m rod clamped at the origin, a gripper that moves towards a
 target pose, 51-point world centerlines, 100-point pixel centerlines in a 640 x 480 eye-to-hand
 view, p = 6 features, a 6 x 3 Jacobian estimate — but its numbers mean nothing physically.
+`arms=2` makes it a dual-arm run (q = 6): the x0 end moves too (`StepRecord.clamp`), commands
+and the Jacobian have 6 columns, and every step after the first has a `jacobian_error`.
 Deterministic for a given seed (numpy Generator; no global RNG).
 """
 
@@ -30,6 +32,14 @@ logging:
   image_rate_hz: 5.0
 """
 
+#: Appended to the rod section of a dual-arm synthetic run's config.
+_DUAL_ARM_YAML = """\
+  arms: 2
+  max_step: [0.02, 0.02, 0.1]
+  clamp_arm:
+    max_step: [0.005, 0.005, 0.02]
+"""
+
 
 def _curve(clamp: np.ndarray, grip: np.ndarray, m: int) -> np.ndarray:
     """(m, 2) cubic Hermite curve leaving the clamp along its theta and reaching the gripper
@@ -52,30 +62,42 @@ class SyntheticRun:
         image_every: a camera frame every this many steps (0 = none).
         noisy_images: add sensor noise to frames (harder for PNG, like a real camera).
         p: feature dimension.
+        arms: 1 (the x0 end clamped, q = 3) or 2 (dual-arm: the x0 end moves too, q = 6).
     """
 
     width, height = 640, 480
     focal = 700.0  # px per metre at the rod plane
 
     def __init__(
-        self, seed: int = 0, image_every: int = 5, noisy_images: bool = False, p: int = 6
+        self,
+        seed: int = 0,
+        image_every: int = 5,
+        noisy_images: bool = False,
+        p: int = 6,
+        arms: int = 1,
     ) -> None:
+        if arms not in (1, 2):
+            raise ValueError(f"arms must be 1 or 2, got {arms}")
         self.rng = np.random.default_rng(seed)
         self.seed = seed
         self.image_every = image_every
         self.noisy_images = noisy_images
         self.p = p
+        self.arms = arms
         self.clamp = np.array([0.0, 0.0, 0.0])
         self.home = np.array([0.55, 0.0, 0.0])
         self.target_pose = np.array([0.45, 0.18, 0.9])
+        if arms == 2:  # both ends' poses: the gripper's, then the x0 end's
+            self.home = np.concatenate([self.home, self.clamp])
+            self.target_pose = np.concatenate([self.target_pose, [0.05, -0.04, 0.2]])
         self.W = self.rng.normal(size=(p, 100 * 2)) / 40.0
-        target_world = _curve(self.clamp, self.target_pose, 51)
+        target_world = self._world(self.target_pose)
         target_px = resample_polyline(self.project(target_world), 100)
         self.s_target = self.feature(target_px)
         self.header = RunHeader(
             run_id=f"20261123-101500_synthetic-{seed}",
             method="mfac-akf",
-            config_yaml=_CONFIG_YAML.format(seed=seed),
+            config_yaml=self._config_yaml(),
             image_size=(self.width, self.height),
             clamp_pose=self.clamp.copy(),
             home_pose=self.home.copy(),
@@ -85,6 +107,17 @@ class SyntheticRun:
             target_pose=self.target_pose.copy(),
             rod_length=0.6,
         )
+
+    def _config_yaml(self) -> str:
+        text = _CONFIG_YAML.format(seed=self.seed)
+        if self.arms == 2:
+            text = text.replace("camera:\n", _DUAL_ARM_YAML + "camera:\n", 1)
+        return text
+
+    def _world(self, pose: np.ndarray) -> np.ndarray:
+        """(51, 2) the rod's world centerline for the moved ends' `pose` (x0 end first)."""
+        clamp = pose[3:6] if self.arms == 2 else self.clamp
+        return _curve(clamp, pose[:3], 51)
 
     def project(self, world: np.ndarray) -> np.ndarray:
         """(M, 2) world metres -> (M, 2) pixels (u right, v down)."""
@@ -106,37 +139,43 @@ class SyntheticRun:
             img = np.clip(img + noise, 0, 255).astype(np.uint8)
         return img
 
+    def _command(self, k: int, phase: str, pose: np.ndarray) -> np.ndarray:
+        """(q,) step k's command before the speed limit: none, a probing move, or a noisy
+        quarter of the way to the target."""
+        q = 3 * self.arms
+        if k == 0:
+            return np.zeros(q)
+        if phase == "probe":
+            return np.eye(q)[k - 1] * np.tile([0.01, 0.01, 0.05], self.arms)
+        return 0.25 * (self.target_pose - pose) + self.rng.normal(0, 1e-3, q)
+
     def records(self, n: int) -> list[StepRecord]:
         """The first `n` steps: initial observation, 3 probing steps, then control."""
         out: list[StepRecord] = []
         pose = self.home.copy()
-        J = self.rng.normal(size=(self.p, 3))
+        J = self.rng.normal(size=(self.p, 3 * self.arms))
+        # The speed limits: the gripper's, then (dual-arm) the x0 end's.
+        lo = np.array([-0.02, -0.02, -0.1, -0.005, -0.005, -0.02][: 3 * self.arms])
         period = 0.2
         for k in range(n):
             phase = "initial" if k == 0 else ("probe" if k <= 3 else "control")
-            if k == 0:
-                u_raw = np.zeros(3)
-            elif phase == "probe":
-                u_raw = np.eye(3)[k - 1] * [0.01, 0.01, 0.05]
-            else:
-                u_raw = 0.25 * (self.target_pose - pose) + self.rng.normal(0, 1e-3, 3)
-            u = np.clip(u_raw, [-0.02, -0.02, -0.1], [0.02, 0.02, 0.1])
+            u_raw = self._command(k, phase, pose)
+            u = np.clip(u_raw, lo, -lo)
             pose = pose + u
-            world = _curve(self.clamp, pose, 51)
+            world = self._world(pose)
             truth_px = resample_polyline(self.project(world), 100)
             extracted = truth_px + self.rng.normal(0.0, 0.3, truth_px.shape)
             s = self.feature(extracted)
             J = J + self.rng.normal(0.0, 0.01, J.shape)
             err = np.linalg.norm(extracted - self.header.target_pixels, axis=1).mean()
-            image = None
-            if self.image_every and k % self.image_every == 0:
-                image = self.render(truth_px)
+            shown = self.image_every and k % self.image_every == 0
+            image = self.render(truth_px) if shown else None
             out.append(
                 StepRecord(
                     step=k,
                     sim_time=round(0.05 + k * period, 9),
                     phase=phase,
-                    gripper=pose.copy(),
+                    gripper=pose[:3].copy(),
                     centerline=world,
                     extracted=extracted,
                     projected_truth=truth_px,
@@ -149,7 +188,7 @@ class SyntheticRun:
                     J_singular_values=np.linalg.svd(J, compute_uv=False),
                     pixel_error=float(err),
                     settled=k % 17 != 9,
-                    saturated=np.abs(u_raw) > [0.02, 0.02, 0.1],
+                    saturated=np.abs(u_raw) > -lo,
                     clipped=bool(k == 7),
                     max_joint_gap=float(self.rng.uniform(0, 1e-5)),
                     kinetic_energy=float(self.rng.uniform(0, 1e-6)),
@@ -160,6 +199,12 @@ class SyntheticRun:
                         "innovation": float(self.rng.normal()),
                     },
                     image=image,
+                    clamp=pose[3:6].copy() if self.arms == 2 else None,
+                    jacobian_error=(
+                        float(self.rng.uniform(0.05, 0.5))
+                        if self.arms == 2 and k > 0
+                        else float("nan")
+                    ),
                 )
             )
         return out

@@ -266,15 +266,19 @@ class _Walk:
         sim = self.sim
         delta = self.goal - np.asarray(sim.end_poses if self.dual else sim.gripper_pose, float)
         if np.max(np.abs(delta) / self.max_step) < _ARRIVED:
-            return self._skip("goal reached", goal=True)
+            self._skip("goal reached", goal=True)
+            return None
         res = sim.apply(np.clip(delta, -self.max_step, self.max_step))
         if res.diverged:
             self.sim = self._sim_type(self.cfg.rod)
-            return self._skip("diverged", goal=True)
+            self._skip("diverged", goal=True)
+            return None
         if res.refused:
-            return self._skip("refused", goal=True)
+            self._skip("refused", goal=True)
+            return None
         if not res.settled:
-            return self._skip("unsettled")
+            self._skip("unsettled")
+            return None
         pose = np.asarray(sim.gripper_pose, dtype=float)
         if self.dual:  # the extractor starts at the x0 end, wherever it is now
             self.clamp = sim.clamp_pose
@@ -283,7 +287,8 @@ class _Walk:
         if not ext.ok:
             note = ext.note or "no note"
             self.notes[note] = self.notes.get(note, 0) + 1
-            return self._skip("not extracted")
+            self._skip("not extracted")
+            return None
         return ext.points, pose
 
 

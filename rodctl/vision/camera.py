@@ -534,13 +534,13 @@ class Camera:
             pool = np.empty((_NOISE_POOL_FRAMES * size, 1), np.int16)
             # cv2's stubs type mean and stddev as arrays; scalars are what it takes
             cv2.randn(pool, 0.0, std)  # type: ignore[call-overload]
-            pool = pool.ravel()
+            flat = pool.ravel()
             # Kept as two uint8 parts, up = min(max(n, 0), 255) and down = min(max(-n, 0), 255):
             # for a uint8 pixel p, saturate(p + n) = saturate(saturate(p + up) - down) (one of
             # the two is 0), and two 8-bit saturating passes cost less than a third of one
             # mixed 8/16-bit one.
-            self._noise_up = np.clip(pool, 0, 255).astype(np.uint8)
-            self._noise_down = (-np.clip(pool, -255, 0)).astype(np.uint8)
+            self._noise_up = np.clip(flat, 0, 255).astype(np.uint8)
+            self._noise_down = (-np.clip(flat, -255, 0)).astype(np.uint8)
             self._noise_key = (std, size)
         offset = draw % (len(self._noise_up) - size + 1)
         up = self._noise_up[offset : offset + size].reshape(img.shape)

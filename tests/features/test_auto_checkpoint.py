@@ -13,6 +13,7 @@ from rodctl.config import ExperimentConfig, load_config
 from rodctl.errors import UserError
 from rodctl.features import auto, make_feature_map
 from rodctl.features.auto import cache_dir, cache_path
+from rodctl.features.autoencoder import encoder_fingerprint
 from rodctl.training import encoder, prepare_feature
 
 runner = CliRunner()
@@ -202,6 +203,15 @@ def test_the_cache_key_holds_the_code_versions(monkeypatch):
     bumped = cache_path(cfg)
     monkeypatch.setattr("rodctl.__version__", "0.0.0")
     assert len({now, bumped, cache_path(cfg)}) == 3
+
+
+def test_the_cache_key_holds_the_engine():
+    """The collection walks settle in the config's engine, whose shapes differ slightly from the
+    other's: a quick encoder trained in one is not reused for the other."""
+    cfg = _cfg()
+    other = cfg.model_copy(update={"rod": cfg.rod.model_copy(update={"engine": "quasistatic"})})
+    assert cache_path(cfg) != cache_path(other)
+    assert encoder_fingerprint(cfg) == encoder_fingerprint(other)  # checkpoints fit both
 
 
 def test_auto_needs_the_experiment():

@@ -11,6 +11,7 @@ import textwrap
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from rodctl.config.logging import LoggingConfig
 from rodctl.errors import UserError
@@ -122,8 +123,36 @@ def test_older_format_is_refused_naming_its_version(tmp_path, helpers, monkeypat
     monkeypatch.setattr(codec, "FORMAT_VERSION", "1")
     path = helpers.write_run(McapSink, tmp_path / "old.mcap", run0.header, run0.records(2), None)
     monkeypatch.undo()
-    with pytest.raises(UserError, match="format version '1'.*reads format version '2'"):
+    with pytest.raises(UserError, match="format version '1'.*reads format versions '2' and '3'"):
         read_mcap(path)
+
+
+def test_format_2_logs_are_still_read_and_new_ones_are_format_3(tmp_path, helpers, monkeypatch):
+    """Format 3 (dual-arm: q = 6 values) is what rodctl writes; a format-2 log (one arm, before
+    dual-arm) reads back to the same records."""
+    from rodctl.logs import codec
+
+    run = SyntheticRun(seed=2, image_every=0)
+    records = run.records(3)
+    new = helpers.write_run(McapSink, tmp_path / "new.mcap", run.header, records, None)
+    monkeypatch.setattr(codec, "FORMAT_VERSION", "2")
+    old = helpers.write_run(McapSink, tmp_path / "old.mcap", run.header, records, None)
+    monkeypatch.undo()
+    assert codec.FORMAT_VERSION == "3"
+    for path, version in ((new, "3"), (old, "2")):
+        with path.open("rb") as fh:
+            meta = {m.name: m.metadata for m in make_reader(fh).iter_metadata()}
+        assert meta["rodctl.run"]["format_version"] == version
+        back = read_mcap(path).records
+        assert [r.step for r in back] == [r.step for r in records]
+        assert all(np.array_equal(a.u, b.u) for a, b in zip(back, records, strict=True))
+    dual = SyntheticRun(seed=2, image_every=0, arms=2)  # what format 3 adds: q = 6, /rod/clamp
+    records = dual.records(3)
+    path = helpers.write_run(McapSink, tmp_path / "dual.mcap", dual.header, records, None)
+    read = read_mcap(path)
+    assert read.header.home_pose.shape == (6,)
+    for a, b in zip(read.records, records, strict=True):
+        assert np.array_equal(a.u, b.u) and a.u.shape == (6,) and np.array_equal(a.clamp, b.clamp)
 
 
 @pytest.mark.parametrize(

@@ -245,3 +245,60 @@ def test_camera_labels_keep_off_the_rod_and_the_target_shows_at_convergence(rrd_
         for e in ("target", "projected_truth", "centerline")
     ]
     assert radii[0] > radii[1] > radii[2], radii
+
+
+@pytest.fixture(scope="module")
+def dual_arm(tmp_path_factory, helpers):
+    """A dual-arm synthetic run (q = 6, a Jacobian error on every step after the first)."""
+    run = SyntheticRun(seed=5, image_every=0, arms=2)
+    records = run.records(12)
+    path = tmp_path_factory.mktemp("rrd-dual") / "run.rrd"
+    helpers.write_run(RerunSink, path, run.header, records, helpers.summary_of(records))
+    return path, run.header, records
+
+
+def test_dual_arm_logs_every_command_component_named_by_end(dual_arm):
+    path, _, records = dual_arm
+    chunks = _chunks(path)
+    entities = [f"/control/u/{a}" for a in ("x", "y", "theta")]
+    entities += [f"/control/u/x0_end/{a}" for a in ("x", "y", "theta")]
+    for i, entity in enumerate(entities):
+        steps, values = _column(chunks[entity], "Scalars:scalars")
+        assert steps == [r.step for r in records], entity
+        assert [v[0] for v in values] == [r.u[i] for r in records], entity
+    names = [_static(chunks, e, "SeriesLines:names")[0] for e in entities]
+    assert names[:3] == ["gripper Δx (m)", "gripper Δy (m)", "gripper Δθ (rad)"]
+    assert names[3:] == ["x0 end Δx (m)", "x0 end Δy (m)", "x0 end Δθ (rad)"]
+    for views in _view_contents(path):  # both ends on the translation and the rotation plots
+        [xy] = [q for name, q in views.items() if name.startswith("command: translation")]
+        [theta] = [q for name, q in views.items() if name.startswith("command: rotation")]
+        assert {"/control/u/x0_end/x", "/control/u/x0_end/y"} <= set(xy)
+        assert "/control/u/x0_end/theta" in theta and "/control/u/x0_end/theta" not in xy
+    # The two ends' arrows are labelled; the static point is where the x0 end started.
+    assert _static(chunks, "/world/clamp_arm", "Arrows2D:labels") == ["x0 end"]
+    assert _static(chunks, "/world/gripper", "Arrows2D:labels") == ["gripper"]
+    assert _static(chunks, "/world/clamp", "Points2D:labels") == ["x0 end at start"]
+    steps, origins = _column(chunks["/world/clamp_arm"], "Arrows2D:origins")
+    assert steps == [r.step for r in records]
+    assert np.allclose(origins[-1][0], records[-1].clamp[:2] * [1, -1], atol=1e-6)
+
+
+def test_jacobian_error_is_logged_where_a_step_has_one(dual_arm, rrd_file):
+    path, _, records = dual_arm
+    chunks = _chunks(path)
+    steps, values = _column(chunks["/control/jacobian_error"], "Scalars:scalars")
+    have = [r for r in records if np.isfinite(r.jacobian_error)]
+    assert len(have) == len(records) - 1  # the initial step has none
+    assert steps == [r.step for r in have]
+    assert [v[0] for v in values] == [r.jacobian_error for r in have]
+    # Its plot is in the layout sent at close (the run logged some), not in the first one
+    # (the reader gives the two layouts in no fixed order).
+    plots = sorted(
+        [n for n, q in views.items() if "/control/jacobian_error" in q]
+        for views in _view_contents(path)
+    )
+    assert plots == [[], ["Jacobian error ||J − J_true||_F / ||J_true||_F"]]
+    # A run without Jacobian errors has neither the entity nor the plot.
+    assert "/control/jacobian_error" not in _chunks(rrd_file)
+    for views in _view_contents(rrd_file):
+        assert not any("/control/jacobian_error" in q for q in views.values())
