@@ -19,7 +19,7 @@ converged) are left out of that metric. Quantile bins use the values' ranks, so 
 not depend on whether the knob was drawn on a log scale, and tied values share a bin.
 
 `write_sensitivity` writes sensitivity.json into a sweep folder and returns the summary.md lines;
-`rodctl/sweep.py`'s report calls it.
+`rodctl/bench/sweep.py`'s report calls it.
 """
 
 from __future__ import annotations

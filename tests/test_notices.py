@@ -9,7 +9,10 @@ from rodctl import notices
 
 
 def test_a_notice_is_said_once_per_run_across_worker_processes(monkeypatch, capfd):
-    monkeypatch.delenv(notices.ENV, raising=False)
+    # setenv first, so that the teardown removes what share_with_workers sets (a delenv of an
+    # unset variable records nothing to undo, and the folder would leak into later tests)
+    monkeypatch.setenv(notices.ENV, "")
+    monkeypatch.delenv(notices.ENV)
     monkeypatch.setattr(notices, "_SAID", set())
     notices.say_once("transfer A", "said by the command")
     notices.say_once("transfer A", "said by the command")  # once in a process, as before

@@ -99,7 +99,7 @@ def test_the_random_search_tuning_gives_every_method_the_same_budget_over_all_it
     """configs/benchmarks/tuning/*-random.yaml: one per tuned method of the suite, the current
     setting (point 0, the suite's own) + the same number of draws over every knob, the same
     held-out targets (a seed the suite does not use), the suite's engine."""
-    from rodctl.compare import load_compare_config
+    from rodctl.bench.compare import load_compare_config
 
     suite = load_compare_config(REPO / "configs/benchmarks/suite.yaml")
     folder = REPO / "configs/benchmarks/tuning"

@@ -1,6 +1,6 @@
 """Config of `rodctl sweep`: config values searched over seeds, targets and methods.
 
-Owned by `rodctl/sweep.py`. A sweep is a compare (`rodctl/config/compare.py`) with one more
+Owned by `rodctl/bench/sweep.py`. A sweep is a compare (`rodctl/config/compare.py`) with one more
 axis: *parameters*, dotted keys of the experiment each method runs (as `--set` writes them:
 `controller.weights`, `estimator.p0`, `rod.EI`), each given a list of values (a grid, or a
 choice in random search) or a range (random search). Every point of the search runs every

@@ -400,11 +400,13 @@ def _run_header(
             else (rec.poses[0, -1] if rec.poses.shape[1] == 2 else np.zeros(3)),
             dtype=float,
         ),
-        home_pose=np.asarray(rec.poses[0, 0]),
+        # Two moving ends (q = 6): both ends' poses, gripper first, as a dual-arm run's header
+        # holds them (readers tell q from the home pose's size).
+        home_pose=np.asarray(rec.poses[0, :2] if rec.q == 6 else rec.poses[0, 0]).reshape(-1),
         target_centerline=world[-1],
         target_pixels=px[-1],
         target_feature=s_target,
-        target_pose=np.asarray(rec.poses[-1, 0]),
+        target_pose=np.asarray(rec.poses[-1, :2] if rec.q == 6 else rec.poses[-1, 0]).reshape(-1),
         rod_length=float(np.sqrt((np.diff(world[0], axis=0) ** 2).sum(axis=1)).sum()),
     )
 
