@@ -1,10 +1,11 @@
 """Config of `rodctl compare`: one shared experiment, several methods, one target set.
 
-Owned by `rodctl/bench/compare.py`. A comparison is only fair if everything but the method is the same
-for every method, so the model is built to make that the only possibility: `base` is one full
-`ExperimentConfig` (rod, camera, speed limits, step budget, probing budget, success criterion,
-logging), and a method may replace nothing but the three stages that *are* the method — its
-`feature`, `estimator` and `controller`. Targets are shared too: sampled once from the compare
+Owned by `rodctl/bench/compare.py`. A comparison is only fair if everything but the method is
+the same for every method, so the model is built to make that the only possibility: `base` is
+one full `ExperimentConfig` (rod, camera, speed limits, step budget, probing budget, success
+criterion, logging), and a method may replace nothing but the three stages that *are* the method
+— its `feature`, `estimator` and `controller`. Targets are shared too: sampled once from the
+compare
 seed (easy to hard) or read from a file of gripper poses that labs can exchange.
 """
 
