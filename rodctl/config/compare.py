@@ -5,8 +5,7 @@ the same for every method, so the model is built to make that the only possibili
 one full `ExperimentConfig` (rod, camera, speed limits, step budget, probing budget, success
 criterion, logging), and a method may replace nothing but the three stages that *are* the method
 — its `feature`, `estimator` and `controller`. Targets are shared too: sampled once from the
-compare
-seed (easy to hard) or read from a file of gripper poses that labs can exchange.
+compare seed (easy to hard) or read from a file of gripper poses that labs can exchange.
 """
 
 from __future__ import annotations
