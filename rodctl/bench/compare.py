@@ -38,6 +38,7 @@ from rich import box
 from rich.table import Table
 
 from rodctl.bench.comparisons import write_compare_report
+from rodctl.bench.episodes import METRIC_COLUMNS
 from rodctl.bench.runner import make_pool, run_study, run_tasks
 from rodctl.bench.stats import band_names, fmt, summarize, summary_rows
 from rodctl.bench.target_set import (
@@ -86,14 +87,7 @@ CSV_COLUMNS = (
     "saturated_steps",
     "clipped_steps",
     "probe_steps",
-    "pose_steps",
-    "excess_steps",
-    "smoothness_translation",
-    "smoothness_rotation",
-    "near_origin_steps",
-    "event_peak_error",
-    "event_steps_to_converge",
-    "finished_before_event",
+    *METRIC_COLUMNS,
     "jacobian_error_median",
     "jacobian_error_final",
     "diagnosis",
