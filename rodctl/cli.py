@@ -199,7 +199,9 @@ def _config_model(path: str) -> type:
 @config_app.command("show")
 @user_errors
 def config_show(config: ConfigArg, set_: SetOpt = None) -> None:
-    """Print the resolved config (YAML, every default filled in) after --set overrides.
+    """Print the resolved config (YAML, every default filled in but the physics switched off:
+    gravity, material, table friction, a second arm, the quasi-static engine) after --set
+    overrides.
 
     Works for experiment configs (simulate, train-encoder) and compare configs alike.
     """

@@ -332,7 +332,9 @@ def load_config(
 
 
 def dump_config(cfg: BaseModel, *, clean: bool = False) -> str:
-    """The resolved config as YAML, every default filled in; loads back to an equal config.
+    """The resolved config as YAML, every default filled in but the physics switched off (left out
+    so older logs stay byte-identical; `rodctl config schema` lists every key); loads back to an
+    equal config.
 
     Args:
         clean: for display, print floats with 12 significant digits (-0.02, not
