@@ -28,17 +28,21 @@ def _env_at_home(shift_px: float):
     return env, cfg
 
 
-@pytest.mark.slow
-def test_a_compare_episode_on_a_target_no_pose_can_make_stalls_and_is_unreachable():
-    """Through the compare worker: the episode stalls, then its row says why."""
-    env, cfg = _env_at_home(shift_px=15.0)
+def _diagnosed_task(env, cfg) -> EpisodeTask:
+    """The compare worker's task for the env's target, with the diagnosis asked for."""
     t = env.target
-    task = EpisodeTask(
+    return EpisodeTask(
         config=cfg.model_dump(mode="json"), method="m", target=0,
         pose=tuple(float(v) for v in t.pose), target_difficulty=t.difficulty, seed=0,
         target_view={"centerline": t.centerline, "pixels": t.pixels}, diagnose=True,
     )  # fmt: skip
-    row = run_episode_task(task)
+
+
+@pytest.mark.slow
+def test_a_compare_episode_on_a_target_no_pose_can_make_stalls_and_is_unreachable():
+    """Through the compare worker: the episode stalls, then its row says why."""
+    env, cfg = _env_at_home(shift_px=15.0)
+    row = run_episode_task(_diagnosed_task(env, cfg))
     assert row["outcome"] == "stalled" and row["diagnosis"] == "unreachable", row
     assert row["error"] == ""
 
@@ -103,12 +107,6 @@ def test_a_dual_arm_episode_that_stalls_on_a_shape_no_pose_makes_is_unreachable(
     """Through the compare worker at q = 6: a target 5 % smaller than the rod (no pose of the
     two ends makes it) stalls the episode, and its row says `unreachable`."""
     env, cfg = _dual_env(scale=0.95)
-    t = env.target
-    task = EpisodeTask(
-        config=cfg.model_dump(mode="json"), method="m", target=0,
-        pose=tuple(float(v) for v in t.pose), target_difficulty=t.difficulty, seed=0,
-        target_view={"centerline": t.centerline, "pixels": t.pixels}, diagnose=True,
-    )  # fmt: skip
-    row = run_episode_task(task)
+    row = run_episode_task(_diagnosed_task(env, cfg))
     assert row["outcome"] == "stalled" and row["diagnosis"] == "unreachable", row
     assert row["error"] == ""
