@@ -52,7 +52,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from rodctl.config.rod import RodConfig
+from rodctl.config.rod import STANDARD_GRAVITY, RodConfig
 from rodctl.records import SNAP_NOTE
 from rodctl.sim.rod import ApplyResult, RodSim, register_engine
 
@@ -811,7 +811,14 @@ class QuasiStaticSim(RodSim):
         self.dt = float(cfg.control_period)
         self.omega1 = math.nan
         self._damping_rate = 0.0
-        self.chain = QuasiStaticChain(  # type: ignore[assignment]  # see _chain_type
+        chain_type: type[QuasiStaticChain] = QuasiStaticChain
+        table: dict = {}
+        if cfg.table_friction is not None:  # a rod on a table: rodctl/sim/friction.py
+            from rodctl.sim.friction import FrictionalChain  # noqa: PLC0415 (it imports this)
+
+            chain_type = self._chain_type = FrictionalChain  # type: ignore[misc]
+            table = {"table_friction": cfg.table_friction, "table_gravity": STANDARD_GRAVITY}
+        self.chain = chain_type(  # type: ignore[assignment]  # see _chain_type
             length=cfg.length,
             bending_stiffness=cfg.bending_stiffness,
             mass_per_length=cfg.mass_per_length,
@@ -820,6 +827,7 @@ class QuasiStaticSim(RodSim):
             dt=self.dt,
             gravity=cfg.gravity,
             movable_clamp=cfg.arms == 2,  # dual-arm: the clamp pose is a second input
+            **table,
         )
         self._snap_seen = 0
 
