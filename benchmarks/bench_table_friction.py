@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 
 from rodctl.config import load_config  # noqa: E402
 from rodctl.config.rod import RodConfig  # noqa: E402
-from rodctl.sim import RodSim  # noqa: E402
+from rodctl.sim import RodSim, friction  # noqa: E402
 
 GOAL = 0.2  # % of L
 
@@ -70,6 +70,10 @@ def engines(rod: RodConfig, slow: float) -> dict[str, RodConfig]:
             }
         ),
         "quasistatic": rod.model_copy(update={"engine": "quasistatic"}),
+        # The same with twice the sub-moves per control step: the path's discretisation error.
+        f"quasistatic, {2 * friction.SUBSTEPS} sub-moves": rod.model_copy(
+            update={"engine": "quasistatic"}
+        ),
     }
 
 
@@ -85,9 +89,14 @@ class Runs:
 
     def fresh(self) -> dict[str, RodSim]:
         sims = {}
+        default = friction.SUBSTEPS
         for name, cfg in self.cfgs.items():
             t = time.process_time()
-            sims[name] = RodSim(cfg)
+            friction.SUBSTEPS = 2 * default if "sub-moves" in name else default
+            try:
+                sims[name] = RodSim(cfg)
+            finally:
+                friction.SUBSTEPS = default
             self.cpu[name] += time.process_time() - t
         return sims
 

@@ -11,15 +11,28 @@ subject to both end poses (h(θ) = 0, the chain's end at the gripper): E the cha
 energy (`rodctl/sim/quasistatic.py`), c_i the segment centres, the second sum pymunk's per-segment
 pivot joint to the table (max force μ m g) and the third its gear joint (max torque μ m g l/4),
 `rodctl/sim/chain.py`'s `_table_joints`. The dissipation is nonsmooth at a stuck segment; it is
-smoothed as √(|Δc|² + ε²) and ε is driven down (`EPS_LEVELS`) by continuation, Newton on the KKT
-system at each level, warm-started from the last. The friction couples every angle (a segment's
-centre moves with every angle before it), so the Hessian is dense: a dense (N+2) solve per
-Newton step.
+smoothed as √(|Δc|² + ε²) and ε is driven down (`EPS_LEVELS`, to 1e-7 L) by continuation, a
+primal-dual Newton on the KKT system at each level (the friction forces are unknowns too, kept
+inside their cones: Chan, Golub and Mulet's method for total variation, the same smoothed norm),
+warm-started from the last level and, after a move's first sub-move, from the previous
+sub-move's increment and forces. The friction couples every angle (a segment's centre moves
+with every angle before it), so the Hessian is dense: one dense (N+2) solve per Newton step
+(`numpy.linalg.solve`, LAPACK and BLAS: unlike the frictionless solve its last bits may depend
+on the BLAS kernel). A solution must be a minimum: its Hessian reduced to the constraints'
+tangent space positive definite, checked, and where Newton ends on a saddle it is run again with
+that Hessian shifted; no segment may turn by more than `MAX_BRANCH_STEP` in one sub-move.
 
 Which path: the move of one control step is split into `substeps` equal sub-moves of the end
 poses along their straight line (the gripper's ramp in pymunk is linear in time over the control
 period); each sub-move is one incremental minimisation from the last. More sub-moves approach
-the continuous quasi-static sweep.
+the continuous quasi-static sweep (measured: 16 and 32 sub-moves agree within 0.01 % of L).
+The smoothing lets a stuck segment creep by about ε per sub-move, which adds up over a run:
+hence the fine last level.
+
+Not reachable from a validated config: `rod.table_friction` with `engine: quasistatic` is
+refused (`rodctl/config/rod.py`), because the pymunk table it would replace depends on how fast
+it is driven by more than the agreement asked for (docs/engines.md, Friction, measured with
+`benchmarks/bench_table_friction.py`); this solver agrees with that table's slow-driven limit.
 """
 
 from __future__ import annotations
@@ -29,7 +42,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rodctl.sim.quasistatic import MAX_BRANCH_STEP, QuasiStaticChain, _ends
+from rodctl.sim.quasistatic import MAX_BRANCH_STEP, QuasiStaticChain, _ends, _Model
 
 #: Smoothing widths ε of |Δc| (as fractions of L), coarse to fine: the continuation.
 EPS_LEVELS = (1e-3, 1e-5, 1e-7)
@@ -103,6 +116,21 @@ class FrictionalChain(QuasiStaticChain):
         if not (math.isfinite(mu) and mu >= 0):
             raise ValueError(f"table friction must be finite and >= 0, got {mu}")
         self.table_friction = float(mu)
+
+    def _model(self) -> _Model:
+        """The constant parts of the system (`QuasiStaticChain._model`), μ in the key too: the
+        torque scale, hence the tolerance, includes the friction."""
+        m = self.__dict__.get("_model_cache")
+        key = (self.bending_stiffness, self.mass_per_length, self.torque_tol, self.table_friction)
+        if m is None or m.key != key:
+            m = _Model(self, key)
+            self._model_cache = m
+        return m
+
+    def pose_jacobian(self) -> tuple[np.ndarray, np.ndarray]:
+        """None exists: on a table the shape's response to the gripper is one-sided (which
+        segments stick depends on the direction of the move), not a linear map."""
+        raise ValueError("a rod on a table has no smooth pose Jacobian (friction is one-sided)")
 
     def _torque_scale(self) -> float:
         """EI/L + μ ρA g L²: the size of the torques (the friction's included)."""
@@ -321,9 +349,11 @@ class FrictionalChain(QuasiStaticChain):
         dual: tuple | None = None,
     ) -> tuple[np.ndarray, np.ndarray, tuple] | None:
         """Primal-dual Newton (Chan, Golub and Mulet's for total variation) on one smoothing
-        level: the friction forces f are unknowns too, with f s = w d as their equation, and
-        stay inside their cones |f| <= w; the angles take the full Newton step, halved while
-        the KKT residual of the primal problem grows."""
+        level: the friction forces f (and spin torques τ) are unknowns too, with f s = w d as
+        their equation, and stay inside their cones |f| <= w; the angles take the full Newton
+        step, halved only while the primal KKT residual blows up. (θ, λ, the friction forces)
+        or None. `convexify`: shift H where it is not positive definite on the constraints'
+        tangent space (the step is then a descent towards a minimum, not a saddle)."""
         n, seg = self.segments, self.seg_length
         mu = self.table_friction or 0.0
         w = mu * self.segment_mass * self.table_gravity
@@ -359,15 +389,6 @@ class FrictionalChain(QuasiStaticChain):
             dtheta, dlam = sol[:n], sol[n:]
             if not np.all(np.isfinite(dtheta)):
                 return None
-            # δd = J δθ (the centres' linear change), then δf and the cone step.
-            jx = seg * nx * dtheta
-            jy = seg * ny * dtheta
-            ddx = np.cumsum(jx) - 0.5 * jx
-            ddy = np.cumsum(jy) - 0.5 * jy
-            along = (dx * ddx + dy * ddy) / s
-            dfx = (w * ddx - fx * along - rx) / s
-            dfy = (w * ddy - fy * along - ry) / s
-            dtau = ((ws - tau * dth / st) * dtheta - rt) / st
             # Primal step: the full step, halved while the primal residual blows up.
             res0 = (
                 float(np.max(np.abs(pgrad))) / self._model().torque_unit
@@ -377,7 +398,7 @@ class FrictionalChain(QuasiStaticChain):
             for _ in range(30):
                 th2 = theta + step * dtheta
                 lam2 = lam + step * dlam
-                g2, _, _, h2, _, prim2, _ = self._system(th2, lam2, ref, eps, hessian=False)
+                g2, _, _, h2, _, _, _ = self._system(th2, lam2, ref, eps, hessian=False)
                 res2 = (
                     float(np.max(np.abs(g2))) / self._model().torque_unit
                     + float(np.sum(np.abs(h2))) / self._model().position_unit
@@ -390,7 +411,16 @@ class FrictionalChain(QuasiStaticChain):
             else:
                 return None
             theta, lam = th2, lam2
-            # Dual step: as far as the cones allow (|f| <= w), at most the full step.
+            # δd = J δθ for the step taken (the centres' linear change), then δf, δτ from the
+            # linearised dual equations, and the dual step as far as the cones allow.
+            jx = (step * seg) * nx * dtheta
+            jy = (step * seg) * ny * dtheta
+            ddx = np.cumsum(jx) - 0.5 * jx
+            ddy = np.cumsum(jy) - 0.5 * jy
+            along = (dx * ddx + dy * ddy) / s
+            dfx = (w * ddx - fx * along - rx) / s
+            dfy = (w * ddy - fy * along - ry) / s
+            dtau = ((ws - tau * dth / st) * (step * dtheta) - rt) / st
             beta = _cone_step(fx, fy, dfx, dfy, w)
             beta = min(beta, _cone_step(tau, np.zeros_like(tau), dtau, np.zeros_like(tau), ws))
             dual = (fx + beta * dfx, fy + beta * dfy, tau + beta * dtau)

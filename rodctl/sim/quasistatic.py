@@ -818,6 +818,7 @@ class QuasiStaticSim(RodSim):
 
             chain_type = self._chain_type = FrictionalChain  # type: ignore[misc]
             table = {"table_friction": cfg.table_friction, "table_gravity": STANDARD_GRAVITY}
+            self.centerline_jacobian = None  # type: ignore[assignment]  # one-sided on a table
         self.chain = chain_type(  # type: ignore[assignment]  # see _chain_type
             length=cfg.length,
             bending_stiffness=cfg.bending_stiffness,
