@@ -23,11 +23,12 @@ and, per scenario (paid once, not per episode): `preflight` (every method built 
 seen, physics included), `report` (results, figures, statistics, report.html), `other` (the run
 folder, the journal, the rest of `run_compare`). The suite's own aggregation is one more line.
 
-The projection: per scenario, its per-episode CPU x (methods x the scenario's full target
-count) + its per-target cost x full target count + its fixed costs, plus the spawn pool's
-worker start-up (`--pool-probe`: one spawn worker's imports measured, paid by each of the 2
-workers of each scenario's pool), summed and divided by 2 cores. It assumes the 2 workers are
-busy all the time (the parent's own work is counted in full).
+The projection on 2 cores: per scenario, its per-episode CPU x (methods x the scenario's full
+target count) and its per-target cost x the full target count run on the 2 workers (halved);
+the parent's own work (preflight, report, the rest) is serial. A fresh spawn worker's warm-up
+(`--probe`: a new interpreter's imports, then one target's episodes of every method run twice,
+the first pass's excess counted) is paid by the 2 workers once for the suite (`--pool shared`,
+rodctl's suite since 2026-12-02) or once per scenario (`--pool per-scenario`, before).
 
     nice -n 10 .venv/bin/python benchmarks/bench_suite.py --targets 5
     nice -n 10 .venv/bin/python benchmarks/bench_suite.py --scenarios nominal,table --profile 25
@@ -44,6 +45,7 @@ import functools
 import io
 import json
 import os
+import pickle
 import pstats
 import resource
 import subprocess
@@ -66,6 +68,7 @@ import rodctl.diagnosis as diagnosis
 import rodctl.episode as episode
 import rodctl.sim.quasistatic as qs
 from rodctl.env import ShapeServoEnv
+from rodctl.executors.base import THREAD_ENV
 from rodctl.method import Method
 from rodctl.sim.rod import RodSim
 
@@ -100,6 +103,7 @@ class Ledger:
         self.cpu: dict[str, dict[str, float]] = defaultdict(lambda: defaultdict(float))
         self.episodes: dict[str, int] = defaultdict(int)
         self.targets: dict[str, int] = defaultdict(int)
+        self.first_tasks: dict[str, list[Any]] = defaultdict(list)
         self.scenario = "(suite)"
         # frames: [charged name, absorbing, time of timed children, absorbing category]
         self.stack: list[list[Any]] = []
@@ -186,6 +190,8 @@ def install(ledger: Ledger) -> None:
 
     def counted(task: Any) -> Any:
         ledger.episodes[ledger.scenario] += 1
+        if task.target == 0:  # the first target's episodes: the spawn-worker probe's tasks
+            ledger.first_tasks[ledger.scenario].append(task)
         return run_task(task)
 
     runner.run_episode_task = counted  # what stream_episodes submits
@@ -212,6 +218,8 @@ def install(ledger: Ledger) -> None:
 
     suite.run_compare = per_scenario
     suite.write_suite_outputs = ledger.timed(suite.write_suite_outputs, "report", absorb=True)
+    # Quick encoders (`checkpoint: auto`) not cached yet, trained before the scenarios run.
+    suite._prepare_features = ledger.timed(suite._prepare_features, "training", absorb=True)  # noqa: SLF001
 
 
 def overrides_for(data: dict, targets: int, seed: int) -> tuple[list[str], dict[str, int]]:
@@ -229,17 +237,39 @@ def overrides_for(data: dict, targets: int, seed: int) -> tuple[list[str], dict[
     return sets, full
 
 
-def pool_worker_cpu() -> float:
-    """CPU seconds one spawn pool worker pays before its first task: a fresh interpreter that
-    imports what `run_episode_task` needs and runs the executor's worker initialiser."""
-    code = (
-        "import rodctl.bench.episodes, rodctl.executors.base as b; b.init_worker();"
-        "import rodctl.features.autoencoder, rodctl.sim.quasistatic"
+PROBE = """
+import json, pickle, sys, time
+t0 = time.process_time()
+import rodctl.bench.episodes as episodes, rodctl.executors.base as base
+base.init_worker()
+t1 = time.process_time()
+tasks = pickle.loads(sys.stdin.buffer.read())
+for t in tasks:
+    episodes.run_episode_task(t)
+t2 = time.process_time()
+for t in tasks:
+    episodes.run_episode_task(t)
+t3 = time.process_time()
+print(json.dumps({"imports": t1 - t0, "first": t2 - t1, "again": t3 - t2}))
+"""
+
+
+def pool_worker_cpu(tasks: list[Any]) -> dict[str, float]:
+    """What a fresh spawn pool worker pays before it runs at full speed: a new interpreter
+    imports what `run_episode_task` needs and runs the pool's initialiser, then runs `tasks`
+    (one target's episodes, every method) twice; the warm-up is the imports plus the first
+    pass's excess over the second (lazy imports, the home state, checkpoints...)."""
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE],
+        input=pickle.dumps(tasks),
+        capture_output=True,
+        check=True,
+        cwd=ROOT,
+        env={**os.environ, **{k: "1" for k in THREAD_ENV}},
     )
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    got = json.loads(out.stdout.decode().strip().splitlines()[-1])
+    got["warm_up"] = got["imports"] + max(0.0, got["first"] - got["again"])
+    return got
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -250,7 +280,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenarios", default="", help="comma-separated subset (default: all)")
     ap.add_argument("--out", default="", help="where the suite folder goes (default: a temp dir)")
     ap.add_argument("--profile", type=int, default=0, help="print the top N functions (cProfile)")
-    ap.add_argument("--no-pool-probe", action="store_true", help="skip the spawn-worker probe")
+    ap.add_argument(
+        "--probe",
+        default="nominal",
+        help="the scenario whose first target's episodes the spawn-worker probe runs ('' to skip)",
+    )
+    ap.add_argument(
+        "--pool",
+        choices=("shared", "per-scenario"),
+        default="shared",
+        help="project a pool started once for the suite (rodctl since 2026-12-02) or a new "
+        "pool per scenario (before): each pool's 2 workers pay the warm-up",
+    )
     ap.add_argument("--json", default="", help="also write the figures to this JSON file")
     args = ap.parse_args(argv)
 
@@ -288,9 +329,12 @@ def main(argv: list[str] | None = None) -> int:
             config_used.unlink(missing_ok=True)
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     load1 = os.getloadavg()
-    worker = 0.0 if args.no_pool_probe else pool_worker_cpu()
+    probe = {"warm_up": 0.0}
+    if args.probe and ledger.first_tasks.get(args.probe):
+        probe = pool_worker_cpu(ledger.first_tasks[args.probe])
 
-    report = summarise(ledger, full, args.targets, worker)
+    report = summarise(ledger, full, args.targets, probe["warm_up"], args.pool == "shared")
+    report["probe"] = probe
     report.update(
         cpu_s=cpu,
         wall_s=wall,
@@ -320,12 +364,15 @@ def _total(cpu: dict[str, float], category: str) -> float:
     return cpu.get(category, 0.0) + sum(v for k, v in cpu.items() if k.startswith(category + ":"))
 
 
-def summarise(ledger: Ledger, full: dict[str, int], targets: int, worker: float) -> dict:
+def summarise(
+    ledger: Ledger, full: dict[str, int], targets: int, worker: float, shared: bool
+) -> dict:
     """Per scenario: CPU s per episode by category, the per-scenario costs, the projection.
 
     The projection on 2 cores: the episodes and the targets run on the 2 workers (their CPU
     halved); the parent's own work (preflight, report, the rest of `run_compare`) and each
     scenario's pool start-up (the 2 workers import at once) are serial, the workers idle.
+    `worker`: a fresh worker's warm-up, paid once per suite (`shared`) or once per scenario.
     """
     rows = {}
     cpu_total = wall_total = 0.0
@@ -341,8 +388,9 @@ def summarise(ledger: Ledger, full: dict[str, int], targets: int, worker: float)
         episodes_full = methods * n_full
         parallel = sum(per_episode.values()) * episodes_full + per_target * n_full
         serial = fixed["preflight"] + fixed["report"] + fixed["other"]
-        cpu_total += parallel + serial + CORES * worker
-        wall_total += parallel / CORES + serial + worker
+        warm = 0.0 if shared else worker
+        cpu_total += parallel + serial + CORES * warm
+        wall_total += parallel / CORES + serial + warm
         for k, v in cpu.items():
             if k.startswith("diagnosis:") and n:
                 inner[k] += v / n * episodes_full
@@ -353,17 +401,21 @@ def summarise(ledger: Ledger, full: dict[str, int], targets: int, worker: float)
             "per_episode": per_episode,
             "per_target": per_target,
             "fixed": fixed,
-            "projected_cpu_s": parallel + serial + CORES * worker,
-            "projected_wall_s": parallel / CORES + serial + worker,
+            "projected_cpu_s": parallel + serial + CORES * warm,
+            "projected_wall_s": parallel / CORES + serial + warm,
         }
-    suite_cpu = sum(ledger.cpu.get("(suite)", {}).values())
-    cpu_total += suite_cpu
-    wall_total += suite_cpu
+    suite_parts = {
+        c: _total(ledger.cpu.get("(suite)", {}), c) for c in ("training", "report", "other")
+    }
+    suite_cpu = sum(suite_parts.values())
+    cpu_total += suite_cpu + (CORES * worker if shared else 0.0)
+    wall_total += suite_cpu + (worker if shared else 0.0)
     return {
         "scenarios": rows,
         "diagnosis_parts_cpu_s": dict(inner),
-        "suite_aggregate_cpu_s": suite_cpu,
-        "pool_worker_start_cpu_s": worker,
+        "suite_cpu_s": suite_parts,
+        "pool_worker_warm_up_cpu_s": worker,
+        "pool": "shared" if shared else "per-scenario",
         "projected_cpu_s": cpu_total,
         "projected_wall_2_cores_s": wall_total,
         "goal_s": GOAL_S,
@@ -415,8 +467,12 @@ def print_report(r: dict) -> None:
     print(
         "per-scenario costs summed (CPU s): "
         + ", ".join(f"{k} {v:.1f}" for k, v in fixed.items())
-        + f"; suite aggregation {r['suite_aggregate_cpu_s']:.2f}; a spawn worker's start-up "
-        f"{r['pool_worker_start_cpu_s']:.2f} (each scenario's pool starts {CORES})"
+        + "; the suite's own: "
+        + ", ".join(f"{k} {v:.1f}" for k, v in r["suite_cpu_s"].items())
+        + "; a fresh spawn worker's "
+        f"warm-up {r['pool_worker_warm_up_cpu_s']:.2f} (imports "
+        f"{r['probe'].get('imports', 0.0):.2f}), x {CORES} workers "
+        + ("once (one pool for the suite)" if r["pool"] == "shared" else "per scenario")
     )
     print(f"this run: {r['cpu_s']:.1f} s CPU, {r['wall_s']:.1f} s wall")
     proj = r["projected_wall_2_cores_s"]
