@@ -9,8 +9,11 @@ import pickle
 import numpy as np
 import pytest
 
+from rodctl.bench import episodes
 from rodctl.bench.journal import ResultsLog, finished_rows
 from rodctl.bench.tasks import EpisodeTask, TargetTask, row_key
+from rodctl.config import ExperimentConfig
+from rodctl.env import ShapeServoEnv
 
 
 def _compare_task(method: str, target: int, **kw) -> EpisodeTask:
@@ -79,3 +82,43 @@ def test_tasks_pickle_for_the_spawn_pool_and_ray_and_are_frozen():
     target = pickle.loads(pickle.dumps(TargetTask({"x": 1}, seed_seq=seq, band=(0.1, 0.2))))
     assert target.seed_seq is not None
     assert target.seed_seq.generate_state(2).tolist() == seq.generate_state(2).tolist()
+
+
+def test_an_autoencoder_method_reused_by_a_worker_runs_as_one_built_for_the_episode():
+    """A worker builds an autoencoder method once per config and reuses it (its checkpoint is
+    loaded once): the next episode's row is the one a freshly built method gives."""
+    cfg = ExperimentConfig.model_validate(
+        {
+            "rod": {"engine": "quasistatic"},
+            "run": {"max_steps": 12},
+            "feature": {"type": "autoencoder"},
+        }
+    )
+    env = ShapeServoEnv(cfg)
+
+    def task(seed: int) -> EpisodeTask:
+        t = env.make_target(seed=seed)
+        view = {"centerline": t.centerline, "pixels": t.pixels}
+        return EpisodeTask(
+            config=cfg.model_dump(mode="json"),
+            method="paper",
+            target=seed,
+            pose=tuple(float(v) for v in t.pose),
+            seed=seed,
+            target_view=view,
+            target_difficulty=t.difficulty,
+        )
+
+    def row(t: EpisodeTask) -> dict:
+        r = episodes.run_episode_task(t)
+        r.pop("wall_time_s")
+        return r
+
+    episodes._METHODS.clear()
+    first, second = task(3), task(4)
+    row(first)
+    reused = row(second)
+    assert len(episodes._METHODS) == 1  # built once, used twice
+    episodes._METHODS.clear()
+    assert row(second) == reused  # a method built for this episode
+    assert reused["outcome"] != "error" and reused["steps"] > 4

@@ -20,9 +20,17 @@ SMOKE = str(REPO / "configs/benchmarks/suite-smoke.yaml")
 
 
 @pytest.mark.slow
-def test_smoke_suite_runs_every_scenario_and_reports_paired_statistics(tmp_path):
+def test_smoke_suite_runs_every_scenario_and_reports_paired_statistics(tmp_path, monkeypatch):
+    import rodctl.bench.compare as compare
+    from rodctl.executors.local import LocalExecutor
+
+    starts = []  # every pool started: one for the whole suite, not one per scenario
+    start = LocalExecutor.start
+    monkeypatch.setattr(LocalExecutor, "start", lambda self: (starts.append(1), start(self)))
+    monkeypatch.setattr(compare, "make_pool", lambda *a: pytest.fail("a pool per scenario"))
     res = CliRunner().invoke(app, ["compare", SMOKE, "-q", "-o", str(tmp_path), "--workers", "2"])
     assert res.exit_code == 0, res.output
+    assert len(starts) == 1
     folder = res.output.strip().splitlines()[-1]
     with open(f"{folder}/results.csv", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))

@@ -287,6 +287,7 @@ def run_compare(
     address: str | None = None,
     resume: str | None = None,
     on_start: Callable[[Path], None] | None = None,
+    pool: Executor | None = None,
 ) -> Path:
     """Run the benchmark of `config_path` into a new folder under `out`; return that folder.
 
@@ -304,6 +305,9 @@ def run_compare(
             only the others run, into that folder.
         on_start: called with the run's folder as soon as it exists (a suite records it, so
             that `--resume` continues this folder even after the process was killed).
+        pool: an executor started by the caller and left running (a suite's, shared by its
+            scenarios: `rodctl.executors.base.SharedExecutor`); None: one made for this run
+            from `executor`, `workers` and `address`.
 
     Returns:
         The output folder (holding results.jsonl/csv/json, summary.md, targets.yaml, figures/).
@@ -319,7 +323,8 @@ def run_compare(
     configs = preflight(cfg)
     given = given_target_poses(cfg, Path(config_path).resolve().parent)
     study = CompareStudy(cfg, configs, given, wall0)
-    pool = make_pool(executor, workers, cfg.workers, address)
+    if pool is None:
+        pool = make_pool(executor, workers, cfg.workers, address)
     return run_study(
         study, out, pool, progress=progress, resume=resume, on_start=on_start, executor=executor
     )

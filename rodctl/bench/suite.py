@@ -20,6 +20,7 @@ when every seed agrees (docs/statistics.md).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import time
@@ -47,7 +48,7 @@ from rodctl.bench.comparisons import (
     success_pairs,
     suite_comparisons,
 )
-from rodctl.bench.runner import RunInterrupted
+from rodctl.bench.runner import RunInterrupted, make_pool
 from rodctl.bench.stats import band_names, summarize, summary_rows
 from rodctl.bench.target_set import given_target_poses
 from rodctl.config.compare import CompareConfig
@@ -55,11 +56,13 @@ from rodctl.config.loading import ConfigError, apply_override, config_source, va
 from rodctl.diagnosis import DIAGNOSES
 from rodctl.display import stderr
 from rodctl.errors import UserError
+from rodctl.executors.base import SharedExecutor, stop_handlers, stop_reason
 from rodctl.registry import STAGES
 from rodctl.report import markdown_table, write_report_html
 from rodctl.runlock import lock_run_folder
 from rodctl.runs import RunDir, write_json_atomic
 from rodctl.statistics import PairedDifference
+from rodctl.training import prepare_feature
 
 
 def run_keys(cfg: CompareConfig) -> list[tuple[str, str, int]]:
@@ -173,8 +176,17 @@ def run_suite(
 
     status = "failed"
     try:
-        options = {"progress": progress, "workers": workers, "executor": executor}
-        _run_scenarios(run, scenarios, folders, wall, address=address, **options)
+        # Quick encoders (`checkpoint: auto`) are trained before the pool starts, so that the
+        # training sees the environment it always saw (not the workers' one-thread settings).
+        _prepare_features(scenarios, folders, source)
+        # One pool for every scenario: a new one per scenario cost each of its workers the
+        # imports again (spawn) and the caches warmed again, and a Ray its start (17-19 s).
+        pending = [n for n in scenarios if not _completed(Path(folders.get(n) or "-"))]
+        pool = make_pool(executor, workers, cfg.workers, address) if pending else None
+        with pool or contextlib.nullcontext(), stop_handlers():
+            shared = SharedExecutor(pool) if pool is not None else None
+            options = {"progress": progress, "workers": workers, "pool": shared}
+            _run_scenarios(run, scenarios, folders, wall, **options)
         report = write_suite_outputs(cfg, run.path, folders, wall())
         if progress:
             stderr.print(report)
@@ -213,6 +225,9 @@ def _run_scenarios(
         earlier = folders.get(name)
         if earlier and _completed(Path(earlier)):
             continue
+        reason = stop_reason()  # a signal between two scenarios
+        if reason is not None:
+            raise KeyboardInterrupt(reason)
         # The scenario's folder is recorded as soon as it exists, so --resume continues it
         # (keeping its finished episodes) after a stop, and after a kill or power cut too.
         run_compare(
@@ -223,6 +238,19 @@ def _run_scenarios(
             on_start=functools.partial(_record_scenario, run, folders, name, wall),
             **compare_options,
         )
+
+
+def _prepare_features(scenarios: dict[str, dict], folders: dict[str, str], source: str) -> None:
+    """Every quick encoder (`feature.checkpoint: auto`) the scenarios still to run need, trained
+    and cached now unless cached (`rodctl.training.prepare_feature`); each scenario's own
+    preflight then finds it."""
+    for name, data in scenarios.items():
+        earlier = folders.get(name)
+        if earlier and _completed(Path(earlier)):
+            continue
+        scfg = validate_config(data, f"{source}: scenarios.{name}", CompareConfig)
+        for method in scfg.methods:
+            prepare_feature(method_config(scfg, method, source=source))
 
 
 def _record_scenario(

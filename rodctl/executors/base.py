@@ -228,3 +228,34 @@ def make_executor(kind: str, workers: int, address: str | None = None) -> Execut
         )
     cfg = registry.EXECUTORS.get(kind).config()
     return registry.EXECUTORS.build(cfg, ExecutorContext(workers=workers, address=address))
+
+
+class SharedExecutor(Executor):
+    """An executor that another owner started, lent to one study: `__enter__`/`__exit__` do not
+    start or stop its workers, everything else is the owner's executor's.
+
+    A suite runs each scenario as its own study on the one pool it started for all of them
+    (`rodctl.bench.suite`), instead of a new pool (spawn processes that import rodctl again, a
+    Ray started again) per scenario. Episodes depend on nothing but their task, so results are
+    the same either way.
+    """
+
+    def __init__(self, owner: Executor) -> None:
+        super().__init__(owner.workers, owner.shutdown_timeout)
+        self.owner = owner
+        self.name = owner.name
+
+    def start(self) -> None:
+        """Nothing: the owner started the workers."""
+
+    def shutdown(self, timeout: float) -> None:
+        """Nothing: the owner stops the workers."""
+
+    def submit(self, fn: Callable[[Any], Any], task: Any, key: Any) -> None:
+        self.owner.submit(fn, task, key)
+
+    def results(self, poll: float = 0.5) -> Iterator[Done]:
+        return self.owner.results(poll)
+
+    def cancel(self) -> None:
+        self.owner.cancel()
