@@ -537,16 +537,17 @@ class ShapeServoEnv(gym.Env):
         dpoints = np.einsum("ij,jkq->ikq", w, sim.centerline_jacobian())
         dpix = np.einsum("ikl,ilq->ikq", self.camera.projection_jacobian(points), dpoints)
         pixels = self.camera.project(points)
-        shifted = []
-        for axis, h in enumerate(steps):
-            shifted += [pixels + h * dpix[:, :, axis], pixels - h * dpix[:, :, axis]]
+        h = np.asarray(steps, dtype=float)
+        move = np.moveaxis(dpix * h, 2, 0)  # (q, N, 2): h_a dpix[:, :, a]
+        shifted = np.empty((2 * len(steps), *pixels.shape))  # pixels + and - each move
+        np.add(pixels, move, out=shifted[0::2])
+        np.subtract(pixels, move, out=shifted[1::2])
         rows = _rows_of(encode)
         if rows is not None:  # all the shapes in one pass, the same bits as one by one
-            values = list(np.asarray(rows(np.stack(shifted)), dtype=float))
+            values = np.asarray(rows(shifted), dtype=float)
         else:
-            values = [np.asarray(encode(x), dtype=float) for x in shifted]
-        cols = [(values[2 * a] - values[2 * a + 1]) / (2.0 * h) for a, h in enumerate(steps)]
-        return np.stack(cols, axis=1)
+            values = np.stack([np.asarray(encode(x), dtype=float) for x in shifted])
+        return np.ascontiguousarray(((values[0::2] - values[1::2]) / (2.0 * h)[:, None]).T)
 
     def make_target(
         self,
