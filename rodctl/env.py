@@ -94,10 +94,21 @@ def _at_equilibrium(sim: RodSim) -> bool:
 
 def _rows_of(encode: Any) -> Any:
     """The `encode_rows` of the feature map whose bound `encode` this is ((B, N, 2) -> (B, p),
-    the same bits as `encode` shape by shape: `AutoencoderFeatureMap`), else None."""
-    if getattr(encode, "__name__", None) != "encode":
+    the same bits as `encode` shape by shape: `AutoencoderFeatureMap`), else None. Only when
+    one class defines both (a subclass that overrides `encode` alone gets the plain loop)."""
+    owner = getattr(encode, "__self__", None)
+    if owner is None or getattr(encode, "__name__", None) != "encode":
         return None
-    return getattr(getattr(encode, "__self__", None), "encode_rows", None)
+    defining = {}
+    for cls in type(owner).__mro__:
+        for name in ("encode", "encode_rows"):
+            if name in cls.__dict__:
+                defining.setdefault(name, cls)
+    if defining.get("encode_rows") is None or defining.get("encode") is not defining["encode_rows"]:
+        return None
+    if getattr(encode, "__func__", None) is not defining["encode"].__dict__["encode"]:
+        return None  # an encode set on the instance, not the class's
+    return owner.encode_rows
 
 
 def pixel_error(extracted: np.ndarray, target: np.ndarray) -> float:
