@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from rodctl.config import ExperimentConfig
+from rodctl.env import _rows_of
 from rodctl.features import make_feature_map
+from rodctl.features.autoencoder import AutoencoderFeatureMap
 
 
 @pytest.fixture(scope="module")
@@ -33,3 +35,16 @@ def test_rows_refuse_a_wrong_shape_as_encode_does(default_map):
         default_map.encode_rows(np.zeros((6, 99, 2)))
     with pytest.raises(ValueError, match="N=100"):
         default_map.encode_rows(np.zeros((100, 2)))
+
+
+def test_the_env_uses_rows_only_for_the_encode_they_match(default_map):
+    assert _rows_of(default_map.encode) is not None
+    assert _rows_of(default_map.encode_batch) is None  # BLAS products: not the same bits
+
+    class Shifted(AutoencoderFeatureMap):  # overrides encode but not encode_rows
+        def encode(self, centerline_px):
+            return super().encode(centerline_px) + 1.0
+
+    other = Shifted.__new__(Shifted)
+    other.__dict__.update(default_map.__dict__)
+    assert _rows_of(other.encode) is None
