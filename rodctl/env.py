@@ -111,6 +111,46 @@ def _rows_of(encode: Any) -> Any:
     return owner.encode_rows
 
 
+#: [matrix, its `_two_point_rows`] of the last resampling matrix looked at.
+_TWO_POINT: list[Any] = [None, None]
+
+
+def _two_point_rows(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(f, a, b) when row r of `w` is a_r at column f_r, b_r at f_r + 1 and zero elsewhere
+    (linear interpolation between neighbouring joints: `resample_matrix`), else None.
+    Remembered for the last read-only matrix (`resample_matrix`'s are cached and read-only)."""
+    if _TWO_POINT[0] is w and not w.flags.writeable:
+        return _TWO_POINT[1]
+    rows = np.arange(w.shape[0])
+    first = np.minimum(np.argmax(w != 0.0, axis=1), w.shape[1] - 2)
+    a, b = w[rows, first], w[rows, first + 1]
+    rebuilt = np.zeros_like(w)
+    rebuilt[rows, first], rebuilt[rows, first + 1] = a, b
+    found = (first, a.copy(), b.copy()) if np.array_equal(rebuilt, w) else None
+    _TWO_POINT[:] = [w, found]
+    return found
+
+
+def _interpolate(two: tuple[np.ndarray, np.ndarray, np.ndarray], x: np.ndarray) -> np.ndarray:
+    """einsum("ij,j...->i...", w, x) for the two-point rows (f, a, b) of `w` and a finite x,
+    with the same bits, as a x[f] + b x[f + 1] + 0.0.
+
+    The einsum sums a x[f], b x[f + 1] and exact zeros (zero weights times finite values) in
+    some order: adding a zero to a nonzero value is exact, so a nonzero sum is the one rounding
+    of a x[f] + b x[f + 1] whatever the order; a zero sum comes out +0.0 (einsum accumulates
+    from +0.0), which is what the final + 0.0 makes of a -0.0. tests/test_env_sums.py checks
+    both against einsum, signed zeros included."""
+    f, a, b = two
+    shape = (-1,) + (1,) * (x.ndim - 1)
+    return (a.reshape(shape) * x[f] + b.reshape(shape) * x[f + 1]) + 0.0
+
+
+def _chain_2x2(pj: np.ndarray, dpoints: np.ndarray) -> np.ndarray:
+    """einsum("ikl,ilq->ikq", pj, dpoints) for (N, 2, 2) and (N, 2, q), with the same bits: each
+    entry is a sum of two products, so (as in `_interpolate`) one rounding, + 0.0 for a zero."""
+    return (pj[:, :, 0, None] * dpoints[:, None, 0] + pj[:, :, 1, None] * dpoints[:, None, 1]) + 0.0
+
+
 def pixel_error(extracted: np.ndarray, target: np.ndarray) -> float:
     """Mean distance (px) between corresponding points of two (N, 2) clamp-first centerlines.
 
@@ -544,9 +584,14 @@ class ShapeServoEnv(gym.Env):
         sim = self._episode()[0]
         assert isinstance(sim, _AnalyticSim)  # `_true_jacobian` calls it on such an engine only
         w = resample_matrix(sim.chain.segments, n)  # cached: do not modify
-        points = np.einsum("ij,jk->ik", w, sim.centerline())  # no BLAS: kernel-independent
-        dpoints = np.einsum("ij,jkq->ikq", w, sim.centerline_jacobian())
-        dpix = np.einsum("ikl,ilq->ikq", self.camera.projection_jacobian(points), dpoints)
+        joints, djoints = sim.centerline(), sim.centerline_jacobian()
+        two = _two_point_rows(w)
+        if two is not None and np.isfinite(joints).all() and np.isfinite(djoints).all():
+            points, dpoints = _interpolate(two, joints), _interpolate(two, djoints)
+        else:  # no BLAS either way: kernel-independent
+            points = np.einsum("ij,jk->ik", w, joints)
+            dpoints = np.einsum("ij,jkq->ikq", w, djoints)
+        dpix = _chain_2x2(self.camera.projection_jacobian(points), dpoints)
         pixels = self.camera.project(points)
         h = np.asarray(steps, dtype=float)
         move = np.moveaxis(dpix * h, 2, 0)  # (q, N, 2): h_a dpix[:, :, a]
