@@ -19,6 +19,7 @@ to about 20 x 20) where BLAS's advantage is small; `benchmarks/` measure what th
 from __future__ import annotations
 
 import math
+from operator import mul
 
 import numpy as np
 
@@ -221,9 +222,10 @@ def _svd_columns(j: np.ndarray) -> tuple[list[float], list[list[float]], list[li
         for a in range(q - 1):
             for b in range(a + 1, q):
                 ca, cb = cols[a], cols[b]
-                alpha = sum(x * x for x in ca)
-                beta = sum(y * y for y in cb)
-                gamma = sum(x * y for x, y in zip(ca, cb, strict=True))
+                # sum() adds the products left to right, as a loop would; map is faster
+                alpha = sum(map(mul, ca, ca))
+                beta = sum(map(mul, cb, cb))
+                gamma = sum(map(mul, ca, cb))  # columns of one matrix: equal lengths
                 if gamma == 0.0 or abs(gamma) <= 1e-15 * math.sqrt(alpha * beta):
                     continue
                 rotated = True
@@ -238,7 +240,7 @@ def _svd_columns(j: np.ndarray) -> tuple[list[float], list[list[float]], list[li
                 V[b] = [s * x + c * y for x, y in zip(va, vb, strict=True)]
         if not rotated:
             break
-    sigma = [math.sqrt(sum(x * x for x in col)) for col in cols]
+    sigma = [math.sqrt(sum(map(mul, col, col))) for col in cols]
     U = [
         [x / sg for x in col] if sg > 0.0 else [0.0] * len(col)
         for col, sg in zip(cols, sigma, strict=True)
