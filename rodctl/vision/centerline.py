@@ -174,7 +174,7 @@ def _hermite(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray, n: 
 
 
 def _locate_row(
-    s: list[float], m: int, band: float | None, max_width: float
+    s: list[float], m: int, band: float | None, max_width: float, rod: bytes | None = None
 ) -> tuple[float, float, int]:
     """Scalar twin of the vectorised analysis in `CenterlineExtractor._cross_sections`.
 
@@ -183,31 +183,32 @@ def _locate_row(
         m: half the number of samples.
         band: the rod's band width (px) if known.
         max_width: the width above which the section is ambiguous.
+        rod: ``bytes(v >= 0.5 for v in s)`` when the caller has it (one numpy comparison for
+            many rows): the runs are found by `bytes.find`/`rfind` instead of a Python loop.
 
     Returns:
         (offset px, width px, status).
     """
+    f = bytes(v >= 0.5 for v in s) if rod is None else rod
     last = 2 * m
     c = m
-    j = -1
-    if s[c] >= 0.5:
+    if f[c]:
         j = c
     else:
-        for dd in range(1, c + 1):
-            if s[c - dd] >= 0.5:
-                j = c - dd
-                break
-            if s[c + dd] >= 0.5:
-                j = c + dd
-                break
-    if j < 0:
-        return 0.0, 0.0, _LOST
-    left = j - 1
-    while left >= 0 and s[left] >= 0.5:
-        left -= 1
-    right = j + 1
-    while right <= last and s[right] >= 0.5:
-        right += 1
+        # the rod sample nearest c, the left one on a tie
+        jl = f.rfind(1, 0, c)
+        jr = f.find(1, c + 1)
+        if jr < 0:
+            if jl < 0:
+                return 0.0, 0.0, _LOST
+            j = jl
+        else:
+            j = jl if jl >= 0 and c - jl <= jr - c else jr
+    # the nearest non-rod samples on either side of j (-1 and last + 1 past the window's ends)
+    left = f.rfind(0, 0, j)
+    right = f.find(0, j + 1)
+    if right < 0:
+        right = last + 1
     lc = min(max(left, 0), last - 1)
     rc = min(max(right, 1), last)
     s0, s1 = s[lc], s[lc + 1]
@@ -270,19 +271,29 @@ def _analyse_rows(
     samples' positions (from the left and from the right) at j.
     """
     k, n = s.shape
-    near, up, down = _row_tables(m)
-    above = s >= 0.5
-    notab = ~above
     rows = np.arange(k)
-    at_j = rows * n + np.multiply(above, near).argmax(axis=1)
-    lost = notab.ravel()[at_j]
-    left = np.maximum.accumulate(np.multiply(notab, up), axis=1).ravel()[at_j].astype(np.intp)
-    left -= 1
-    right = np.maximum.accumulate(np.multiply(notab, down)[:, ::-1], axis=1)[:, ::-1]
-    right = n - right.ravel()[at_j].astype(np.intp)
-    if lost.any():  # no rod sample at all: j = 0, whose left is -1 and right 1
-        left[lost] = -1
-        right[lost] = 1
+    # sentinel non-rod samples at -1 and 2m + 1 around the rows' own
+    pad = np.ones((k, n + 2), bool)
+    notab = pad[:, 1:-1]
+    np.less(s, 0.5, out=notab)
+    lost = None
+    if not notab[:, m].any():
+        # every prediction lies on the rod (the rule in the refinement): j = m, and the run's
+        # ends are the first non-rod samples either side of m
+        left = (m - 1) - pad[:, m::-1].argmax(axis=1)
+        right = (m + 1) + pad[:, m + 2 :].argmax(axis=1)
+    else:
+        near, up, down = _row_tables(m)
+        above = ~notab
+        at_j = rows * n + np.multiply(above, near).argmax(axis=1)
+        lost = notab.ravel()[at_j]
+        left = np.maximum.accumulate(np.multiply(notab, up), axis=1).ravel()[at_j].astype(np.intp)
+        left -= 1
+        right = np.maximum.accumulate(np.multiply(notab, down)[:, ::-1], axis=1)[:, ::-1]
+        right = n - right.ravel()[at_j].astype(np.intp)
+        if lost.any():  # no rod sample at all: j = 0, whose left is -1 and right 1
+            left[lost] = -1
+            right[lost] = 1
     lc = np.minimum(np.maximum(left, 0), 2 * m - 1)
     rc = np.minimum(np.maximum(right, 1), 2 * m)
     flat = s.ravel()
@@ -316,9 +327,10 @@ def _analyse_rows(
         touches = left_off | right_off
     wide = touches | (width > max_width)
     status[wide] = _AMBIGUOUS
-    # Too wide and not even under the prediction: something beside the rod, not a crossing.
-    status[wide & notab[:, m]] = _LOST
-    status[lost] = _LOST
+    if lost is not None:
+        # Too wide and not even under the prediction: something beside the rod, not a crossing.
+        status[wide & notab[:, m]] = _LOST
+        status[lost] = _LOST
     return offset, width, status
 
 
@@ -449,6 +461,28 @@ class CenterlineExtractor:
         part = cv2.LUT(rgb, self._coverage_lut)
         return ((part[..., 0] + part[..., 1]) + part[..., 2]).reshape(-1)[:n].reshape(shape)
 
+    def _walk_rows(self, image: np.ndarray, qn: list[float], t: np.ndarray) -> tuple[list, bytes]:
+        """The walk's `_LOOKAHEAD` cross-sections in one call: ``qn`` holds (x, y, nx, ny) per
+        predicted point; returns the coverage samples as one flat list (row after row) and
+        ``bytes`` of sample >= 0.5. The numbers of `_sample_map` of `_section_map`, with fewer
+        calls: the map is built in its final (1, K T, 2) layout."""
+        a = np.array(qn).reshape(-1, 4)
+        out = np.empty((1, len(a) * len(t), 2), np.float32)
+        sec = out.reshape(len(a), len(t), 2)
+        np.add(a[:, 0:1], t * a[:, 2:3], out=sec[..., 0])
+        np.add(a[:, 1:2], t * a[:, 3:4], out=sec[..., 1])
+        rgb = cv2.remap(  # type: ignore[call-overload]
+            image,
+            out,
+            None,
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=self._bg_value,
+        )
+        part = cv2.LUT(rgb, self._coverage_lut)
+        cov = (part[..., 0] + part[..., 1]) + part[..., 2]
+        return cov[0].tolist(), (cov >= 0.5).tobytes()
+
     # ------------------------------------------------------------------ cross-sections
     def _cross_sections(
         self,
@@ -479,7 +513,12 @@ class CenterlineExtractor:
         k = len(centres)
         s = self._sample_map(image, _section_map(centres, normals, t))
         if k <= _SCALAR_ROWS:
-            rows_out = [_locate_row(row, m, band, max_width) for row in s.tolist()]
+            n = 2 * m + 1
+            rod = (s >= 0.5).tobytes()
+            rows_out = [
+                _locate_row(row, m, band, max_width, rod[i * n : i * n + n])
+                for i, row in enumerate(s.tolist())
+            ]
             off_w_st = np.array(rows_out, dtype=np.float64).reshape(k, 3)
             return off_w_st[:, 0], off_w_st[:, 1], off_w_st[:, 2].astype(np.int64)
         return _analyse_rows(s, m, t, max_width, band)
@@ -505,6 +544,7 @@ class CenterlineExtractor:
         """
         h = self._step
         m = int(round(self._half_track / _DT))
+        n = 2 * m + 1
         t = np.arange(-m, m + 1) * _DT
         px, py = float(p[0]), float(p[1])
         heading = math.atan2(float(d[1]), float(d[0]))
@@ -514,7 +554,7 @@ class CenterlineExtractor:
         for _ in range(self._max_steps):
             recent = widths[-8:]
             band = sorted(recent)[len(recent) // 2] if recent else self._band_prior
-            qs, ns = [], []
+            qs, ns, qn = [], [], []
             qx, qy = px, py
             for i in range(1, _LOOKAHEAD + 1):
                 a = heading + turn * i
@@ -522,13 +562,16 @@ class CenterlineExtractor:
                 qy += h * math.sin(a)
                 qs.append((qx, qy))
                 a_t = a + 0.5 * turn
-                ns.append((-math.sin(a_t), math.cos(a_t)))
-            qa, na = np.array(qs), np.array(ns)
-            rows = self._sample_map(image, _section_map(qa, na, t))
+                nx, ny = -math.sin(a_t), math.cos(a_t)
+                ns.append((nx, ny))
+                qn += (qx, qy, nx, ny)
+            vals, rod = self._walk_rows(image, qn, t)
             accepted: list[tuple[float, float]] = []
             any_ok = False
-            for i, row in enumerate(rows.tolist()):
-                off, wid, st = _locate_row(row, m, band, _WIDE * band)
+            for i in range(_LOOKAHEAD):
+                off, wid, st = _locate_row(
+                    vals[i * n : i * n + n], m, band, _WIDE * band, rod[i * n : i * n + n]
+                )
                 # A band much narrower than the rod is its rounded tip seen off-centre (or a
                 # graze of another stretch): the walk has reached the end.
                 if st == _OK and wid < _NARROW * band:
@@ -810,7 +853,8 @@ class CenterlineExtractor:
             )
             ok = (st == _OK) & (np.abs(off) < 2.0)
             inner = pts[1:-1]
-            inner[ok] += off[ok, None] * normals[1:-1][ok]
+            # inner[ok] += off[ok, None] * normals[1:-1][ok], without the copies
+            np.add(inner, off[:, None] * normals[1:-1], out=inner, where=ok[:, None])
             line = pts
         return line
 
