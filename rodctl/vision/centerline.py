@@ -40,6 +40,7 @@ indistinguishable from the rod's end.
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass
 
 import cv2
@@ -154,13 +155,13 @@ def _unit_normals(points: np.ndarray) -> np.ndarray:
     return np.column_stack([-d[:, 1], d[:, 0]])
 
 
-def _section_map(centres: np.ndarray, normals: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(K, T, 2) float32 sample positions centre + t * normal, for `cv2.remap`: computed in
-    float64 and rounded once, the bits of ``(centres[:, None] + t[None, :, None] *
-    normals[:, None]).astype(np.float32)`` in a third of its time."""
-    out = np.empty((len(centres), len(t), 2), np.float32)
-    np.add(centres[:, 0:1], t * normals[:, 0:1], out=out[..., 0])
-    np.add(centres[:, 1:2], t * normals[:, 1:2], out=out[..., 1])
+def _section_maps(centres: np.ndarray, normals: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(2, K, T) float32 sample positions centre + t * normal, the x and the y plane (the two
+    maps `cv2.remap` takes): computed in float64 and rounded once, the bits of ``(centres[:,
+    None] + t[None, :, None] * normals[:, None]).astype(np.float32)`` moved to (2, K, T), in
+    one multiplication and one addition over contiguous planes."""
+    out = np.empty((2, len(centres), len(t)), np.float32)
+    np.add(centres.T[:, :, None], normals.T[:, :, None] * t, out=out)
     return out
 
 
@@ -174,50 +175,57 @@ def _hermite(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray, n: 
 
 
 def _locate_row(
-    s: list[float], m: int, band: float | None, max_width: float, rod: bytes | None = None
+    s: list[float] | array,
+    m: int,
+    band: float | None,
+    max_width: float,
+    rod: bytes | None = None,
+    b: int = 0,
 ) -> tuple[float, float, int]:
     """Scalar twin of the vectorised analysis in `CenterlineExtractor._cross_sections`.
 
     Args:
-        s: 2m + 1 coverage samples across the rod, spaced `_DT`, the prediction at index m.
+        s: 2m + 1 coverage samples across the rod, spaced `_DT`, the prediction at index m
+            (at s[b:b + 2m + 1] when the row is one of several in s).
         m: half the number of samples.
         band: the rod's band width (px) if known.
         max_width: the width above which the section is ambiguous.
         rod: ``bytes(v >= 0.5 for v in s)`` when the caller has it (one numpy comparison for
             many rows): the runs are found by `bytes.find`/`rfind` instead of a Python loop.
+        b: where the row starts in `s` and `rod` (with `rod` only).
 
     Returns:
         (offset px, width px, status).
     """
     f = bytes(v >= 0.5 for v in s) if rod is None else rod
     last = 2 * m
-    c = m
+    c = b + m  # indices below are into s and f: the row's sample i is at b + i
+    end = b + last + 1
     if f[c]:
         j = c
     else:
         # the rod sample nearest c, the left one on a tie
-        jl = f.rfind(1, 0, c)
-        jr = f.find(1, c + 1)
+        jl = f.rfind(1, b, c)
+        jr = f.find(1, c + 1, end)
         if jr < 0:
             if jl < 0:
                 return 0.0, 0.0, _LOST
             j = jl
         else:
             j = jl if jl >= 0 and c - jl <= jr - c else jr
-    # the nearest non-rod samples on either side of j (-1 and last + 1 past the window's ends)
-    left = f.rfind(0, 0, j)
-    right = f.find(0, j + 1)
-    if right < 0:
-        right = last + 1
-    lc = min(max(left, 0), last - 1)
-    rc = min(max(right, 1), last)
+    # the nearest non-rod samples on either side of j (none: the run leaves the window)
+    left = f.rfind(0, b, j)
+    right = f.find(0, j + 1, end)
+    left_off, right_off = left < 0, right < 0
+    # the 50 % crossings between lc, lc + 1 and rc - 1, rc (clipped to the window)
+    lc = b if left_off else left
+    rc = b + last if right_off else right
     s0, s1 = s[lc], s[lc + 1]
-    t_left = (lc - m) * _DT + (0.5 - s0) / (s1 - s0 if s1 - s0 > 1e-6 else 1.0) * _DT
+    t_left = (lc - c) * _DT + (0.5 - s0) / (s1 - s0 if s1 - s0 > 1e-6 else 1.0) * _DT
     r0, r1 = s[rc - 1], s[rc]
-    t_right = (rc - 1 - m) * _DT + (r0 - 0.5) / (r0 - r1 if r0 - r1 > 1e-6 else 1.0) * _DT
+    t_right = (rc - 1 - c) * _DT + (r0 - 0.5) / (r0 - r1 if r0 - r1 > 1e-6 else 1.0) * _DT
     width = t_right - t_left
     offset = 0.5 * (t_left + t_right)
-    left_off, right_off = left < 0, right > last
     touches = left_off or right_off
     if band is not None:
         if width > band + _MERGE_PX and not (left_off and right_off):
@@ -232,7 +240,7 @@ def _locate_row(
             width = band
         touches = left_off and right_off
     if touches or width > max_width:
-        return offset, width, (_AMBIGUOUS if s[c] >= 0.5 else _LOST)
+        return offset, width, (_AMBIGUOUS if f[c] else _LOST)
     return offset, width, _OK
 
 
@@ -389,6 +397,9 @@ class CenterlineExtractor:
         ).reshape(1, 256, 3)
         self._bg_value = tuple(float(c) for c in r.background_color)
         self._max_steps = int(4 * (camera.width + camera.height) / self._step) + 10
+        # `_find_end`'s arc lengths: all, and the second part (after t[0])
+        self._end_t = np.arange(0.0, self._step * _LOOKAHEAD + self._band_prior + 2.0, 0.25)
+        self._end_t_rest = np.concatenate([self._end_t[:1], self._end_t[_END_FIRST:]])
 
     # ------------------------------------------------------------------ colour -> coverage
     def _coverage_map(self) -> tuple[np.ndarray, float]:
@@ -434,54 +445,51 @@ class CenterlineExtractor:
 
     def _sample(self, image: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """Rod coverage at (..., 2) pixel positions, bilinear; 0 outside the image (unclipped)."""
-        return self._sample_map(image, pts.astype(np.float32))
+        return self._sample_maps(image, np.moveaxis(pts, -1, 0).astype(np.float32))
 
-    def _sample_map(self, image: np.ndarray, map32: np.ndarray) -> np.ndarray:
-        """`_sample` at (..., 2) float32 pixel positions."""
-        shape = map32.shape[:-1]
-        flat = map32.reshape(1, -1, 2)
-        n = flat.shape[1]
+    def _sample_maps(self, image: np.ndarray, maps: np.ndarray) -> np.ndarray:
+        """`_sample` at float32 pixel positions given as (2, ...) x and y planes."""
+        shape = maps.shape[1:]
+        flat = maps.reshape(2, 1, -1)
+        n = flat.shape[2]
         if n >= _REMAP_MAX:
             # cv2.remap takes maps narrower than SHRT_MAX: a long trace (a rod looping across
             # the image) is sampled in rows (each point's value does not depend on the layout)
-            rows = np.zeros((-(-n // _REMAP_ROW), _REMAP_ROW, 2), dtype=np.float32)
-            rows.reshape(-1, 2)[:n] = flat[0]
+            rows = np.zeros((2, -(-n // _REMAP_ROW), _REMAP_ROW), dtype=np.float32)
+            rows.reshape(2, -1)[:, :n] = flat[:, 0]
             flat = rows
-        # One two-channel map: the same samples as two maps, one copy fewer. (cv2's stubs want
-        # an array for map2; a two-channel map takes None.)
-        rgb = cv2.remap(  # type: ignore[call-overload]
+        # two one-channel maps: the samples of one two-channel map, bit for bit
+        rgb = cv2.remap(
             image,
-            flat,
-            None,
+            flat[0],
+            flat[1],
             cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_CONSTANT,
             borderValue=self._bg_value,
         )
         # not clipped to [0, 1]: only 50 % crossings are used, and clipping costs time
-        part = cv2.LUT(rgb, self._coverage_lut)
-        return ((part[..., 0] + part[..., 1]) + part[..., 2]).reshape(-1)[:n].reshape(shape)
+        part = cv2.LUT(rgb, self._coverage_lut).reshape(-1, 3)
+        return ((part[:, 0] + part[:, 1]) + part[:, 2])[:n].reshape(shape)
 
-    def _walk_rows(self, image: np.ndarray, qn: list[float], t: np.ndarray) -> tuple[list, bytes]:
-        """The walk's `_LOOKAHEAD` cross-sections in one call: ``qn`` holds (x, y, nx, ny) per
-        predicted point; returns the coverage samples as one flat list (row after row) and
-        ``bytes`` of sample >= 0.5. The numbers of `_sample_map` of `_section_map`, with fewer
-        calls: the map is built in its final (1, K T, 2) layout."""
-        a = np.array(qn).reshape(-1, 4)
-        out = np.empty((1, len(a) * len(t), 2), np.float32)
-        sec = out.reshape(len(a), len(t), 2)
-        np.add(a[:, 0:1], t * a[:, 2:3], out=sec[..., 0])
-        np.add(a[:, 1:2], t * a[:, 3:4], out=sec[..., 1])
-        rgb = cv2.remap(  # type: ignore[call-overload]
+    def _walk_rows(self, image: np.ndarray, qn: list[float], t: np.ndarray) -> tuple[array, bytes]:
+        """The walk's `_LOOKAHEAD` cross-sections in one call: ``qn`` holds the predicted
+        points' x, then their y, then the normals' x, then their y; returns the coverage samples
+        (row after row) as an `array.array` (indexing gives Python floats, as `tolist` would)
+        and ``bytes`` of sample >= 0.5. The numbers of `_sample_maps` of `_section_maps`."""
+        a = np.array(qn).reshape(4, -1, 1)
+        maps = np.empty((2, 1, len(qn) // 4 * len(t)), np.float32)
+        np.add(a[:2], a[2:] * t, out=maps.reshape(2, a.shape[1], len(t)))
+        rgb = cv2.remap(
             image,
-            out,
-            None,
+            maps[0],
+            maps[1],
             cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_CONSTANT,
             borderValue=self._bg_value,
         )
-        part = cv2.LUT(rgb, self._coverage_lut)
-        cov = (part[..., 0] + part[..., 1]) + part[..., 2]
-        return cov[0].tolist(), (cov >= 0.5).tobytes()
+        part = cv2.LUT(rgb, self._coverage_lut).reshape(-1, 3)
+        cov = (part[:, 0] + part[:, 1]) + part[:, 2]
+        return array("f", cov.tobytes()), (cov >= 0.5).tobytes()
 
     # ------------------------------------------------------------------ cross-sections
     def _cross_sections(
@@ -511,14 +519,11 @@ class CenterlineExtractor:
         m = int(round(half / _DT))
         t = np.arange(-m, m + 1) * _DT
         k = len(centres)
-        s = self._sample_map(image, _section_map(centres, normals, t))
+        s = self._sample_maps(image, _section_maps(centres, normals, t))
         if k <= _SCALAR_ROWS:
             n = 2 * m + 1
-            rod = (s >= 0.5).tobytes()
-            rows_out = [
-                _locate_row(row, m, band, max_width, rod[i * n : i * n + n])
-                for i, row in enumerate(s.tolist())
-            ]
+            flat, rod = s.ravel().tolist(), (s >= 0.5).tobytes()
+            rows_out = [_locate_row(flat, m, band, max_width, rod, i * n) for i in range(k)]
             off_w_st = np.array(rows_out, dtype=np.float64).reshape(k, 3)
             return off_w_st[:, 0], off_w_st[:, 1], off_w_st[:, 2].astype(np.int64)
         return _analyse_rows(s, m, t, max_width, band)
@@ -551,34 +556,34 @@ class CenterlineExtractor:
         out: list[tuple[float, float]] = []
         widths: list[float] = []
         w_max, h_max = self.camera.width - 1, self.camera.height - 1
+        cos, sin = math.cos, math.sin
         for _ in range(self._max_steps):
             recent = widths[-8:]
             band = sorted(recent)[len(recent) // 2] if recent else self._band_prior
-            qs, ns, qn = [], [], []
+            wide, narrow = _WIDE * band, _NARROW * band
+            xs, ys, nxs, nys = [], [], [], []
             qx, qy = px, py
             for i in range(1, _LOOKAHEAD + 1):
                 a = heading + turn * i
-                qx += h * math.cos(a)
-                qy += h * math.sin(a)
-                qs.append((qx, qy))
+                qx += h * cos(a)
+                qy += h * sin(a)
+                xs.append(qx)
+                ys.append(qy)
                 a_t = a + 0.5 * turn
-                nx, ny = -math.sin(a_t), math.cos(a_t)
-                ns.append((nx, ny))
-                qn += (qx, qy, nx, ny)
-            vals, rod = self._walk_rows(image, qn, t)
+                nxs.append(-sin(a_t))
+                nys.append(cos(a_t))
+            vals, rod = self._walk_rows(image, xs + ys + nxs + nys, t)
             accepted: list[tuple[float, float]] = []
             any_ok = False
             for i in range(_LOOKAHEAD):
-                off, wid, st = _locate_row(
-                    vals[i * n : i * n + n], m, band, _WIDE * band, rod[i * n : i * n + n]
-                )
+                off, wid, st = _locate_row(vals, m, band, wide, rod, i * n)
                 # A band much narrower than the rod is its rounded tip seen off-centre (or a
                 # graze of another stretch): the walk has reached the end.
-                if st == _OK and wid < _NARROW * band:
+                if st == _OK and wid < narrow:
                     st = _LOST
                 if st == _LOST or (i > 0 and (st == _AMBIGUOUS or abs(off) > _TRUST_PX)):
                     break  # beyond here the prediction is not trusted: re-predict
-                qx, qy = qs[i]
+                qx, qy = xs[i], ys[i]
                 if not (0.0 <= qx <= w_max and 0.0 <= qy <= h_max):
                     return (
                         out,
@@ -588,8 +593,8 @@ class CenterlineExtractor:
                         ("the rod leaves the image"),
                     )
                 if st == _OK:
-                    qx += off * ns[i][0]
-                    qy += off * ns[i][1]
+                    qx += off * nxs[i]
+                    qy += off * nys[i]
                     widths.append(wid)
                     any_ok = True
                 accepted.append((qx, qy))
@@ -623,46 +628,61 @@ class CenterlineExtractor:
             )
         return out, np.array([math.cos(heading), math.sin(heading)]), turn, widths, ""
 
-    def _arc(self, p: np.ndarray, d: np.ndarray, turn: float, t: np.ndarray) -> tuple:
-        """Points (K, 2) and unit directions (K, 2) at arc lengths t ahead of p on the predicted
-        constant-curvature arc (tangent at p = last chord d turned by half a step's turn)."""
-        k = turn / self._step
-        heading = math.atan2(d[1], d[0]) + 0.5 * turn + k * t
+    @staticmethod
+    def _arc_xy(p: np.ndarray, h_base: float, k: float, t: np.ndarray) -> tuple:
+        """x (K,), y (K,), cos and sin of the heading (K,) at arc lengths t ahead of p on the
+        predicted constant-curvature arc (tangent at p: heading `h_base`; curvature k)."""
+        heading = h_base + k * t
         cos_h, sin_h = _cos_sin(heading)
-        dirs = np.column_stack([cos_h, sin_h])
         if abs(k) < 1e-9:
-            pos = p[None, :] + t[:, None] * dirs[:1]
-        else:
-            h0 = heading[0] - k * t[0]
-            pos = p[None, :] + np.column_stack(
-                [(sin_h - math.sin(h0)) / k, (math.cos(h0) - cos_h) / k]
-            )
-        return pos, dirs
+            return p[0] + t * cos_h[0], p[1] + t * sin_h[0], cos_h, sin_h
+        h0 = heading[0] - k * t[0]
+        return p[0] + (sin_h - math.sin(h0)) / k, p[1] + (math.cos(h0) - cos_h) / k, cos_h, sin_h
+
+    def _sample_arc(
+        self, image: np.ndarray, p: np.ndarray, h_base: float, k: float, t: np.ndarray, skip: int
+    ) -> tuple[np.ndarray, float, float]:
+        """Coverage along the arc of `_arc_xy` at t[skip:], and the arc's direction at t[0]."""
+        x, y, cos_h, sin_h = self._arc_xy(p, h_base, k, t)
+        maps = np.empty((2, len(t) - skip), np.float32)
+        maps[0] = x[skip:]
+        maps[1] = y[skip:]
+        return self._sample_maps(image, maps), float(cos_h[0]), float(sin_h[0])
 
     def _find_end(
         self, image: np.ndarray, p: np.ndarray, d: np.ndarray, turn: float, cap: float
     ) -> tuple[np.ndarray, np.ndarray]:
         """The centreline's end and direction there: follow the predicted arc from p to the 50 %
-        crossing of coverage (the tip of the round cap), then step back by the cap radius."""
-        span = self._step * _LOOKAHEAD + self._band_prior + 2.0
-        t = np.arange(0.0, span, 0.25)
+        crossing of coverage (the tip of the round cap), then step back by the cap radius.
+
+        The arc's tangent at p is the last chord d turned by half a step's turn; its curvature
+        is the turn per step over the step."""
+        t = self._end_t
+        k = turn / self._step
+        h_base = math.atan2(d[1], d[0]) + 0.5 * turn
         # Sampled in two parts, the second only when the first has no crossing (the crossing
         # is usually within a band or two of p): every point's position and sample depend on
         # its own t and on t[0] only, so the first crossing is the same as in one call.
-        pos, dirs = self._arc(p, d, turn, t[:_END_FIRST])
-        s = self._sample(image, pos)
-        drop = np.nonzero(s < 0.5)[0]
+        s, c0, s0 = self._sample_arc(image, p, h_base, k, t[:_END_FIRST], 0)
+        drop = np.flatnonzero(s < 0.5)
         if len(drop) == 0 and len(t) > _END_FIRST:
-            rest = self._arc(p, d, turn, np.concatenate([t[:1], t[_END_FIRST:]]))[0][1:]
-            s = np.concatenate([s, self._sample(image, rest)])
-            drop = np.nonzero(s < 0.5)[0]
+            rest = self._sample_arc(image, p, h_base, k, self._end_t_rest, 1)[0]
+            s = np.concatenate([s, rest])
+            drop = np.flatnonzero(s < 0.5)
         if len(drop) == 0 or drop[0] == 0:
-            return p.copy(), dirs[0]
+            return p.copy(), np.array([c0, s0])
         i = drop[0]
         t_cross = t[i - 1] + (s[i - 1] - 0.5) / max(s[i - 1] - s[i], 1e-6) * 0.25
-        t_end = np.array([t_cross - cap])
-        pos_end, dir_end = self._arc(p, d, turn, t_end)
-        return pos_end[0], dir_end[0]
+        # the point of the same arc at t_cross - cap, in scalar arithmetic (the same operations)
+        t_end = t_cross - cap
+        heading = h_base + k * t_end
+        c, sn = math.cos(heading), math.sin(heading)
+        if abs(k) < 1e-9:
+            end = np.array([p[0] + t_end * c, p[1] + t_end * sn])
+        else:
+            h0 = heading - k * t_end
+            end = np.array([p[0] + (sn - math.sin(h0)) / k, p[1] + (math.cos(h0) - c) / k])
+        return end, np.array([c, sn])
 
     def _reappear(
         self, image: np.ndarray, p: np.ndarray, d: np.ndarray, turn: float, band: float
