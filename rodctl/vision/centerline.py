@@ -42,6 +42,7 @@ from __future__ import annotations
 import math
 from array import array
 from dataclasses import dataclass
+from itertools import chain
 
 import cv2
 import numpy as np
@@ -49,7 +50,7 @@ import numpy as np
 from rodctl import fixedla as fla
 from rodctl.config.camera import CameraConfig
 from rodctl.errors import UserError
-from rodctl.geometry import polyline_length, resample_polyline
+from rodctl.geometry import _linspace_from_zero, polyline_length, resample_polyline
 from rodctl.vision.camera import Camera
 
 #: One point of a traced path, pixels: an array, or a walk step's (x, y).
@@ -143,16 +144,41 @@ def _median(values: list[float]) -> float:
     return v[k] if len(v) % 2 else (v[k - 1] + v[k]) / 2.0
 
 
-def _unit_normals(points: np.ndarray) -> np.ndarray:
-    """(M, 2) unit normals (left of the direction of travel in image coordinates)."""
-    # np.gradient(points, axis=0) written out (M >= 3): central differences inside, one-sided
-    # at the ends, the same operations and so the same bits
-    d = np.empty_like(points)
-    d[1:-1] = (points[2:] - points[:-2]) / 2.0
-    d[0] = points[1] - points[0]
-    d[-1] = points[-1] - points[-2]
-    d /= np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
-    return np.column_stack([-d[:, 1], d[:, 0]])
+def _length(points: np.ndarray) -> float:
+    """`polyline_length` of (M, 2) points, bit for bit, without its wrappers' overhead."""
+    return float(np.add.reduce(np.hypot(*(points[1:] - points[:-1]).T)))
+
+
+#: np.arange(-m, m + 1) * _DT per half-width m (cross-section sample offsets); read-only.
+_OFFSETS: dict[int, np.ndarray] = {}
+
+
+def _offsets(m: int) -> np.ndarray:
+    t = _OFFSETS.get(m)
+    if t is None:
+        if len(_OFFSETS) >= 16:
+            _OFFSETS.clear()
+        t = _OFFSETS[m] = np.arange(-m, m + 1) * _DT
+        t.flags.writeable = False
+    return t
+
+
+def _resample_planes(p: np.ndarray, n: int, seg: np.ndarray | None = None) -> np.ndarray:
+    """``resample_polyline(p.T, n).T`` bit for bit, for (2, M) planes of x and y (M >= 2):
+    the (2, n) points equally spaced in arc length; `seg`, the segments' lengths, if known."""
+    if seg is None:
+        seg = np.hypot(*(p[:, 1:] - p[:, :-1]))
+    s = np.empty(len(seg) + 1)
+    s[0] = 0.0
+    seg.cumsum(out=s[1:])
+    total = float(s[-1])
+    if total <= 0.0:
+        return np.repeat(p[:, :1], n, axis=1)
+    q = _linspace_from_zero(total, n)
+    out = np.empty((2, n))
+    out[0] = np.interp(q, s, p[0])
+    out[1] = np.interp(q, s, p[1])
+    return out
 
 
 def _section_maps(centres: np.ndarray, normals: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -285,7 +311,7 @@ def _analyse_rows(
     notab = pad[:, 1:-1]
     np.less(s, 0.5, out=notab)
     lost = None
-    if not notab[:, m].any():
+    if not np.count_nonzero(notab[:, m]):
         # every prediction lies on the rod (the rule in the refinement): j = m, and the run's
         # ends are the first non-rod samples either side of m
         left = (m - 1) - pad[:, m::-1].argmax(axis=1)
@@ -299,7 +325,7 @@ def _analyse_rows(
         left -= 1
         right = np.maximum.accumulate(np.multiply(notab, down)[:, ::-1], axis=1)[:, ::-1]
         right = n - right.ravel()[at_j].astype(np.intp)
-        if lost.any():  # no rod sample at all: j = 0, whose left is -1 and right 1
+        if np.count_nonzero(lost):  # no rod sample at all: j = 0, whose left is -1 and right 1
             left[lost] = -1
             right[lost] = 1
     lc = np.minimum(np.maximum(left, 0), 2 * m - 1)
@@ -323,7 +349,7 @@ def _analyse_rows(
         # edge whose implied centre is nearer the prediction. A run that runs off one end of
         # the window is located from its free edge alike.
         merged = (width > band + _MERGE_PX) & ~both_off
-        if merged.any():
+        if np.count_nonzero(merged):
             from_left = t_left + 0.5 * band
             from_right = t_right - 0.5 * band
             nearer = np.where(np.abs(from_left) < np.abs(from_right), from_left, from_right)
@@ -517,7 +543,7 @@ class CenterlineExtractor:
             band between its 50 % edges, status (K,) one of _OK, _AMBIGUOUS, _LOST.
         """
         m = int(round(half / _DT))
-        t = np.arange(-m, m + 1) * _DT
+        t = _offsets(m)
         k = len(centres)
         s = self._sample_maps(image, _section_maps(centres, normals, t))
         if k <= _SCALAR_ROWS:
@@ -550,7 +576,7 @@ class CenterlineExtractor:
         h = self._step
         m = int(round(self._half_track / _DT))
         n = 2 * m + 1
-        t = np.arange(-m, m + 1) * _DT
+        t = _offsets(m)
         px, py = float(p[0]), float(p[1])
         heading = math.atan2(float(d[1]), float(d[0]))
         out: list[tuple[float, float]] = []
@@ -814,8 +840,9 @@ class CenterlineExtractor:
         if not closed:
             path = self._trim_after(path, end, end_dir)
             path.append(end)
-        line = np.array(path)
-        if len(line) < 3 or polyline_length(line) < 2 * self._step:
+        # np.array(path) (arrays and tuples of two floats), in a third of its time
+        line = np.fromiter(chain.from_iterable(path), np.float64, 2 * len(path)).reshape(-1, 2)
+        if len(line) < 3 or _length(line) < 2 * self._step:
             return None, widths, gaps, "no rod found next to the clamp"
 
         return line, widths, gaps, ""
@@ -840,7 +867,7 @@ class CenterlineExtractor:
                 return Extraction(fail, False, note)
             return Extraction(out, False, note, bridged=True)
         if self.rod_length is not None:
-            length = polyline_length(self.camera.unproject(out))
+            length = _length(self.camera.unproject(out))
             rel = length / self.rod_length - 1.0
             if abs(rel) > self.length_tolerance:
                 return Extraction(
@@ -862,21 +889,33 @@ class CenterlineExtractor:
         return path
 
     def _refine(self, image: np.ndarray, line: np.ndarray, band: float) -> np.ndarray:
-        """Move each point of a resampled copy of `line` to the band's midpoint (ends kept)."""
+        """Move each point of a resampled copy of `line` to the band's midpoint (ends kept).
+
+        Computed on (2, n) planes of x and y (contiguous rows): the numbers of
+        `resample_polyline` and of central-difference unit normals (left of the direction of
+        travel) of the (n, 2) points, operation for operation."""
         passes = self.cfg.extract.refine_passes
-        n = max(self.points, int(polyline_length(line) / 2.0) + 2)
+        if passes <= 0:
+            return line
+        p = line.T
+        seg = np.hypot(*(p[:, 1:] - p[:, :-1]))
+        n = max(self.points, int(float(np.add.reduce(seg)) / 2.0) + 2)  # `polyline_length`
+        sign = np.array([[-1.0], [1.0]])
         for _ in range(passes):
-            pts = resample_polyline(line, n)
-            normals = _unit_normals(pts)
+            p = _resample_planes(p, n, seg)
+            seg = None
+            # np.gradient's central differences inside, as unit vectors; the normal (-dy, dx)
+            d = (p[:, 2:] - p[:, :-2]) / 2.0
+            d /= np.maximum(np.hypot(d[0], d[1]), 1e-12)
+            normals = d[::-1] * sign
+            inner = p[:, 1:-1]
             off, _, st = self._cross_sections(
-                image, pts[1:-1], normals[1:-1], self._half_refine, _WIDE * band, band
+                image, inner.T, normals.T, self._half_refine, _WIDE * band, band
             )
             ok = (st == _OK) & (np.abs(off) < 2.0)
-            inner = pts[1:-1]
-            # inner[ok] += off[ok, None] * normals[1:-1][ok], without the copies
-            np.add(inner, off[:, None] * normals[1:-1], out=inner, where=ok[:, None])
-            line = pts
-        return line
+            # inner[ok] += off[ok] * normals[ok], without the copies
+            np.add(inner, off * normals, out=inner, where=ok)
+        return p.T
 
     def _resample_out(self, line: np.ndarray, n: int) -> np.ndarray:
         """Resample to n points at equal arc length in the image or on the plane (config)."""
