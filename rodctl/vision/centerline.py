@@ -73,7 +73,10 @@ _MERGE_PX = 1.5
 # dominates for a handful of short rows); more go through the vectorised path. Both give the
 # same numbers (tests/vision/test_centerline.py checks it).
 _SCALAR_ROWS = 8
-_OK, _AMBIGUOUS, _LOST = 0, 1, 2
+_OK, _AMBIGUOUS, _LOST = 0, 1, 2  # `_analyse_rows` relies on _OK 0 and _AMBIGUOUS 1
+#: The left and right edges' signs in `_analyse_rows`.
+_SIGNS = np.array([[1.0], [-1.0]], np.float32)
+_SIGNS.flags.writeable = False
 # `_find_end` samples this many points of its arc first, the rest only if needed.
 _END_FIRST = 64
 
@@ -328,19 +331,26 @@ def _analyse_rows(
         if np.count_nonzero(lost):  # no rod sample at all: j = 0, whose left is -1 and right 1
             left[lost] = -1
             right[lost] = 1
-    lc = np.minimum(np.maximum(left, 0), 2 * m - 1)
-    rc = np.minimum(np.maximum(right, 1), 2 * m)
+    if lost is None:  # left <= m - 1 and right >= m + 1
+        lc, rc = np.maximum(left, 0), np.minimum(right, 2 * m)
+    else:
+        lc = np.minimum(np.maximum(left, 0), 2 * m - 1)
+        rc = np.minimum(np.maximum(right, 1), 2 * m)
+    # Both 50 % crossings at once, row 0 the left edge between samples a = s[lc] and
+    # b = s[lc + 1], row 1 the right edge between a = s[rc - 1] and b = s[rc]: the right
+    # edge's (r0 - 0.5) and (r0 - r1) are the left formula's (0.5 - a) and (b - a) negated,
+    # exactly.
+    e = np.empty((2, k), np.intp)
+    e[0] = lc
+    np.subtract(rc, 1, out=e[1])
+    idx = e + rows * n
     flat = s.ravel()
-    base = rows * n
-    s0, s1 = flat[base + lc], flat[base + lc + 1]
-    d = s1 - s0
-    t_left = t[lc] + (0.5 - s0) / np.where(d > 1e-6, d, 1.0) * _DT
-    r0, r1 = flat[base + rc - 1], flat[base + rc]
-    d = r0 - r1
-    t_right = t[rc - 1] + (r0 - 0.5) / np.where(d > 1e-6, d, 1.0) * _DT
+    a = flat.take(idx)
+    num = (0.5 - a) * _SIGNS
+    den = (flat.take(idx + 1) - a) * _SIGNS
+    t_left, t_right = t.take(e) + num / np.where(den > 1e-6, den, 1.0) * _DT
     width = t_right - t_left
     offset = 0.5 * (t_left + t_right)
-    status = np.zeros(k, dtype=np.int64)  # _OK
     left_off, right_off = left < 0, right > 2 * m
     both_off = left_off & right_off
     if band is not None:
@@ -360,7 +370,7 @@ def _analyse_rows(
     else:
         touches = left_off | right_off
     wide = touches | (width > max_width)
-    status[wide] = _AMBIGUOUS
+    status = wide.astype(np.int64)  # _OK (0), or _AMBIGUOUS (1) where wide
     if lost is not None:
         # Too wide and not even under the prediction: something beside the rod, not a crossing.
         status[wide & notab[:, m]] = _LOST
@@ -410,6 +420,7 @@ class CenterlineExtractor:
         self._band_prior = self._line_px + 2.0
         self._step = float(e.step_px) if e.step_px is not None else self._line_px
         self._half_track = 0.5 * self._band_prior + 4.0
+        self._m_track = int(round(self._half_track / _DT))  # the walk's m (`_cross_sections`)
         self._half_refine = 0.5 * self._band_prior + 2.5
         self._coverage_w, self._coverage_b = self._coverage_map()
         self._cov_b32 = np.float32(self._coverage_b)
@@ -574,7 +585,7 @@ class CenterlineExtractor:
             widths, "" or the reason the walk failed).
         """
         h = self._step
-        m = int(round(self._half_track / _DT))
+        m = self._m_track
         n = 2 * m + 1
         t = _offsets(m)
         px, py = float(p[0]), float(p[1])
@@ -780,14 +791,13 @@ class CenterlineExtractor:
         path: list[_Pixel] = [p]
         widths: list[float] = []
         gaps: list[float] = []
-        # Is the rod visible right at the clamp? If not, the start itself is hidden.
-        first = self._cross_sections(
-            img,
-            (p + 0.5 * self._step * d)[None],
-            np.array([[-d[1], d[0]]]),
-            self._half_track,
-            _WIDE * self._band_prior,
-        )[2][0]
+        # Is the rod visible right at the clamp? If not, the start itself is hidden. (One
+        # cross-section half a step ahead, through the walk's sampler: the numbers of
+        # `_cross_sections` of it.)
+        step_ahead = 0.5 * self._step
+        centre_normal = [p[0] + step_ahead * d[0], p[1] + step_ahead * d[1], -d[1], d[0]]
+        vals, rod = self._walk_rows(img, centre_normal, _offsets(self._m_track))
+        first = _locate_row(vals, self._m_track, None, _WIDE * self._band_prior, rod)[2]
         end_dir = d
         closed = False  # True once the path has been bridged onto the gripper's pixel
         for _ in range(20):
@@ -924,4 +934,4 @@ class CenterlineExtractor:
         world = self.camera.unproject(line)
         if not np.isfinite(world).all():
             return np.full((n, 2), np.nan)
-        return self.camera.project(resample_polyline(world, n))
+        return self.camera.project(_resample_planes(world.T, n).T)
