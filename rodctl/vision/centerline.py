@@ -295,6 +295,20 @@ def _row_tables(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return tables
 
 
+#: np.arange(k) * n, the flat index of each row's first sample, for the last few (k, n).
+_ROW_STARTS: dict[tuple[int, int], np.ndarray] = {}
+
+
+def _row_starts(k: int, n: int) -> np.ndarray:
+    starts = _ROW_STARTS.get((k, n))
+    if starts is None:
+        if len(_ROW_STARTS) >= 64:
+            _ROW_STARTS.clear()
+        starts = _ROW_STARTS[k, n] = np.arange(k) * n
+        starts.flags.writeable = False
+    return starts
+
+
 def _analyse_rows(
     s: np.ndarray, m: int, t: np.ndarray, max_width: float, band: float | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -308,21 +322,27 @@ def _analyse_rows(
     samples' positions (from the left and from the right) at j.
     """
     k, n = s.shape
-    rows = np.arange(k)
     # sentinel non-rod samples at -1 and 2m + 1 around the rows' own
     pad = np.ones((k, n + 2), bool)
     notab = pad[:, 1:-1]
     np.less(s, 0.5, out=notab)
+    # e: per row, where its left crossing (row 0: between samples lc and lc + 1) and its
+    # right crossing (row 1: between rc - 1 and rc) start
+    e = np.empty((2, k), np.intp)
     lost = None
     if not np.count_nonzero(notab[:, m]):
         # every prediction lies on the rod (the rule in the refinement): j = m, and the run's
-        # ends are the first non-rod samples either side of m
-        left = (m - 1) - pad[:, m::-1].argmax(axis=1)
-        right = (m + 1) + pad[:, m + 2 :].argmax(axis=1)
+        # ends are the first non-rod samples either side of m, left = m - 1 - dl and
+        # right = m + 1 + dr (dl, dr = m: the sentinels, past the window's ends)
+        dl = pad[:, m::-1].argmax(axis=1)
+        dr = pad[:, m + 2 :].argmax(axis=1)
+        left_off, right_off = dl == m, dr == m
+        np.maximum(np.subtract(m - 1, dl, out=e[0]), 0, out=e[0])  # lc
+        np.minimum(np.add(dr, m, out=e[1]), 2 * m - 1, out=e[1])  # rc - 1
     else:
         near, up, down = _row_tables(m)
         above = ~notab
-        at_j = rows * n + np.multiply(above, near).argmax(axis=1)
+        at_j = _row_starts(k, n) + np.multiply(above, near).argmax(axis=1)
         lost = notab.ravel()[at_j]
         left = np.maximum.accumulate(np.multiply(notab, up), axis=1).ravel()[at_j].astype(np.intp)
         left -= 1
@@ -331,35 +351,28 @@ def _analyse_rows(
         if np.count_nonzero(lost):  # no rod sample at all: j = 0, whose left is -1 and right 1
             left[lost] = -1
             right[lost] = 1
-    if lost is None:  # left <= m - 1 and right >= m + 1
-        lc, rc = np.maximum(left, 0), np.minimum(right, 2 * m)
-    else:
-        lc = np.minimum(np.maximum(left, 0), 2 * m - 1)
-        rc = np.minimum(np.maximum(right, 1), 2 * m)
-    # Both 50 % crossings at once, row 0 the left edge between samples a = s[lc] and
-    # b = s[lc + 1], row 1 the right edge between a = s[rc - 1] and b = s[rc]: the right
-    # edge's (r0 - 0.5) and (r0 - r1) are the left formula's (0.5 - a) and (b - a) negated,
-    # exactly.
-    e = np.empty((2, k), np.intp)
-    e[0] = lc
-    np.subtract(rc, 1, out=e[1])
-    idx = e + rows * n
+        left_off, right_off = left < 0, right > 2 * m
+        e[0] = np.minimum(np.maximum(left, 0), 2 * m - 1)
+        e[1] = np.minimum(np.maximum(right, 1), 2 * m) - 1
+    # Both 50 % crossings at once, between a = s[e] and b = s[e + 1]: the right edge's
+    # (r0 - 0.5) and (r0 - r1) are the left formula's (0.5 - a) and (b - a) negated, exactly.
+    idx = e + _row_starts(k, n)
     flat = s.ravel()
     a = flat.take(idx)
     num = (0.5 - a) * _SIGNS
-    den = (flat.take(idx + 1) - a) * _SIGNS
+    den = (flat[1:].take(idx) - a) * _SIGNS
     t_left, t_right = t.take(e) + num / np.where(den > 1e-6, den, 1.0) * _DT
     width = t_right - t_left
     offset = 0.5 * (t_left + t_right)
-    left_off, right_off = left < 0, right > 2 * m
     both_off = left_off & right_off
     if band is not None:
         # Wider than the rod but bounded on both sides: another stretch of rod touches ours
         # on one side. The other edge is still ours: put the centre half a band inside the
         # edge whose implied centre is nearer the prediction. A run that runs off one end of
         # the window is located from its free edge alike.
-        merged = (width > band + _MERGE_PX) & ~both_off
-        if np.count_nonzero(merged):
+        broad = width > band + _MERGE_PX
+        if np.count_nonzero(broad):
+            merged = broad & ~both_off
             from_left = t_left + 0.5 * band
             from_right = t_right - 0.5 * band
             nearer = np.where(np.abs(from_left) < np.abs(from_right), from_left, from_right)
