@@ -446,6 +446,7 @@ class CenterlineExtractor:
             [v * w[0], v * w[1], v * w[2] + self._cov_b32], axis=-1
         ).reshape(1, 256, 3)
         self._bg_value = tuple(float(c) for c in r.background_color)
+        self._walk_buffers: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         self._max_steps = int(4 * (camera.width + camera.height) / self._step) + 10
         # `_find_end`'s arc lengths: all, and the second part (after t[0])
         self._end_t = np.arange(0.0, self._step * _LOOKAHEAD + self._band_prior + 2.0, 0.25)
@@ -527,18 +528,24 @@ class CenterlineExtractor:
         (row after row) as an `array.array` (indexing gives Python floats, as `tolist` would)
         and ``bytes`` of sample >= 0.5. The numbers of `_sample_maps` of `_section_maps`."""
         a = np.array(qn).reshape(4, -1, 1)
-        maps = np.empty((2, 1, len(qn) // 4 * len(t)), np.float32)
-        np.add(a[:2], a[2:] * t, out=maps.reshape(2, a.shape[1], len(t)))
+        k, n = a.shape[1], len(t)
+        buffers = self._walk_buffers.get((k, n))
+        if buffers is None:
+            # scratch arrays for this row count and length (the results are copied out)
+            buffers = self._walk_buffers[k, n] = (
+                np.empty((2, 1, k * n), np.float32),
+                np.empty((1, k * n, 3), np.uint8),
+                np.empty((1, k * n, 3), np.float32),
+                np.empty(k * n, np.float32),
+            )
+        maps, rgb, part, cov = buffers
+        np.add(a[:2], a[2:] * t, out=maps.reshape(2, k, n))
         rgb = cv2.remap(
-            image,
-            maps[0],
-            maps[1],
-            cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=self._bg_value,
+            image, maps[0], maps[1], cv2.INTER_LINEAR, rgb, cv2.BORDER_CONSTANT, self._bg_value
         )
-        part = cv2.LUT(rgb, self._coverage_lut).reshape(-1, 3)
-        cov = (part[:, 0] + part[:, 1]) + part[:, 2]
+        p = cv2.LUT(rgb, self._coverage_lut, part).reshape(-1, 3)
+        np.add(p[:, 0], p[:, 1], out=cov)
+        np.add(cov, p[:, 2], out=cov)
         return array("f", cov.tobytes()), (cov >= 0.5).tobytes()
 
     # ------------------------------------------------------------------ cross-sections
