@@ -78,7 +78,7 @@ _OK, _AMBIGUOUS, _LOST = 0, 1, 2  # `_analyse_rows` relies on _OK 0 and _AMBIGUO
 _SIGNS = np.array([[1.0], [-1.0]], np.float32)
 _SIGNS.flags.writeable = False
 # `_find_end` samples this many points of its arc first, the rest only if needed.
-_END_FIRST = 64
+_END_FIRST = 32
 
 
 @dataclass(frozen=True)
@@ -617,7 +617,12 @@ class CenterlineExtractor:
         for _ in range(self._max_steps):
             recent = widths[-8:]
             band = sorted(recent)[len(recent) // 2] if recent else self._band_prior
-            wide, narrow = _WIDE * band, _NARROW * band
+            wide, narrow, merge_w, half_band = (
+                _WIDE * band,
+                _NARROW * band,
+                band + _MERGE_PX,
+                0.5 * band,
+            )
             xs, ys, nxs, nys = [], [], [], []
             qx, qy = px, py
             for i in range(1, _LOOKAHEAD + 1):
@@ -633,7 +638,32 @@ class CenterlineExtractor:
             accepted: list[tuple[float, float]] = []
             any_ok = False
             for i in range(_LOOKAHEAD):
-                off, wid, st = _locate_row(vals, m, band, wide, rod, i * n)
+                b = i * n
+                c = b + m
+                if (
+                    rod[c]
+                    and (left := rod.rfind(0, b, c)) >= 0
+                    and (right := rod.find(0, c + 1, b + n)) >= 0
+                ):
+                    # The usual row, a run under the prediction bounded on both sides:
+                    # `_locate_row`'s arithmetic for it, inline (the same operations).
+                    s0, s1 = vals[left], vals[left + 1]
+                    t_left = (left - c) * _DT + (0.5 - s0) / (
+                        s1 - s0 if s1 - s0 > 1e-6 else 1.0
+                    ) * _DT
+                    r0, r1 = vals[right - 1], vals[right]
+                    t_right = (right - 1 - c) * _DT + (r0 - 0.5) / (
+                        r0 - r1 if r0 - r1 > 1e-6 else 1.0
+                    ) * _DT
+                    wid = t_right - t_left
+                    off = 0.5 * (t_left + t_right)
+                    if wid > merge_w:
+                        from_left, from_right = t_left + half_band, t_right - half_band
+                        off = from_left if abs(from_left) < abs(from_right) else from_right
+                        wid = band
+                    st = _AMBIGUOUS if wid > wide else _OK
+                else:
+                    off, wid, st = _locate_row(vals, m, band, wide, rod, b)
                 # A band much narrower than the rod is its rounded tip seen off-centre (or a
                 # graze of another stretch): the walk has reached the end.
                 if st == _OK and wid < narrow:
