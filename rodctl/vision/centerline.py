@@ -204,24 +204,18 @@ def _hermite(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray, n: 
 
 
 def _locate_row(
-    s: list[float] | array,
-    m: int,
-    band: float | None,
-    max_width: float,
-    rod: bytes | None = None,
-    b: int = 0,
+    s: list[float] | array, m: int, band: float | None, max_width: float, rod=None, b: int = 0
 ) -> tuple[float, float, int]:
     """Scalar twin of the vectorised analysis in `CenterlineExtractor._cross_sections`.
 
     Args:
         s: 2m + 1 coverage samples across the rod, spaced `_DT`, the prediction at index m
-            (at s[b:b + 2m + 1] when the row is one of several in s).
+            (the row is s[b:b + 2m + 1] when s holds several).
         m: half the number of samples.
         band: the rod's band width (px) if known.
         max_width: the width above which the section is ambiguous.
-        rod: ``bytes(v >= 0.5 for v in s)`` when the caller has it (one numpy comparison for
-            many rows): the runs are found by `bytes.find`/`rfind` instead of a Python loop.
-        b: where the row starts in `s` and `rod` (with `rod` only).
+        rod: bytes of s >= 0.5 when the caller has them (one numpy comparison for many rows;
+            runs are found by `bytes.find`), else made here; b: the row's start in s and rod.
 
     Returns:
         (offset px, width px, status).
@@ -230,18 +224,12 @@ def _locate_row(
     last = 2 * m
     c = b + m  # indices below are into s and f: the row's sample i is at b + i
     end = b + last + 1
-    if f[c]:
-        j = c
-    else:
-        # the rod sample nearest c, the left one on a tie
-        jl = f.rfind(1, b, c)
-        jr = f.find(1, c + 1, end)
-        if jr < 0:
-            if jl < 0:
-                return 0.0, 0.0, _LOST
-            j = jl
-        else:
-            j = jl if jl >= 0 and c - jl <= jr - c else jr
+    j = c
+    if not f[c]:  # the rod sample nearest c, the left one on a tie
+        jl, jr = f.rfind(1, b, c), f.find(1, c + 1, end)
+        if jl < 0 and jr < 0:
+            return 0.0, 0.0, _LOST
+        j = jl if jl >= 0 and (jr < 0 or c - jl <= jr - c) else jr
     # the nearest non-rod samples on either side of j (none: the run leaves the window)
     left = f.rfind(0, b, j)
     right = f.find(0, j + 1, end)
