@@ -387,6 +387,8 @@ _REMAP_ROW = 4096
 class CenterlineExtractor:
     """Finds the rod in a camera image and returns its centerline as N ordered pixel points.
 
+    One extractor per thread: the walk samples into scratch arrays the extractor keeps.
+
     Args:
         cfg: the camera config (`points`, `render` colours and width, `extract` options).
         camera: the calibrated camera that took the images (used for the clamp's pixel and, with
