@@ -80,6 +80,22 @@ def _as_points(points: np.ndarray, name: str) -> np.ndarray:
     return arr
 
 
+def _apply_homography(pts: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """(M, 2) points mapped by the 3x3 homography h, NaN where the scale w <= 0. Written out in
+    a fixed order of operations (no matmul: its BLAS kernel would change the last bits), each
+    coordinate divided straight into its column of the output."""
+    (h00, h01, h02), (h10, h11, h12), (h20, h21, h22) = h.tolist()
+    x, y = pts[:, 0], pts[:, 1]
+    w = x * h20 + y * h21 + h22
+    out = np.empty((len(pts), 2))
+    np.divide(x * h00 + y * h01 + h02, w, out=out[:, 0])
+    np.divide(x * h10 + y * h11 + h12, w, out=out[:, 1])
+    behind = w <= 0
+    if np.count_nonzero(behind):
+        out[behind] = np.nan
+    return out
+
+
 def principal_point(cfg: CameraConfig) -> tuple[float, float]:
     """(cx, cy) in pixels: `camera.cx`/`cy`, or the image centre where they are null."""
     cx = (int(cfg.width) - 1) / 2.0 if cfg.cx is None else float(cfg.cx)
@@ -234,14 +250,7 @@ class Camera:
         Returns:
             (M, 2) float64 pixel coordinates (u, v); NaN for points behind the camera.
         """
-        pts = _as_points(points_world, "points_world")
-        h = self.homography
-        w = pts[:, 0] * h[2, 0] + pts[:, 1] * h[2, 1] + h[2, 2]
-        u = (pts[:, 0] * h[0, 0] + pts[:, 1] * h[0, 1] + h[0, 2]) / w
-        v = (pts[:, 0] * h[1, 0] + pts[:, 1] * h[1, 1] + h[1, 2]) / w
-        out = np.column_stack([u, v])
-        out[w <= 0] = np.nan
-        return out
+        return _apply_homography(_as_points(points_world, "points_world"), self.homography)
 
     def unproject(self, pixels: np.ndarray) -> np.ndarray:
         """Intersect the viewing rays of pixels with the plane z = 0 (the inverse of `project`).
@@ -253,14 +262,7 @@ class Camera:
             (M, 2) float64 world points (x, y) in metres; NaN for rays that miss the plane
             (pixels above the horizon).
         """
-        pix = _as_points(pixels, "pixels")
-        g = self._homography_inv
-        w = pix[:, 0] * g[2, 0] + pix[:, 1] * g[2, 1] + g[2, 2]
-        x = (pix[:, 0] * g[0, 0] + pix[:, 1] * g[0, 1] + g[0, 2]) / w
-        y = (pix[:, 0] * g[1, 0] + pix[:, 1] * g[1, 1] + g[1, 2]) / w
-        out = np.column_stack([x, y])
-        out[w <= 0] = np.nan
-        return out
+        return _apply_homography(_as_points(pixels, "pixels"), self._homography_inv)
 
     def projection_jacobian(self, points_world: np.ndarray) -> np.ndarray:
         """Derivative of `project` at plane points: d(u, v)/d(x, y), exact for the homography.
@@ -291,9 +293,19 @@ class Camera:
         """
         x, y, th = (float(c) for c in pose)
         eps = 1e-4
-        pix = self.project(np.array([[x, y], [x + eps * math.cos(th), y + eps * math.sin(th)]]))
-        d = pix[1] - pix[0]
-        return pix[0], d / math.hypot(float(d[0]), float(d[1]))
+        x1, y1 = x + eps * math.cos(th), y + eps * math.sin(th)
+        # `project` of the two points in scalar arithmetic (the same operations), for the
+        # usual case of both in front of the camera
+        (h00, h01, h02), (h10, h11, h12), (h20, h21, h22) = self.homography.tolist()
+        w0, w1 = x * h20 + y * h21 + h22, x1 * h20 + y1 * h21 + h22
+        if not (w0 > 0 and w1 > 0):
+            pix = self.project(np.array([[x, y], [x1, y1]]))
+            d = pix[1] - pix[0]
+            return pix[0], d / math.hypot(float(d[0]), float(d[1]))
+        u0, v0 = (x * h00 + y * h01 + h02) / w0, (x * h10 + y * h11 + h12) / w0
+        du = (x1 * h00 + y1 * h01 + h02) / w1 - u0
+        dv = (x1 * h10 + y1 * h11 + h12) / w1 - v0
+        return np.array([u0, v0]), np.array([du, dv]) / math.hypot(du, dv)
 
     # ------------------------------------------------------------------ rendering
     def _make_background(self) -> np.ndarray:

@@ -40,7 +40,9 @@ indistinguishable from the rod's end.
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass
+from itertools import chain
 
 import cv2
 import numpy as np
@@ -48,7 +50,7 @@ import numpy as np
 from rodctl import fixedla as fla
 from rodctl.config.camera import CameraConfig
 from rodctl.errors import UserError
-from rodctl.geometry import polyline_length, resample_polyline
+from rodctl.geometry import _linspace_from_zero, polyline_length, resample_polyline
 from rodctl.vision.camera import Camera
 
 #: One point of a traced path, pixels: an array, or a walk step's (x, y).
@@ -71,9 +73,12 @@ _MERGE_PX = 1.5
 # dominates for a handful of short rows); more go through the vectorised path. Both give the
 # same numbers (tests/vision/test_centerline.py checks it).
 _SCALAR_ROWS = 8
-_OK, _AMBIGUOUS, _LOST = 0, 1, 2
+_OK, _AMBIGUOUS, _LOST = 0, 1, 2  # `_analyse_rows` relies on _OK 0 and _AMBIGUOUS 1
+#: The left and right edges' signs in `_analyse_rows`.
+_SIGNS = np.array([[1.0], [-1.0]], np.float32)
+_SIGNS.flags.writeable = False
 # `_find_end` samples this many points of its arc first, the rest only if needed.
-_END_FIRST = 64
+_END_FIRST = 32
 
 
 @dataclass(frozen=True)
@@ -142,25 +147,50 @@ def _median(values: list[float]) -> float:
     return v[k] if len(v) % 2 else (v[k - 1] + v[k]) / 2.0
 
 
-def _unit_normals(points: np.ndarray) -> np.ndarray:
-    """(M, 2) unit normals (left of the direction of travel in image coordinates)."""
-    # np.gradient(points, axis=0) written out (M >= 3): central differences inside, one-sided
-    # at the ends, the same operations and so the same bits
-    d = np.empty_like(points)
-    d[1:-1] = (points[2:] - points[:-2]) / 2.0
-    d[0] = points[1] - points[0]
-    d[-1] = points[-1] - points[-2]
-    d /= np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
-    return np.column_stack([-d[:, 1], d[:, 0]])
+def _length(points: np.ndarray) -> float:
+    """`polyline_length` of (M, 2) points, bit for bit, without its wrappers' overhead."""
+    return float(np.add.reduce(np.hypot(*(points[1:] - points[:-1]).T)))
 
 
-def _section_map(centres: np.ndarray, normals: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(K, T, 2) float32 sample positions centre + t * normal, for `cv2.remap`: computed in
-    float64 and rounded once, the bits of ``(centres[:, None] + t[None, :, None] *
-    normals[:, None]).astype(np.float32)`` in a third of its time."""
-    out = np.empty((len(centres), len(t), 2), np.float32)
-    np.add(centres[:, 0:1], t * normals[:, 0:1], out=out[..., 0])
-    np.add(centres[:, 1:2], t * normals[:, 1:2], out=out[..., 1])
+#: np.arange(-m, m + 1) * _DT per half-width m (cross-section sample offsets); read-only.
+_OFFSETS: dict[int, np.ndarray] = {}
+
+
+def _offsets(m: int) -> np.ndarray:
+    t = _OFFSETS.get(m)
+    if t is None:
+        if len(_OFFSETS) >= 16:
+            _OFFSETS.clear()
+        t = _OFFSETS[m] = np.arange(-m, m + 1) * _DT
+        t.flags.writeable = False
+    return t
+
+
+def _resample_planes(p: np.ndarray, n: int, seg: np.ndarray | None = None) -> np.ndarray:
+    """``resample_polyline(p.T, n).T`` bit for bit, for (2, M) planes of x and y (M >= 2):
+    the (2, n) points equally spaced in arc length; `seg`, the segments' lengths, if known."""
+    if seg is None:
+        seg = np.hypot(*(p[:, 1:] - p[:, :-1]))
+    s = np.empty(len(seg) + 1)
+    s[0] = 0.0
+    seg.cumsum(out=s[1:])
+    total = float(s[-1])
+    if total <= 0.0:
+        return np.repeat(p[:, :1], n, axis=1)
+    q = _linspace_from_zero(total, n)
+    out = np.empty((2, n))
+    out[0] = np.interp(q, s, p[0])
+    out[1] = np.interp(q, s, p[1])
+    return out
+
+
+def _section_maps(centres: np.ndarray, normals: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(2, K, T) float32 sample positions centre + t * normal, the x and the y plane (the two
+    maps `cv2.remap` takes): computed in float64 and rounded once, the bits of ``(centres[:,
+    None] + t[None, :, None] * normals[:, None]).astype(np.float32)`` moved to (2, K, T), in
+    one multiplication and one addition over contiguous planes."""
+    out = np.empty((2, len(centres), len(t)), np.float32)
+    np.add(centres.T[:, :, None], normals.T[:, :, None] * t, out=out)
     return out
 
 
@@ -174,49 +204,45 @@ def _hermite(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray, n: 
 
 
 def _locate_row(
-    s: list[float], m: int, band: float | None, max_width: float
+    s: list[float] | array, m: int, band: float | None, max_width: float, rod=None, b: int = 0
 ) -> tuple[float, float, int]:
     """Scalar twin of the vectorised analysis in `CenterlineExtractor._cross_sections`.
 
     Args:
-        s: 2m + 1 coverage samples across the rod, spaced `_DT`, the prediction at index m.
+        s: 2m + 1 coverage samples across the rod, spaced `_DT`, the prediction at index m
+            (the row is s[b:b + 2m + 1] when s holds several).
         m: half the number of samples.
         band: the rod's band width (px) if known.
         max_width: the width above which the section is ambiguous.
+        rod: bytes of s >= 0.5 when the caller has them (one numpy comparison for many rows;
+            runs are found by `bytes.find`), else made here; b: the row's start in s and rod.
 
     Returns:
         (offset px, width px, status).
     """
+    f = bytes(v >= 0.5 for v in s) if rod is None else rod
     last = 2 * m
-    c = m
-    j = -1
-    if s[c] >= 0.5:
-        j = c
-    else:
-        for dd in range(1, c + 1):
-            if s[c - dd] >= 0.5:
-                j = c - dd
-                break
-            if s[c + dd] >= 0.5:
-                j = c + dd
-                break
-    if j < 0:
-        return 0.0, 0.0, _LOST
-    left = j - 1
-    while left >= 0 and s[left] >= 0.5:
-        left -= 1
-    right = j + 1
-    while right <= last and s[right] >= 0.5:
-        right += 1
-    lc = min(max(left, 0), last - 1)
-    rc = min(max(right, 1), last)
+    c = b + m  # indices below are into s and f: the row's sample i is at b + i
+    end = b + last + 1
+    j = c
+    if not f[c]:  # the rod sample nearest c, the left one on a tie
+        jl, jr = f.rfind(1, b, c), f.find(1, c + 1, end)
+        if jl < 0 and jr < 0:
+            return 0.0, 0.0, _LOST
+        j = jl if jl >= 0 and (jr < 0 or c - jl <= jr - c) else jr
+    # the nearest non-rod samples on either side of j (none: the run leaves the window)
+    left = f.rfind(0, b, j)
+    right = f.find(0, j + 1, end)
+    left_off, right_off = left < 0, right < 0
+    # the 50 % crossings between lc, lc + 1 and rc - 1, rc (clipped to the window)
+    lc = b if left_off else left
+    rc = b + last if right_off else right
     s0, s1 = s[lc], s[lc + 1]
-    t_left = (lc - m) * _DT + (0.5 - s0) / (s1 - s0 if s1 - s0 > 1e-6 else 1.0) * _DT
+    t_left = (lc - c) * _DT + (0.5 - s0) / (s1 - s0 if s1 - s0 > 1e-6 else 1.0) * _DT
     r0, r1 = s[rc - 1], s[rc]
-    t_right = (rc - 1 - m) * _DT + (r0 - 0.5) / (r0 - r1 if r0 - r1 > 1e-6 else 1.0) * _DT
+    t_right = (rc - 1 - c) * _DT + (r0 - 0.5) / (r0 - r1 if r0 - r1 > 1e-6 else 1.0) * _DT
     width = t_right - t_left
     offset = 0.5 * (t_left + t_right)
-    left_off, right_off = left < 0, right > last
     touches = left_off or right_off
     if band is not None:
         if width > band + _MERGE_PX and not (left_off and right_off):
@@ -231,7 +257,7 @@ def _locate_row(
             width = band
         touches = left_off and right_off
     if touches or width > max_width:
-        return offset, width, (_AMBIGUOUS if s[c] >= 0.5 else _LOST)
+        return offset, width, (_AMBIGUOUS if f[c] else _LOST)
     return offset, width, _OK
 
 
@@ -257,6 +283,20 @@ def _row_tables(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return tables
 
 
+#: np.arange(k) * n, the flat index of each row's first sample, for the last few (k, n).
+_ROW_STARTS: dict[tuple[int, int], np.ndarray] = {}
+
+
+def _row_starts(k: int, n: int) -> np.ndarray:
+    starts = _ROW_STARTS.get((k, n))
+    if starts is None:
+        if len(_ROW_STARTS) >= 64:
+            _ROW_STARTS.clear()
+        starts = _ROW_STARTS[k, n] = np.arange(k) * n
+        starts.flags.writeable = False
+    return starts
+
+
 def _analyse_rows(
     s: np.ndarray, m: int, t: np.ndarray, max_width: float, band: float | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -270,41 +310,57 @@ def _analyse_rows(
     samples' positions (from the left and from the right) at j.
     """
     k, n = s.shape
-    near, up, down = _row_tables(m)
-    above = s >= 0.5
-    notab = ~above
-    rows = np.arange(k)
-    at_j = rows * n + np.multiply(above, near).argmax(axis=1)
-    lost = notab.ravel()[at_j]
-    left = np.maximum.accumulate(np.multiply(notab, up), axis=1).ravel()[at_j].astype(np.intp)
-    left -= 1
-    right = np.maximum.accumulate(np.multiply(notab, down)[:, ::-1], axis=1)[:, ::-1]
-    right = n - right.ravel()[at_j].astype(np.intp)
-    if lost.any():  # no rod sample at all: j = 0, whose left is -1 and right 1
-        left[lost] = -1
-        right[lost] = 1
-    lc = np.minimum(np.maximum(left, 0), 2 * m - 1)
-    rc = np.minimum(np.maximum(right, 1), 2 * m)
+    # sentinel non-rod samples at -1 and 2m + 1 around the rows' own
+    pad = np.ones((k, n + 2), bool)
+    notab = pad[:, 1:-1]
+    np.less(s, 0.5, out=notab)
+    # e: per row, where its left crossing (row 0: between samples lc and lc + 1) and its
+    # right crossing (row 1: between rc - 1 and rc) start
+    e = np.empty((2, k), np.intp)
+    lost = None
+    if not np.count_nonzero(notab[:, m]):
+        # every prediction lies on the rod (the rule in the refinement): j = m, and the run's
+        # ends are the first non-rod samples either side of m, left = m - 1 - dl and
+        # right = m + 1 + dr (dl, dr = m: the sentinels, past the window's ends)
+        dl = pad[:, m::-1].argmax(axis=1)
+        dr = pad[:, m + 2 :].argmax(axis=1)
+        left_off, right_off = dl == m, dr == m
+        np.maximum(np.subtract(m - 1, dl, out=e[0]), 0, out=e[0])  # lc
+        np.minimum(np.add(dr, m, out=e[1]), 2 * m - 1, out=e[1])  # rc - 1
+    else:
+        near, up, down = _row_tables(m)
+        above = ~notab
+        at_j = _row_starts(k, n) + np.multiply(above, near).argmax(axis=1)
+        lost = notab.ravel()[at_j]
+        left = np.maximum.accumulate(np.multiply(notab, up), axis=1).ravel()[at_j].astype(np.intp)
+        left -= 1
+        right = np.maximum.accumulate(np.multiply(notab, down)[:, ::-1], axis=1)[:, ::-1]
+        right = n - right.ravel()[at_j].astype(np.intp)
+        if np.count_nonzero(lost):  # no rod sample at all: j = 0, whose left is -1 and right 1
+            left[lost] = -1
+            right[lost] = 1
+        left_off, right_off = left < 0, right > 2 * m
+        e[0] = np.minimum(np.maximum(left, 0), 2 * m - 1)
+        e[1] = np.minimum(np.maximum(right, 1), 2 * m) - 1
+    # Both 50 % crossings at once, between a = s[e] and b = s[e + 1]: the right edge's
+    # (r0 - 0.5) and (r0 - r1) are the left formula's (0.5 - a) and (b - a) negated, exactly.
+    idx = e + _row_starts(k, n)
     flat = s.ravel()
-    base = rows * n
-    s0, s1 = flat[base + lc], flat[base + lc + 1]
-    d = s1 - s0
-    t_left = t[lc] + (0.5 - s0) / np.where(d > 1e-6, d, 1.0) * _DT
-    r0, r1 = flat[base + rc - 1], flat[base + rc]
-    d = r0 - r1
-    t_right = t[rc - 1] + (r0 - 0.5) / np.where(d > 1e-6, d, 1.0) * _DT
+    a = flat.take(idx)
+    num = (0.5 - a) * _SIGNS
+    den = (flat[1:].take(idx) - a) * _SIGNS
+    t_left, t_right = t.take(e) + num / np.where(den > 1e-6, den, 1.0) * _DT
     width = t_right - t_left
     offset = 0.5 * (t_left + t_right)
-    status = np.zeros(k, dtype=np.int64)  # _OK
-    left_off, right_off = left < 0, right > 2 * m
     both_off = left_off & right_off
     if band is not None:
         # Wider than the rod but bounded on both sides: another stretch of rod touches ours
         # on one side. The other edge is still ours: put the centre half a band inside the
         # edge whose implied centre is nearer the prediction. A run that runs off one end of
         # the window is located from its free edge alike.
-        merged = (width > band + _MERGE_PX) & ~both_off
-        if merged.any():
+        broad = width > band + _MERGE_PX
+        if np.count_nonzero(broad):
+            merged = broad & ~both_off
             from_left = t_left + 0.5 * band
             from_right = t_right - 0.5 * band
             nearer = np.where(np.abs(from_left) < np.abs(from_right), from_left, from_right)
@@ -315,10 +371,11 @@ def _analyse_rows(
     else:
         touches = left_off | right_off
     wide = touches | (width > max_width)
-    status[wide] = _AMBIGUOUS
-    # Too wide and not even under the prediction: something beside the rod, not a crossing.
-    status[wide & notab[:, m]] = _LOST
-    status[lost] = _LOST
+    status = wide.astype(np.int64)  # _OK (0), or _AMBIGUOUS (1) where wide
+    if lost is not None:
+        # Too wide and not even under the prediction: something beside the rod, not a crossing.
+        status[wide & notab[:, m]] = _LOST
+        status[lost] = _LOST
     return offset, width, status
 
 
@@ -329,6 +386,8 @@ _REMAP_ROW = 4096
 
 class CenterlineExtractor:
     """Finds the rod in a camera image and returns its centerline as N ordered pixel points.
+
+    One extractor per thread: the walk samples into scratch arrays the extractor keeps.
 
     Args:
         cfg: the camera config (`points`, `render` colours and width, `extract` options).
@@ -364,6 +423,7 @@ class CenterlineExtractor:
         self._band_prior = self._line_px + 2.0
         self._step = float(e.step_px) if e.step_px is not None else self._line_px
         self._half_track = 0.5 * self._band_prior + 4.0
+        self._m_track = int(round(self._half_track / _DT))  # the walk's m (`_cross_sections`)
         self._half_refine = 0.5 * self._band_prior + 2.5
         self._coverage_w, self._coverage_b = self._coverage_map()
         self._cov_b32 = np.float32(self._coverage_b)
@@ -376,7 +436,11 @@ class CenterlineExtractor:
             [v * w[0], v * w[1], v * w[2] + self._cov_b32], axis=-1
         ).reshape(1, 256, 3)
         self._bg_value = tuple(float(c) for c in r.background_color)
+        self._walk_buffers: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         self._max_steps = int(4 * (camera.width + camera.height) / self._step) + 10
+        # `_find_end`'s arc lengths: all, and the second part (after t[0])
+        self._end_t = np.arange(0.0, self._step * _LOOKAHEAD + self._band_prior + 2.0, 0.25)
+        self._end_t_rest = np.concatenate([self._end_t[:1], self._end_t[_END_FIRST:]])
 
     # ------------------------------------------------------------------ colour -> coverage
     def _coverage_map(self) -> tuple[np.ndarray, float]:
@@ -422,32 +486,57 @@ class CenterlineExtractor:
 
     def _sample(self, image: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """Rod coverage at (..., 2) pixel positions, bilinear; 0 outside the image (unclipped)."""
-        return self._sample_map(image, pts.astype(np.float32))
+        return self._sample_maps(image, np.moveaxis(pts, -1, 0).astype(np.float32))
 
-    def _sample_map(self, image: np.ndarray, map32: np.ndarray) -> np.ndarray:
-        """`_sample` at (..., 2) float32 pixel positions."""
-        shape = map32.shape[:-1]
-        flat = map32.reshape(1, -1, 2)
-        n = flat.shape[1]
+    def _sample_maps(self, image: np.ndarray, maps: np.ndarray) -> np.ndarray:
+        """`_sample` at float32 pixel positions given as (2, ...) x and y planes."""
+        shape = maps.shape[1:]
+        flat = maps.reshape(2, 1, -1)
+        n = flat.shape[2]
         if n >= _REMAP_MAX:
             # cv2.remap takes maps narrower than SHRT_MAX: a long trace (a rod looping across
             # the image) is sampled in rows (each point's value does not depend on the layout)
-            rows = np.zeros((-(-n // _REMAP_ROW), _REMAP_ROW, 2), dtype=np.float32)
-            rows.reshape(-1, 2)[:n] = flat[0]
+            rows = np.zeros((2, -(-n // _REMAP_ROW), _REMAP_ROW), dtype=np.float32)
+            rows.reshape(2, -1)[:, :n] = flat[:, 0]
             flat = rows
-        # One two-channel map: the same samples as two maps, one copy fewer. (cv2's stubs want
-        # an array for map2; a two-channel map takes None.)
-        rgb = cv2.remap(  # type: ignore[call-overload]
+        # two one-channel maps: the samples of one two-channel map, bit for bit
+        rgb = cv2.remap(
             image,
-            flat,
-            None,
+            flat[0],
+            flat[1],
             cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_CONSTANT,
             borderValue=self._bg_value,
         )
         # not clipped to [0, 1]: only 50 % crossings are used, and clipping costs time
-        part = cv2.LUT(rgb, self._coverage_lut)
-        return ((part[..., 0] + part[..., 1]) + part[..., 2]).reshape(-1)[:n].reshape(shape)
+        part = cv2.LUT(rgb, self._coverage_lut).reshape(-1, 3)
+        return ((part[:, 0] + part[:, 1]) + part[:, 2])[:n].reshape(shape)
+
+    def _walk_rows(self, image: np.ndarray, qn: list[float], t: np.ndarray) -> tuple[array, bytes]:
+        """The walk's `_LOOKAHEAD` cross-sections in one call: ``qn`` holds the predicted
+        points' x, then their y, then the normals' x, then their y; returns the coverage samples
+        (row after row) as an `array.array` (indexing gives Python floats, as `tolist` would)
+        and ``bytes`` of sample >= 0.5. The numbers of `_sample_maps` of `_section_maps`."""
+        a = np.array(qn).reshape(4, -1, 1)
+        k, n = a.shape[1], len(t)
+        buffers = self._walk_buffers.get((k, n))
+        if buffers is None:
+            # scratch arrays for this row count and length (the results are copied out)
+            buffers = self._walk_buffers[k, n] = (
+                np.empty((2, 1, k * n), np.float32),
+                np.empty((1, k * n, 3), np.uint8),
+                np.empty((1, k * n, 3), np.float32),
+                np.empty(k * n, np.float32),
+            )
+        maps, rgb, part, cov = buffers
+        np.add(a[:2], a[2:] * t, out=maps.reshape(2, k, n))
+        rgb = cv2.remap(
+            image, maps[0], maps[1], cv2.INTER_LINEAR, rgb, cv2.BORDER_CONSTANT, self._bg_value
+        )
+        p = cv2.LUT(rgb, self._coverage_lut, part).reshape(-1, 3)
+        np.add(p[:, 0], p[:, 1], out=cov)
+        np.add(cov, p[:, 2], out=cov)
+        return array("f", cov.tobytes()), (cov >= 0.5).tobytes()
 
     # ------------------------------------------------------------------ cross-sections
     def _cross_sections(
@@ -475,11 +564,13 @@ class CenterlineExtractor:
             band between its 50 % edges, status (K,) one of _OK, _AMBIGUOUS, _LOST.
         """
         m = int(round(half / _DT))
-        t = np.arange(-m, m + 1) * _DT
+        t = _offsets(m)
         k = len(centres)
-        s = self._sample_map(image, _section_map(centres, normals, t))
+        s = self._sample_maps(image, _section_maps(centres, normals, t))
         if k <= _SCALAR_ROWS:
-            rows_out = [_locate_row(row, m, band, max_width) for row in s.tolist()]
+            n = 2 * m + 1
+            flat, rod = s.ravel().tolist(), (s >= 0.5).tobytes()
+            rows_out = [_locate_row(flat, m, band, max_width, rod, i * n) for i in range(k)]
             off_w_st = np.array(rows_out, dtype=np.float64).reshape(k, 3)
             return off_w_st[:, 0], off_w_st[:, 1], off_w_st[:, 2].astype(np.int64)
         return _analyse_rows(s, m, t, max_width, band)
@@ -504,38 +595,72 @@ class CenterlineExtractor:
             widths, "" or the reason the walk failed).
         """
         h = self._step
-        m = int(round(self._half_track / _DT))
-        t = np.arange(-m, m + 1) * _DT
+        m = self._m_track
+        n = 2 * m + 1
+        t = _offsets(m)
         px, py = float(p[0]), float(p[1])
         heading = math.atan2(float(d[1]), float(d[0]))
         out: list[tuple[float, float]] = []
         widths: list[float] = []
         w_max, h_max = self.camera.width - 1, self.camera.height - 1
+        cos, sin = math.cos, math.sin
         for _ in range(self._max_steps):
             recent = widths[-8:]
             band = sorted(recent)[len(recent) // 2] if recent else self._band_prior
-            qs, ns = [], []
+            wide, narrow, merge_w, half_band = (
+                _WIDE * band,
+                _NARROW * band,
+                band + _MERGE_PX,
+                0.5 * band,
+            )
+            xs, ys, nxs, nys = [], [], [], []
             qx, qy = px, py
             for i in range(1, _LOOKAHEAD + 1):
                 a = heading + turn * i
-                qx += h * math.cos(a)
-                qy += h * math.sin(a)
-                qs.append((qx, qy))
+                qx += h * cos(a)
+                qy += h * sin(a)
+                xs.append(qx)
+                ys.append(qy)
                 a_t = a + 0.5 * turn
-                ns.append((-math.sin(a_t), math.cos(a_t)))
-            qa, na = np.array(qs), np.array(ns)
-            rows = self._sample_map(image, _section_map(qa, na, t))
+                nxs.append(-sin(a_t))
+                nys.append(cos(a_t))
+            vals, rod = self._walk_rows(image, xs + ys + nxs + nys, t)
             accepted: list[tuple[float, float]] = []
             any_ok = False
-            for i, row in enumerate(rows.tolist()):
-                off, wid, st = _locate_row(row, m, band, _WIDE * band)
+            for i in range(_LOOKAHEAD):
+                b = i * n
+                c = b + m
+                if (
+                    rod[c]
+                    and (left := rod.rfind(0, b, c)) >= 0
+                    and (right := rod.find(0, c + 1, b + n)) >= 0
+                ):
+                    # The usual row, a run under the prediction bounded on both sides:
+                    # `_locate_row`'s arithmetic for it, inline (the same operations).
+                    s0, s1 = vals[left], vals[left + 1]
+                    t_left = (left - c) * _DT + (0.5 - s0) / (
+                        s1 - s0 if s1 - s0 > 1e-6 else 1.0
+                    ) * _DT
+                    r0, r1 = vals[right - 1], vals[right]
+                    t_right = (right - 1 - c) * _DT + (r0 - 0.5) / (
+                        r0 - r1 if r0 - r1 > 1e-6 else 1.0
+                    ) * _DT
+                    wid = t_right - t_left
+                    off = 0.5 * (t_left + t_right)
+                    if wid > merge_w:
+                        from_left, from_right = t_left + half_band, t_right - half_band
+                        off = from_left if abs(from_left) < abs(from_right) else from_right
+                        wid = band
+                    st = _AMBIGUOUS if wid > wide else _OK
+                else:
+                    off, wid, st = _locate_row(vals, m, band, wide, rod, b)
                 # A band much narrower than the rod is its rounded tip seen off-centre (or a
                 # graze of another stretch): the walk has reached the end.
-                if st == _OK and wid < _NARROW * band:
+                if st == _OK and wid < narrow:
                     st = _LOST
                 if st == _LOST or (i > 0 and (st == _AMBIGUOUS or abs(off) > _TRUST_PX)):
                     break  # beyond here the prediction is not trusted: re-predict
-                qx, qy = qs[i]
+                qx, qy = xs[i], ys[i]
                 if not (0.0 <= qx <= w_max and 0.0 <= qy <= h_max):
                     return (
                         out,
@@ -545,8 +670,8 @@ class CenterlineExtractor:
                         ("the rod leaves the image"),
                     )
                 if st == _OK:
-                    qx += off * ns[i][0]
-                    qy += off * ns[i][1]
+                    qx += off * nxs[i]
+                    qy += off * nys[i]
                     widths.append(wid)
                     any_ok = True
                 accepted.append((qx, qy))
@@ -580,46 +705,61 @@ class CenterlineExtractor:
             )
         return out, np.array([math.cos(heading), math.sin(heading)]), turn, widths, ""
 
-    def _arc(self, p: np.ndarray, d: np.ndarray, turn: float, t: np.ndarray) -> tuple:
-        """Points (K, 2) and unit directions (K, 2) at arc lengths t ahead of p on the predicted
-        constant-curvature arc (tangent at p = last chord d turned by half a step's turn)."""
-        k = turn / self._step
-        heading = math.atan2(d[1], d[0]) + 0.5 * turn + k * t
+    @staticmethod
+    def _arc_xy(p: np.ndarray, h_base: float, k: float, t: np.ndarray) -> tuple:
+        """x (K,), y (K,), cos and sin of the heading (K,) at arc lengths t ahead of p on the
+        predicted constant-curvature arc (tangent at p: heading `h_base`; curvature k)."""
+        heading = h_base + k * t
         cos_h, sin_h = _cos_sin(heading)
-        dirs = np.column_stack([cos_h, sin_h])
         if abs(k) < 1e-9:
-            pos = p[None, :] + t[:, None] * dirs[:1]
-        else:
-            h0 = heading[0] - k * t[0]
-            pos = p[None, :] + np.column_stack(
-                [(sin_h - math.sin(h0)) / k, (math.cos(h0) - cos_h) / k]
-            )
-        return pos, dirs
+            return p[0] + t * cos_h[0], p[1] + t * sin_h[0], cos_h, sin_h
+        h0 = heading[0] - k * t[0]
+        return p[0] + (sin_h - math.sin(h0)) / k, p[1] + (math.cos(h0) - cos_h) / k, cos_h, sin_h
+
+    def _sample_arc(
+        self, image: np.ndarray, p: np.ndarray, h_base: float, k: float, t: np.ndarray, skip: int
+    ) -> tuple[np.ndarray, float, float]:
+        """Coverage along the arc of `_arc_xy` at t[skip:], and the arc's direction at t[0]."""
+        x, y, cos_h, sin_h = self._arc_xy(p, h_base, k, t)
+        maps = np.empty((2, len(t) - skip), np.float32)
+        maps[0] = x[skip:]
+        maps[1] = y[skip:]
+        return self._sample_maps(image, maps), float(cos_h[0]), float(sin_h[0])
 
     def _find_end(
         self, image: np.ndarray, p: np.ndarray, d: np.ndarray, turn: float, cap: float
     ) -> tuple[np.ndarray, np.ndarray]:
         """The centreline's end and direction there: follow the predicted arc from p to the 50 %
-        crossing of coverage (the tip of the round cap), then step back by the cap radius."""
-        span = self._step * _LOOKAHEAD + self._band_prior + 2.0
-        t = np.arange(0.0, span, 0.25)
+        crossing of coverage (the tip of the round cap), then step back by the cap radius.
+
+        The arc's tangent at p is the last chord d turned by half a step's turn; its curvature
+        is the turn per step over the step."""
+        t = self._end_t
+        k = turn / self._step
+        h_base = math.atan2(d[1], d[0]) + 0.5 * turn
         # Sampled in two parts, the second only when the first has no crossing (the crossing
         # is usually within a band or two of p): every point's position and sample depend on
         # its own t and on t[0] only, so the first crossing is the same as in one call.
-        pos, dirs = self._arc(p, d, turn, t[:_END_FIRST])
-        s = self._sample(image, pos)
-        drop = np.nonzero(s < 0.5)[0]
+        s, c0, s0 = self._sample_arc(image, p, h_base, k, t[:_END_FIRST], 0)
+        drop = np.flatnonzero(s < 0.5)
         if len(drop) == 0 and len(t) > _END_FIRST:
-            rest = self._arc(p, d, turn, np.concatenate([t[:1], t[_END_FIRST:]]))[0][1:]
-            s = np.concatenate([s, self._sample(image, rest)])
-            drop = np.nonzero(s < 0.5)[0]
+            rest = self._sample_arc(image, p, h_base, k, self._end_t_rest, 1)[0]
+            s = np.concatenate([s, rest])
+            drop = np.flatnonzero(s < 0.5)
         if len(drop) == 0 or drop[0] == 0:
-            return p.copy(), dirs[0]
+            return p.copy(), np.array([c0, s0])
         i = drop[0]
         t_cross = t[i - 1] + (s[i - 1] - 0.5) / max(s[i - 1] - s[i], 1e-6) * 0.25
-        t_end = np.array([t_cross - cap])
-        pos_end, dir_end = self._arc(p, d, turn, t_end)
-        return pos_end[0], dir_end[0]
+        # the point of the same arc at t_cross - cap, in scalar arithmetic (the same operations)
+        t_end = t_cross - cap
+        heading = h_base + k * t_end
+        c, sn = math.cos(heading), math.sin(heading)
+        if abs(k) < 1e-9:
+            end = np.array([p[0] + t_end * c, p[1] + t_end * sn])
+        else:
+            h0 = heading - k * t_end
+            end = np.array([p[0] + (sn - math.sin(h0)) / k, p[1] + (math.cos(h0) - c) / k])
+        return end, np.array([c, sn])
 
     def _reappear(
         self, image: np.ndarray, p: np.ndarray, d: np.ndarray, turn: float, band: float
@@ -691,14 +831,13 @@ class CenterlineExtractor:
         path: list[_Pixel] = [p]
         widths: list[float] = []
         gaps: list[float] = []
-        # Is the rod visible right at the clamp? If not, the start itself is hidden.
-        first = self._cross_sections(
-            img,
-            (p + 0.5 * self._step * d)[None],
-            np.array([[-d[1], d[0]]]),
-            self._half_track,
-            _WIDE * self._band_prior,
-        )[2][0]
+        # Is the rod visible right at the clamp? If not, the start itself is hidden. (One
+        # cross-section half a step ahead, through the walk's sampler: the numbers of
+        # `_cross_sections` of it.)
+        step_ahead = 0.5 * self._step
+        centre_normal = [p[0] + step_ahead * d[0], p[1] + step_ahead * d[1], -d[1], d[0]]
+        vals, rod = self._walk_rows(img, centre_normal, _offsets(self._m_track))
+        first = _locate_row(vals, self._m_track, None, _WIDE * self._band_prior, rod)[2]
         end_dir = d
         closed = False  # True once the path has been bridged onto the gripper's pixel
         for _ in range(20):
@@ -751,8 +890,9 @@ class CenterlineExtractor:
         if not closed:
             path = self._trim_after(path, end, end_dir)
             path.append(end)
-        line = np.array(path)
-        if len(line) < 3 or polyline_length(line) < 2 * self._step:
+        # np.array(path) (arrays and tuples of two floats), in a third of its time
+        line = np.fromiter(chain.from_iterable(path), np.float64, 2 * len(path)).reshape(-1, 2)
+        if len(line) < 3 or _length(line) < 2 * self._step:
             return None, widths, gaps, "no rod found next to the clamp"
 
         return line, widths, gaps, ""
@@ -777,7 +917,7 @@ class CenterlineExtractor:
                 return Extraction(fail, False, note)
             return Extraction(out, False, note, bridged=True)
         if self.rod_length is not None:
-            length = polyline_length(self.camera.unproject(out))
+            length = _length(self.camera.unproject(out))
             rel = length / self.rod_length - 1.0
             if abs(rel) > self.length_tolerance:
                 return Extraction(
@@ -799,20 +939,33 @@ class CenterlineExtractor:
         return path
 
     def _refine(self, image: np.ndarray, line: np.ndarray, band: float) -> np.ndarray:
-        """Move each point of a resampled copy of `line` to the band's midpoint (ends kept)."""
+        """Move each point of a resampled copy of `line` to the band's midpoint (ends kept).
+
+        Computed on (2, n) planes of x and y (contiguous rows): the numbers of
+        `resample_polyline` and of central-difference unit normals (left of the direction of
+        travel) of the (n, 2) points, operation for operation."""
         passes = self.cfg.extract.refine_passes
-        n = max(self.points, int(polyline_length(line) / 2.0) + 2)
+        if passes <= 0:
+            return line
+        p = line.T
+        seg = np.hypot(*(p[:, 1:] - p[:, :-1]))
+        n = max(self.points, int(float(np.add.reduce(seg)) / 2.0) + 2)  # `polyline_length`
+        sign = np.array([[-1.0], [1.0]])
         for _ in range(passes):
-            pts = resample_polyline(line, n)
-            normals = _unit_normals(pts)
+            p = _resample_planes(p, n, seg)
+            seg = None
+            # np.gradient's central differences inside, as unit vectors; the normal (-dy, dx)
+            d = (p[:, 2:] - p[:, :-2]) / 2.0
+            d /= np.maximum(np.hypot(d[0], d[1]), 1e-12)
+            normals = d[::-1] * sign
+            inner = p[:, 1:-1]
             off, _, st = self._cross_sections(
-                image, pts[1:-1], normals[1:-1], self._half_refine, _WIDE * band, band
+                image, inner.T, normals.T, self._half_refine, _WIDE * band, band
             )
             ok = (st == _OK) & (np.abs(off) < 2.0)
-            inner = pts[1:-1]
-            inner[ok] += off[ok, None] * normals[1:-1][ok]
-            line = pts
-        return line
+            # inner[ok] += off[ok] * normals[ok], without the copies
+            np.add(inner, off * normals, out=inner, where=ok)
+        return p.T
 
     def _resample_out(self, line: np.ndarray, n: int) -> np.ndarray:
         """Resample to n points at equal arc length in the image or on the plane (config)."""
@@ -821,4 +974,4 @@ class CenterlineExtractor:
         world = self.camera.unproject(line)
         if not np.isfinite(world).all():
             return np.full((n, 2), np.nan)
-        return self.camera.project(resample_polyline(world, n))
+        return self.camera.project(_resample_planes(world.T, n).T)
