@@ -41,18 +41,18 @@ def resample_polyline(points: np.ndarray, n: int) -> np.ndarray:
     total = float(s[-1])
     if total <= 0.0:
         return np.repeat(pts[:1], n, axis=0)
-    q = _linspace_from_zero(total, n)
+    q = linspace_from_zero(total, n)
     out = np.empty((n, 2))
     out[:, 0] = np.interp(q, s, pts[:, 0])
     out[:, 1] = np.interp(q, s, pts[:, 1])
     return out
 
 
-#: np.arange(n, dtype=float) for the last few n (`_linspace_from_zero`); do not modify.
+#: np.arange(n, dtype=float) for the last few n (`linspace_from_zero`); do not modify.
 _ARANGES: dict[int, np.ndarray] = {}
 
 
-def _linspace_from_zero(stop: float, n: int) -> np.ndarray:
+def linspace_from_zero(stop: float, n: int) -> np.ndarray:
     """``np.linspace(0.0, stop, n)`` bit for bit (numpy's own steps: arange(n) times
     stop / (n - 1), the last value set to `stop`), without its per-call overhead."""
     step = stop / (n - 1)

@@ -50,7 +50,7 @@ import numpy as np
 from rodctl import fixedla as fla
 from rodctl.config.camera import CameraConfig
 from rodctl.errors import UserError
-from rodctl.geometry import _linspace_from_zero, polyline_length, resample_polyline
+from rodctl.geometry import linspace_from_zero, polyline_length, resample_polyline
 from rodctl.vision.camera import Camera
 
 #: One point of a traced path, pixels: an array, or a walk step's (x, y).
@@ -177,7 +177,7 @@ def _resample_planes(p: np.ndarray, n: int, seg: np.ndarray | None = None) -> np
     total = float(s[-1])
     if total <= 0.0:
         return np.repeat(p[:, :1], n, axis=1)
-    q = _linspace_from_zero(total, n)
+    q = linspace_from_zero(total, n)
     out = np.empty((2, n))
     out[0] = np.interp(q, s, p[0])
     out[1] = np.interp(q, s, p[1])
