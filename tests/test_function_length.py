@@ -29,6 +29,8 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("rodctl/sim/quasistatic.py", "QuasiStaticChain._solve_to"): KERNEL,
     ("rodctl/sim/quasistatic.py", "QuasiStaticChain.__init__"): KERNEL,
     ("rodctl/sim/chain.py", "RodChain.__init__"): KERNEL,
+    ("rodctl/sim/friction.py", "FrictionalChain._newton_eps"): KERNEL,
+    ("rodctl/sim/friction.py", "FrictionalChain._system"): KERNEL,
     ("rodctl/estimation/akf.py", "AdaptiveKalmanJacobian.update"): KERNEL,
     ("rodctl/vision/camera.py", "Camera.render"): KERNEL,
     ("rodctl/vision/camera.py", "Camera._blur"): KERNEL,
