@@ -154,6 +154,9 @@ def main() -> int:
         if fp == ref:
             continue
         bad += 1
+        if "records" not in fp or "records" not in ref:
+            print(f"{key}: {fp['outcome']}, expected {ref['outcome']}")
+            continue
         if len(fp["records"]) != len(ref["records"]):
             print(f"{key}: {len(fp['records'])} records, expected {len(ref['records'])}")
         for k, (a, b) in enumerate(zip(fp["records"], ref["records"], strict=False)):
