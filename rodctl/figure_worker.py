@@ -5,8 +5,9 @@ Why (issue #17): importing matplotlib and drawing the figures took ~0.9 s at the
 `rodctl simulate`, after the episode. The helper starts when the run starts and imports
 matplotlib and `rodctl.plots` on the second core while the command imports and runs the
 episode. As the first sink of the episode it receives the header when the episode opens its
-sinks and each step record as it is written (camera frames left out: no figure shows them), so
-that when the episode ends only the drawing is left; it draws the PNGs while the command closes
+sinks and each step record as it is written (camera frames left out: no figure shows them), and
+meanwhile begins the figures (`plots.RunFigures`), so that when the episode ends only the run's
+data is left to draw; it draws the PNGs while the command closes
 its logs and writes summary.json. `result()` hands back the PNG bytes and the command writes
 them (`save_figures`, here: the command never imports matplotlib), so where the figures go,
 whether they are written at all and every error writing them can meet are those of drawing
@@ -148,6 +149,7 @@ def helper_main() -> None:
     from rodctl import plots  # noqa: PLC0415
 
     plots.warm_up()
+    figures = plots.RunFigures()  # the figures and axes, drawn once: less to do at the end
     timeline.mark("figures", "ready")
     header: RunHeader | None = None
     records: list[StepRecord] = []
@@ -159,4 +161,4 @@ def helper_main() -> None:
     timeline.mark("figures", "input ended")
     if header is None or not records:
         return  # the command needs no figures (or is gone)
-    helper_process.reply(out, plots.render_figures(header, records), "figures")
+    helper_process.reply(out, figures.render(header, records), "figures")
