@@ -24,6 +24,7 @@ input (with no record sent: "no figures", the helper exits). The reply: `{file n
 from __future__ import annotations
 
 import dataclasses
+import threading
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -143,22 +144,43 @@ def save_figures(pngs: Mapping[str, bytes], out_dir: str | Path) -> list[Path]:
 
 
 def helper_main() -> None:
-    """The helper: import, receive the run, draw, reply (see the module docstring)."""
+    """The helper: import, receive the run, draw, reply (see the module docstring).
+
+    The run is read on a thread as it comes. Warming matplotlib up and drawing the figures once
+    empty save time only while the helper waits: each is skipped once the input has ended (a
+    helper that got its imports done after the episode goes straight to the drawing)."""
     out = helper_process.begin("figures")
+    received: list[Any] = []
+    ended = threading.Event()
+
+    def read() -> None:
+        received.extend(helper_process.messages())
+        ended.set()
+
+    threading.Thread(target=read, name="rodctl-figures-read", daemon=True).start()
+    try:
+        pngs = _draw(received, ended)
+    except BaseException:  # noqa: BLE001 - the traceback to stderr, exit 1 (a reading thread
+        helper_process.fail()  # would make the interpreter's shut-down abort)
+    if pngs is None:
+        helper_process.exit_now()  # the command needs no figures (or is gone)
+    helper_process.reply(out, pngs, "figures")
+
+
+def _draw(received: list[Any], ended: threading.Event) -> dict[str, bytes] | None:
+    """The figures of the run `received` once `ended` is set (None: no run came)."""
     # The slow part (matplotlib), while the parent runs the episode; the command never imports it.
     from rodctl import plots  # noqa: PLC0415
 
-    plots.warm_up()
-    figures = plots.RunFigures()  # the figures and axes, drawn once: less to do at the end
+    figures = plots.RunFigures()
+    if not ended.is_set():
+        plots.warm_up()
+    figures.draw_empty(stop=ended.is_set)
     timeline.mark("figures", "ready")
-    header: RunHeader | None = None
-    records: list[StepRecord] = []
-    for kind, value in helper_process.messages():
-        if kind == "header":
-            header = value
-        elif kind == "record":
-            records.append(value)
+    ended.wait()
     timeline.mark("figures", "input ended")
+    header = next((value for kind, value in received if kind == "header"), None)
+    records = [value for kind, value in received if kind == "record"]
     if header is None or not records:
-        return  # the command needs no figures (or is gone)
-    helper_process.reply(out, figures.render(header, records), "figures")
+        return None
+    return figures.render(header, records)
