@@ -330,30 +330,15 @@ def simulate(
         rodctl simulate configs/default.yaml --set run.max_steps=300 -o runs/mine
         rodctl simulate configs/default.yaml -q --json
     """
-    from rodctl.display import print_summary, step_progress
-    from rodctl.records import RunSummary
-    from rodctl.simulate import simulate as run_simulation
+    from rodctl import timeline
+    from rodctl.logs.sinks import start_helpers
 
+    timeline.mark("main", "cli")
     _experiment_config_only(config)
     cfg = load_config(config, set_ or [])
-    table = not (quiet or as_json)
-    rerun_view = _live_rerun(cfg, live_rerun) if live_rerun else None
-    view = _live_view(cfg, live_port) if live else None  # stopped when the run is over
-    with step_progress(cfg.run.max_steps, enabled=table) as on_step, view or nullcontext():
-
-        def first_result(summary: RunSummary) -> None:
-            # The table as soon as the episode has ended; the figures and meta.json follow.
-            on_step.done()
-            print_summary(summary)
-
-        result = run_simulation(
-            cfg,
-            out,
-            argv=sys.argv,
-            on_step=on_step,
-            on_summary=first_result if table else None,
-            live=[v for v in (view, rerun_view) if v is not None],
-        )
+    # The figure and Rerun processes first: they import while this process imports the run's.
+    with start_helpers(cfg.logging) as helpers:
+        result = _simulate(cfg, out, quiet or as_json, live, live_port, live_rerun, helpers)
     if result.error:
         typer.echo(f"error: {result.error}", err=True)
     if as_json:
@@ -364,6 +349,42 @@ def simulate(
     else:
         typer.echo(str(result.run.path))
     raise typer.Exit(code=result.exit_code)
+
+
+def _simulate(
+    cfg: ExperimentConfig,
+    out: str,
+    quiet: bool,
+    live: bool,
+    live_port: int,
+    live_rerun: str | None,
+    helpers: Any,
+) -> Any:
+    """`simulate`'s run, with its progress, its table and its live views (`helpers`: the
+    started helper processes, `start_helpers`)."""
+    from rodctl.display import print_summary, step_progress
+    from rodctl.records import RunSummary
+    from rodctl.simulate import simulate as run_simulation
+
+    table = not quiet
+    rerun_view = _live_rerun(cfg, live_rerun) if live_rerun else None
+    view = _live_view(cfg, live_port) if live else None  # stopped when the run is over
+    with step_progress(cfg.run.max_steps, enabled=table) as on_step, view or nullcontext():
+
+        def first_result(summary: RunSummary) -> None:
+            # The table as soon as the episode has ended; the figures and meta.json follow.
+            on_step.done()
+            print_summary(summary)
+
+        return run_simulation(
+            cfg,
+            out,
+            argv=sys.argv,
+            on_step=on_step,
+            on_summary=first_result if table else None,
+            live=[v for v in (view, rerun_view) if v is not None],
+            helpers=helpers,
+        )
 
 
 def _experiment_config_only(config: str) -> None:

@@ -5,9 +5,11 @@ episode (`rodctl.episode.run_episode`) closes the sinks (MCAP and Rerun files fi
 its real status, summary.json is written from the records so far and meta.json records the
 terminal status. Nothing already logged is lost.
 
-The figures are drawn by a helper process (`rodctl.figure_worker`) started with the run, so that
-importing matplotlib and drawing overlap with the episode and the closing of the logs instead
-of following them; the command still writes them, and waits for them, before it returns.
+The figures are drawn, and run.rrd is written, by helper processes (`rodctl.figure_worker`,
+`rodctl.logs.rerun_process`) started with the run (`rodctl.logs.sinks.start_helpers`; the CLI
+starts them before it imports this module), so that importing matplotlib and rerun overlaps
+with the command's own imports and the episode instead of following them; the command still
+writes the figures, and waits for both, before it returns.
 """
 
 from __future__ import annotations
@@ -18,14 +20,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rodctl import signals
+from rodctl import signals, timeline
 from rodctl.config import ExperimentConfig
 from rodctl.env import ShapeServoEnv
 from rodctl.episode import EpisodeFailed, EpisodeResult, Outcome, run_episode
 from rodctl.errors import UserError, describe_os_error
 from rodctl.figure_worker import FiguresFailed, FigureWorker, save_figures
 from rodctl.logs.base import Sink
-from rodctl.logs.sinks import FiguresSinkConfig, SinkContext, make_sink, selected_sinks
+from rodctl.logs.sinks import (
+    FiguresSinkConfig,
+    SinkContext,
+    make_sink,
+    selected_sinks,
+    start_helpers,
+)
 from rodctl.method import Method
 from rodctl.records import RunSummary, StepRecord
 from rodctl.runs import RunDir, write_json_best_effort
@@ -45,10 +53,11 @@ class SimulateResult:
     error: str | None = None
 
 
-def make_sinks(cfg: ExperimentConfig, run_dir: Path) -> list[Sink]:
+def make_sinks(cfg: ExperimentConfig, run_dir: Path, helpers: Any = None) -> list[Sink]:
     """The sinks the config asks for, writing into `run_dir` (`rodctl.logs.sinks`: MCAP and
-    Rerun when switched on, then every `logging.sinks` entry, by its registered type)."""
-    ctx = SinkContext(run_dir=run_dir, logging=cfg.logging, experiment=cfg)
+    Rerun when switched on, then every `logging.sinks` entry, by its registered type);
+    `helpers` (`start_helpers`): run.rrd written by a helper process."""
+    ctx = SinkContext(run_dir=run_dir, logging=cfg.logging, experiment=cfg, helpers=helpers)
     return [make_sink(sink, ctx) for sink in selected_sinks(cfg.logging)]
 
 
@@ -85,6 +94,7 @@ def simulate(
     on_step: Callable[[StepRecord], None] | None = None,
     on_summary: Callable[[RunSummary], None] | None = None,
     live: Sink | Sequence[Sink] | None = None,
+    helpers: Any = None,
 ) -> SimulateResult:
     """Run one experiment into a new run directory under `out`.
 
@@ -98,18 +108,25 @@ def simulate(
     written: see the result).
     `live`: more sinks, e.g. a started `rodctl.logs.live.LiveView` (its owner stops it) or a
     `RerunSink` streaming to a viewer.
+    `helpers`: the helper processes started for this config (`start_helpers`; its owner stops
+    them); None: started here, and stopped before returning.
     """
     stops = StopRequests()
+    own = start_helpers(cfg.logging) if helpers is None else nullcontext()
+    helpers = own if helpers is None else helpers
     figures: Any = None
     if cfg.logging.figures:  # the figure sink, through its registration
-        figures = make_sink(FiguresSinkConfig(), SinkContext(None, cfg.logging, cfg))
-    with stops.installed(), figures or nullcontext():
+        figures = make_sink(FiguresSinkConfig(), SinkContext(None, cfg.logging, cfg, helpers))
+    timeline.mark("main", "simulate")
+    with own, stops.installed(), figures or nullcontext():
         env = ShapeServoEnv(cfg)
         prepare_feature(cfg)  # `feature.checkpoint: auto`: the quick encoder trained once
         method = Method.from_config(cfg)
         run = RunDir.create(out, cfg, command="simulate", argv=argv)
         _embed_encoder(cfg, run)
-        result = _run(env, method, cfg, run, figures, live, on_step, stops)
+        timeline.mark("main", "episode start")
+        result = _run(env, method, cfg, run, figures, live, on_step, stops, helpers)
+        timeline.mark("main", "episode end")
         error = _episode_error(result, stops, run)
         summary = result.summary
         problems = [write_json_best_effort(run.path / "summary.json", summary.to_json())]
@@ -122,6 +139,7 @@ def simulate(
         if figures and result.records and result.error is None:
             problems.append(_figures(figures, result, run.path / "figures"))
         status, error = _finish(run, result, problems, error)
+        timeline.mark("main", "done")
     if shown is not None:
         raise shown
     code = EXIT_OK if status == "completed" else EXIT_RUN_FAILED
@@ -137,6 +155,7 @@ def _run(
     live: Sink | Sequence[Sink] | None,
     on_step: Callable[[StepRecord], None] | None,
     stops: StopRequests,
+    helpers: Any,
 ) -> EpisodeResult:
     """The episode into `run`; a failed one's result, with its traceback in error.txt.
 
@@ -146,7 +165,7 @@ def _run(
     """
     try:
         # The figure process first: it gets the records before the logs are closed.
-        sinks = ([figures] if figures else []) + make_sinks(cfg, run.path)
+        sinks = ([figures] if figures else []) + make_sinks(cfg, run.path, helpers)
         if live is not None:
             sinks += list(live) if isinstance(live, list | tuple) else [live]
         return run_episode(
@@ -232,6 +251,8 @@ def _figures(worker: FigureWorker, result: Any, folder: Path) -> str | None:
         pngs = worker.result()
     except FiguresFailed as exc:
         return f"figures not written: {exc}"
+    finally:
+        timeline.mark("main", "figures received")
     return _best_effort(lambda: save_figures(pngs, folder))
 
 

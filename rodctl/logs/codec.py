@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-import cv2
 import numpy as np
 
 from rodctl.records import FIELD_UNITS, RunHeader, RunSummary, StepRecord
@@ -342,6 +341,8 @@ def check_frame(image: np.ndarray) -> None:
 
 def encode_png(image: np.ndarray, level: int = 1) -> bytes:
     """Lossless PNG of an (H, W, 3) RGB or (H, W) grey uint8 frame."""
+    import cv2  # noqa: PLC0415 (here: the Rerun writer process imports this module, never cv2)
+
     check_frame(image)
     img = np.asarray(image)
     if img.ndim == 3:
@@ -365,6 +366,8 @@ def encode_png(image: np.ndarray, level: int = 1) -> bytes:
 
 def decode_png(data: bytes) -> np.ndarray:
     """Inverse of `encode_png`: (H, W, 3) RGB or (H, W) grey uint8."""
+    import cv2  # noqa: PLC0415 (as in `encode_png`)
+
     img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ValueError("not a PNG image")

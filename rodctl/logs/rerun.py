@@ -42,16 +42,19 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from rodctl.config.logging import LoggingConfig
 from rodctl.logs import codec
 from rodctl.logs.base import raise_or_warn
 from rodctl.records import RunHeader, RunSummary, StepRecord
+
+if TYPE_CHECKING:  # the writer process (`rodctl.logs.rerun_process`) does without pydantic
+    from rodctl.config.logging import LoggingConfig
+    from rodctl.logs.rerun_process import RerunOptions
 
 APPLICATION_ID = "rodctl"
 
@@ -305,13 +308,23 @@ class RerunSink:
     """
 
     def __init__(
-        self, path: str | Path | None, cfg: LoggingConfig | None = None, *, url: str | None = None
+        self,
+        path: str | Path | None,
+        cfg: LoggingConfig | RerunOptions | None = None,
+        *,
+        url: str | None = None,
     ) -> None:
         if (path is None) == (url is None):
             raise ValueError("RerunSink: give a file path or a viewer url, not both")
         self.path = Path(path) if path is not None else None
         self.url = url  # live: the same recording streamed to a Rerun viewer (`simulate --live`)
-        self.cfg = cfg if cfg is not None else LoggingConfig()
+        if cfg is None:
+            from rodctl.config.logging import LoggingConfig  # noqa: PLC0415 (TYPE_CHECKING above)
+
+            cfg = LoggingConfig()
+        #: `flush_every_steps`, `image_rate_hz`, `png_compression` (a `LoggingConfig`, or the
+        #: `RerunOptions` of the writer process)
+        self.cfg = cfg
         self._rec: rr.RecordingStream | None = None
         self._header: RunHeader | None = None
         self._prev: StepRecord | None = None
@@ -468,6 +481,16 @@ class RerunSink:
         (`_in_order`); what they need of the record is copied first, so the loop may reuse its
         arrays.
         """
+        frame = None
+        if record.image is not None and self._frames.due(record):
+            frame = codec.FRAMES.submit(record.image, self.cfg.png_compression)
+            self._frames.take(record)
+        self.write_step(record, frame)
+
+    def write_step(self, record: StepRecord, frame: Future[bytes] | None) -> None:
+        """`write` with the frame chosen and encoded already: `frame` is the PNG of the step's
+        camera frame (a future, or None: no frame this step; `record.image` is not read).
+        The writer process (`rodctl.logs.rerun_process`) gets the frames the command chose."""
         rec, header = self._rec, self._header
         if rec is None or header is None:
             raise RuntimeError("RerunSink.write called before open (or after close)")
@@ -477,10 +500,8 @@ class RerunSink:
         t = np.timedelta64(codec.time_ns(r.sim_time), "ns")
         self._last_step, self._last_time = k, t
         lines = codec.step_log_lines(self._prev, r)
-        if r.image is not None and self._frames.due(r):
-            future = codec.FRAMES.submit(r.image, self.cfg.png_compression)
-            self._frames.take(r)
-            self._in_order(self._log_frame, k, t, future)
+        if frame is not None:
+            self._in_order(self._log_frame, k, t, frame)
         if lines:
             self._in_order(self._log_lines, k, t, lines)
         g = np.asarray(r.gripper, dtype=np.float64)

@@ -45,6 +45,7 @@ __all__ = [
     "SinkContext",
     "make_sink",
     "selected_sinks",
+    "start_helpers",
 ]
 
 
@@ -57,11 +58,15 @@ class SinkContext:
             e.g. the figure process, which is started before the run directory exists).
         logging: the run's logging config (frame rate, PNG level, flush interval).
         experiment: the whole experiment config, for a sink that records more of it.
+        helpers: the `rodctl.helper_process.Helpers` of `rodctl simulate` (`start_helpers`): the
+            figures and run.rrd are then written by helper processes; None: in this process
+            (the figures still in a helper of their own).
     """
 
     run_dir: Path | None
     logging: LoggingConfig
     experiment: Any = None
+    helpers: Any = None
 
 
 class SinkConfig(StrictModel):
@@ -108,19 +113,47 @@ def _mcap(cfg: McapSinkConfig, ctx: SinkContext) -> Sink:
 
 @SINKS.register(RerunSinkConfig)
 def _rerun(cfg: RerunSinkConfig, ctx: SinkContext) -> Sink:
-    """`RerunSink` writing run_dir/run.rrd."""
+    """`RerunSink` writing run_dir/run.rrd; with `ctx.helpers`, from a helper process
+    (`rodctl.logs.rerun_process`: no rerun in this one)."""
+    path = _folder(ctx, "rerun") / "run.rrd"
+    if ctx.helpers is not None:
+        from rodctl.logs import rerun_process  # noqa: PLC0415 (lazily: `_mcap`)
+
+        helper = ctx.helpers.take(rerun_process.MODULE, rerun_process.NAME)
+        return rerun_process.RerunProcessSink(helper, path, ctx.logging)
     from rodctl.logs.rerun import RerunSink  # noqa: PLC0415 (the writer, lazily: `_mcap`)
 
-    return RerunSink(_folder(ctx, "rerun") / "run.rrd", ctx.logging)
+    return RerunSink(path, ctx.logging)
 
 
 @SINKS.register(FiguresSinkConfig)
 def _figures(cfg: FiguresSinkConfig, ctx: SinkContext) -> Sink:
     """A started `FigureWorker` (it gets the records as a sink; `rodctl.simulate` saves the
     figures it draws and stops it)."""
-    from rodctl.figure_worker import FigureWorker  # noqa: PLC0415 (lazily: `_mcap`)
+    from rodctl import figure_worker  # noqa: PLC0415 (lazily: `_mcap`)
 
-    return FigureWorker.start()
+    if ctx.helpers is not None:  # started with the command (`start_helpers`)
+        return figure_worker.FigureWorker(
+            ctx.helpers.take(figure_worker.MODULE, figure_worker.NAME)
+        )
+    return figure_worker.FigureWorker.start()
+
+
+def start_helpers(logging: LoggingConfig) -> Any:
+    """The helper processes that the built-in sinks of a run with `logging` write through,
+    started now so that their imports overlap the command's (`rodctl.helper_process.Helpers`, a
+    context manager that stops them; give it to the sinks as `SinkContext.helpers`). The figure
+    process first: it has the longer way to go (matplotlib, then drawing after the episode)."""
+    from rodctl import figure_worker  # noqa: PLC0415 (lazily: `_mcap`)
+    from rodctl.helper_process import Helpers  # noqa: PLC0415
+    from rodctl.logs import rerun_process  # noqa: PLC0415
+
+    helpers = Helpers()
+    if logging.figures:
+        helpers.start(figure_worker.MODULE, figure_worker.NAME)
+    if logging.rerun:
+        helpers.start(rerun_process.MODULE, rerun_process.NAME)
+    return helpers
 
 
 class LiveSinkConfig(SinkConfig):

@@ -61,11 +61,11 @@ from rodctl.sim.rod import ApplyResult, RodSim, register_engine
 def _gtsv():  # noqa: ANN202 (an f2py function)
     """LAPACK's tridiagonal solver (Gaussian elimination with partial pivoting): the banded
     solve of `scipy.linalg.solve_banded` with one sub- and super-diagonal, without its per-call
-    overhead. Imported on first use, not when `rodctl.sim` registers this engine: scipy.linalg
-    costs ~0.27 s of CPU at start-up, which runs on the default pymunk engine never need."""
-    from scipy.linalg import get_lapack_funcs  # noqa: PLC0415 (on first use: see the docstring)
+    overhead. Loaded on first use, and without importing scipy.linalg (`rodctl.sim.lapack`):
+    that costs ~0.27 s of CPU at start-up, for one routine."""
+    from rodctl.sim.lapack import dgtsv  # noqa: PLC0415 (on first use: see the docstring)
 
-    return get_lapack_funcs("gtsv", dtype=np.float64)
+    return dgtsv()
 
 
 #: The reductions as bare ufunc methods (`ndarray.sum`/`max` add a Python layer per call).

@@ -45,7 +45,9 @@ class _FullAfter:
 def test_injected_enospc_mid_run_fails_cleanly_and_keeps_the_steps_before(tmp_path, monkeypatch):
     real = simulate_module.make_sinks
     monkeypatch.setattr(
-        simulate_module, "make_sinks", lambda cfg, path: [_FullAfter(s, 6) for s in real(cfg, path)]
+        simulate_module,
+        "make_sinks",
+        lambda cfg, path, *helpers: [_FullAfter(s, 6) for s in real(cfg, path, *helpers)],
     )
     res = CliRunner().invoke(app, ["simulate", SCRIPTED, "-q", "-o", str(tmp_path), *QUICK])
     assert res.exit_code == 1, res.output
@@ -121,7 +123,7 @@ class _FailsToOpen:
 
 @pytest.mark.slow
 def test_a_log_that_cannot_be_opened_fails_the_run_cleanly(tmp_path, monkeypatch):
-    monkeypatch.setattr(simulate_module, "make_sinks", lambda cfg, path: [_FailsToOpen()])
+    monkeypatch.setattr(simulate_module, "make_sinks", lambda cfg, path, *_: [_FailsToOpen()])
     res = CliRunner().invoke(app, ["simulate", SCRIPTED, "-q", "-o", str(tmp_path), *QUICK])
     assert res.exit_code == 1 and "No space left on device" in res.output, res.output
     (run_dir,) = tmp_path.iterdir()

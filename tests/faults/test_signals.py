@@ -104,6 +104,32 @@ def test_simulate_stopped_by_a_signal_keeps_its_figures_and_leaves_no_process(
 
 
 @pytest.mark.slow
+def test_simulate_stopped_by_a_signal_finishes_its_rerun_recording(tmp_path):
+    """run.rrd is written by a helper process too: a Ctrl-C at the terminal (to the group)
+    reaches only the command, which has the helper end the recording with the run's status;
+    nothing is left when it returns."""
+    from rerun.chunk import RrdReader
+
+    proc = _start(["simulate", SCRIPTED, "-q", "-o", str(tmp_path)])
+    run_dir = _run_dir(tmp_path)
+    mcap = run_dir / "run.mcap"
+    _wait_for(lambda: mcap.exists() and mcap.stat().st_size >= 40_000, 60)
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1, err
+    assert _live_processes(proc.pid) == []
+    assert _meta(run_dir)["status"] == "interrupted"
+    lines = [
+        text
+        for chunk in RrdReader(run_dir / "run.rrd").stream()
+        if chunk.entity_path == "/log"
+        for text in chunk.to_record_batch().column("TextLog:text").to_pylist()
+    ]
+    assert lines[0][0].startswith("run started: method ")
+    assert any(line[0].startswith("run interrupted") for line in lines), lines[-3:]
+
+
+@pytest.mark.slow
 def test_a_killed_simulate_leaves_no_figure_process(tmp_path):
     """SIGKILL to the command alone: its figure process, which nothing told, ends too."""
     proc = _start(["simulate", SCRIPTED, "-q", "-o", str(tmp_path), "--set", "logging.rerun=false"])
