@@ -94,7 +94,11 @@ class Runs:
             t = time.process_time()
             friction.SUBSTEPS = 2 * default if "sub-moves" in name else default
             try:
-                sims[name] = RodSim(cfg)
+                sims[name] = (
+                    friction.TableQuasiStaticSim(cfg)
+                    if cfg.engine == "quasistatic"
+                    else RodSim(cfg)
+                )
             finally:
                 friction.SUBSTEPS = default
             self.cpu[name] += time.process_time() - t

@@ -99,7 +99,7 @@ def _rows_of(encode: Any) -> Any:
     owner = getattr(encode, "__self__", None)
     if owner is None or getattr(encode, "__name__", None) != "encode":
         return None
-    defining = {}
+    defining: dict[str, type] = {}
     for cls in type(owner).__mro__:
         for name in ("encode", "encode_rows"):
             if name in cls.__dict__:

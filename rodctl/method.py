@@ -20,7 +20,7 @@ that caused it.
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -147,12 +147,12 @@ class Method:
     @property
     def open_loop(self) -> bool:
         """The controller ignores the feature and J (a scripted path): nothing to converge."""
-        return self._open_loop_hooks and bool(self.controller.open_loop)
+        return self._open_loop_hooks and bool(cast(OpenLoopController, self.controller).open_loop)
 
     @property
     def finished(self) -> bool:
         """The controller has nothing left to do (the end of a scripted path)."""
-        return self._open_loop_hooks and bool(self.controller.done)
+        return self._open_loop_hooks and bool(cast(OpenLoopController, self.controller).done)
 
     @property
     def T1(self) -> float:
@@ -214,7 +214,7 @@ class Method:
             s_new = self._encode(obs["centerline"])
             t = time.perf_counter()
             if self._observes:  # a state-dependent model (ObservingEstimator)
-                self.estimator.observe(
+                cast(ObservingEstimator, self.estimator).observe(
                     np.asarray(obs["centerline"]), np.asarray(obs["gripper"], dtype=float)
                 )
             self.J = self.estimator.update(s_new - self.s, self._unseen)

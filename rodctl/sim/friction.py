@@ -29,7 +29,8 @@ the continuous quasi-static sweep (measured: 16 and 32 sub-moves agree within 0.
 The smoothing lets a stuck segment creep by about ε per sub-move, which adds up over a run:
 hence the fine last level.
 
-Not reachable from a validated config: `rod.table_friction` with `engine: quasistatic` is
+`TableQuasiStaticSim(cfg)` is the quasi-static engine on this chain. It is not reachable from a
+validated config: `rod.table_friction` with `engine: quasistatic` is
 refused (`rodctl/config/rod.py`), because the pymunk table it would replace depends on how fast
 it is driven by more than the agreement asked for (docs/engines.md, Friction, measured with
 `benchmarks/bench_table_friction.py`); this solver agrees with that table's slow-driven limit.
@@ -42,7 +43,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rodctl.sim.quasistatic import MAX_BRANCH_STEP, QuasiStaticChain, _ends, _Model
+from rodctl.config.rod import STANDARD_GRAVITY, RodConfig
+from rodctl.sim.quasistatic import (
+    MAX_BRANCH_STEP,
+    QuasiStaticChain,
+    QuasiStaticSim,
+    _ends,
+    _Model,
+)
 
 #: Smoothing widths ε of |Δc| (as fractions of L), coarse to fine: the continuation.
 EPS_LEVELS = (1e-3, 1e-5, 1e-7)
@@ -111,6 +119,8 @@ class FrictionalChain(QuasiStaticChain):
         self.warm = True
         #: Newton iterations of the frictional solves (all levels), for the record.
         self.friction_iterations = 0
+        #: The last sub-move: (its fraction of the move, its increment of θ, its friction forces).
+        self._last: tuple[float, np.ndarray, tuple] | None = None
 
     def set_table_friction(self, mu: float) -> None:
         if not (math.isfinite(mu) and mu >= 0):
@@ -214,8 +224,8 @@ class FrictionalChain(QuasiStaticChain):
         ref_theta = self.theta
         ref_centres = self._centres(ref_theta, self._clamp)
         ref = (grip, clamp, ref_theta, ref_centres)
-        starts = []
-        last = self.__dict__.get("_last")
+        starts: list[tuple[np.ndarray, np.ndarray, tuple | None, tuple, bool]] = []
+        last = self._last
         if self.warm and last is not None and last[0] == frac:
             # The last sub-move of this move, repeated: its increment and its friction forces
             # (sliding segments keep sliding the same way), from the finer levels only.
@@ -236,6 +246,7 @@ class FrictionalChain(QuasiStaticChain):
                 if not self._maybe_straight and jump > MAX_BRANCH_STEP:
                     continue  # a would-be branch jump (as in the frictionless continuation)
                 if self._reduced_pd(theta, lam, ref, levels[-1]):
+                    assert dual is not None  # set by the last level's solve
                     return theta, lam, dual
         return None
 
@@ -469,3 +480,21 @@ def _cone_step(fx: np.ndarray, fy: np.ndarray, dx: np.ndarray, dy: np.ndarray, w
     with np.errstate(invalid="ignore", divide="ignore"):
         root = (-b + np.sqrt(np.maximum(b * b - 4.0 * a * c, 0.0))) / (2.0 * a)
     return float(min(1.0, 0.99 * float(np.min(root[outside]))))
+
+
+class TableQuasiStaticSim(QuasiStaticSim):
+    """The quasi-static engine (`QuasiStaticSim`) with its rod on a table: `FrictionalChain`
+    built from `cfg.table_friction`. Built directly (`TableQuasiStaticSim(cfg)`, `cfg` made with
+    `model_copy`), never by `RodSim(cfg)`: validation refuses the table on this engine (module
+    docstring). A rod on a table has no smooth Jacobian (friction is one-sided)."""
+
+    _chain_type = FrictionalChain
+
+    def _build_chain(self, cfg: RodConfig) -> None:
+        super()._build_chain(cfg)
+        self.centerline_jacobian = None  # type: ignore[assignment]  # one-sided on a table
+
+    def _chain_options(self, cfg: RodConfig) -> dict:
+        if cfg.table_friction is None:
+            raise ValueError("TableQuasiStaticSim needs rod.table_friction")
+        return {"table_friction": cfg.table_friction, "table_gravity": STANDARD_GRAVITY}

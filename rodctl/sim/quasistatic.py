@@ -52,7 +52,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from rodctl.config.rod import STANDARD_GRAVITY, RodConfig
+from rodctl.config.rod import RodConfig
 from rodctl.records import SNAP_NOTE
 from rodctl.sim.rod import ApplyResult, RodSim, register_engine
 
@@ -140,7 +140,7 @@ class QuasiStaticChain:
         self.bending_stiffness = float(bending_stiffness)
         self.mass_per_length = float(mass_per_length)
         self.gravity = (float(gravity[0]), float(gravity[1]))
-        self.table_friction = None
+        self.table_friction: float | None = None
         self.table_gravity = float(table_gravity)
         self.segment_inertia = segment_inertia
         self.tip_force = None if tip_force is None else np.asarray(tip_force, dtype=float)
@@ -811,15 +811,7 @@ class QuasiStaticSim(RodSim):
         self.dt = float(cfg.control_period)
         self.omega1 = math.nan
         self._damping_rate = 0.0
-        chain_type: type[QuasiStaticChain] = QuasiStaticChain
-        table: dict = {}
-        if cfg.table_friction is not None:  # a rod on a table: rodctl/sim/friction.py
-            from rodctl.sim.friction import FrictionalChain  # noqa: PLC0415 (it imports this)
-
-            chain_type = self._chain_type = FrictionalChain  # type: ignore[misc]
-            table = {"table_friction": cfg.table_friction, "table_gravity": STANDARD_GRAVITY}
-            self.centerline_jacobian = None  # type: ignore[assignment]  # one-sided on a table
-        self.chain = chain_type(  # type: ignore[assignment]  # see _chain_type
+        self.chain = self._chain_type(  # type: ignore[assignment]  # see _chain_type
             length=cfg.length,
             bending_stiffness=cfg.bending_stiffness,
             mass_per_length=cfg.mass_per_length,
@@ -828,9 +820,13 @@ class QuasiStaticSim(RodSim):
             dt=self.dt,
             gravity=cfg.gravity,
             movable_clamp=cfg.arms == 2,  # dual-arm: the clamp pose is a second input
-            **table,
+            **self._chain_options(cfg),
         )
         self._snap_seen = 0
+
+    def _chain_options(self, cfg: RodConfig) -> dict:
+        """More arguments for the chain: none here (a table's: `rodctl.sim.friction`)."""
+        return {}
 
     @property
     def _qs(self) -> QuasiStaticChain:

@@ -14,7 +14,7 @@ from pydantic import ValidationError
 
 from rodctl.config.rod import RodConfig
 from rodctl.sim import RodSim
-from rodctl.sim.friction import FrictionalChain
+from rodctl.sim.friction import FrictionalChain, TableQuasiStaticSim
 
 L = 0.5
 N = 20
@@ -23,7 +23,7 @@ MOVES = ([0.01, -0.01, 0.05], [-0.004, 0.01, -0.05], [0.01, 0.006, 0.0])
 
 def table_sim(mu: float, substeps: int = 8, **rod: object) -> RodSim:
     cfg = RodConfig(segments=N, table_friction=mu, **rod)  # type: ignore[arg-type]
-    sim = RodSim(cfg.model_copy(update={"engine": "quasistatic"}))
+    sim = TableQuasiStaticSim(cfg.model_copy(update={"engine": "quasistatic"}))
     assert isinstance(sim.chain, FrictionalChain)
     sim.chain.substeps = substeps
     return sim
