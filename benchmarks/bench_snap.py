@@ -205,7 +205,7 @@ def main() -> None:
     print(
         f"previous flow: {capped} of {n} stopped unconverged (its 4,000-step cap, or its τ "
         f"collapsed); with {args.reference_cap} steps {capped - len(fine)} of them converged; "
-        f"the other {len(fine)} were judged by the flow integrated finely (τ <= 1/k), which "
+        f"the other {len(fine)} were judged by the flow integrated finely (τ <= 4/k), which "
         f"converged on {sum(r['ref_converged'] for r in fine)}. Current flow: "
         f"{sum(r['new_stable'] for r in rows)} of {n} converged to a stable state"
     )

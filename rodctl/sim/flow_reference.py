@@ -10,7 +10,7 @@ is stable. Its penalty makes it reject steps longer than ~0.01 rad (the constrai
 error, squared and weighted by ρ, outweighs the energy the step gains), so a snap took ~1,000
 steps and some ran into the 4,000-step cap; `max_steps` lets a validation run it further.
 
-`accurate_flow` integrates the same gradient flow finely (τ at most 1/k): the judge of where the
+`accurate_flow` integrates the same gradient flow finely (τ at most 4/k): the judge of where the
 flow goes from the states where the previous flow does not converge at all.
 
 Not used by any run: only the validation compares with them.
@@ -91,15 +91,16 @@ def accurate_flow(
     lam: np.ndarray,
     grip: np.ndarray,
     clamp: np.ndarray,
-    tau_max: float = 1.0,
-    max_steps: int = 400_000,
+    tau_max: float = 4.0,
+    max_steps: int = 1_000_000,
 ) -> tuple[np.ndarray, np.ndarray, bool, int]:
     """The gradient flow integrated finely: backward-Euler steps with τ at most `tau_max`/k
-    (k = EI/l; the rod's stiffest modes relax at rates up to ~4k), each accepted when it does not
-    raise E + λ'·h + ρ/2 |h|² (ρ = k/l², as `QuasiStaticChain._flow`), else halved; Newton once
-    the state is stable and near an equilibrium. Slow (10⁴–10⁵ steps a snap): the judge of which
-    equilibrium the flow reaches where the previous flow does not converge at all. Returns
-    (θ, λ, converged, steps)."""
+    (k = EI/l; the rod's stiffest modes relax at rates up to ~4k, the slow ones that decide
+    where it goes at far lower rates; τ k <= 1, 4 and 16 gave the same ends), each accepted when
+    it does not raise E + λ'·h + ρ/2 |h|² (ρ = k/l², as `QuasiStaticChain._flow`), else
+    halved; Newton once the state is stable and near an equilibrium. Slow (10³–10⁵ steps a
+    snap): the judge of which equilibrium the flow reaches where the previous flow does not
+    converge at all. Returns (θ, λ, converged, steps)."""
     from rodctl.sim.quasistatic import FLOW_PENALTY, _ends  # noqa: PLC0415 (no cycle)
 
     self = chain
