@@ -84,6 +84,8 @@ MAX_FLOW_STEPS = 4000
 #: Accepted flow steps after a failed Newton try before the next one (unless the residual has
 #: fallen 4-fold since).
 FLOW_RETRY = 50
+#: The flow's merit E + λ·h + ρ/2 |h|² takes ρ = FLOW_PENALTY · k/l² (`QuasiStaticChain._flow`).
+FLOW_PENALTY = 1.0
 #: Residual tolerances: torque residual relative to the chain's torque scale, and the gripper
 #: constraint relative to L.
 TORQUE_TOL = 1e-9
@@ -167,6 +169,8 @@ class QuasiStaticChain:
         self.snaps = 0
         self.snap_notes: list[str] = []
         self.newton_iterations = 0
+        #: Backward-Euler steps the snap flows took (diagnostics, `benchmarks/bench_snap.py`).
+        self.flow_steps = 0
         #: Convergence tolerance on the torque residual, relative to the chain's torque scale.
         self.torque_tol = TORQUE_TOL
         # Gravity weights: segment j's angle moves the centres of j (by l/2) and of all after it.
@@ -564,7 +568,15 @@ class QuasiStaticChain:
                 continue
             if moving and frac > MIN_FRACTION:
                 frac *= 0.5
-                continue
+                # Where the halved sub-step still reaches the end of the move (done + frac >= 1:
+                # after a success the sub-step doubles past it), the next try would be this one
+                # again, from the same state to the same end poses, and fail the same way (a
+                # near-fold try costs ~1.5 ms): skip it as failed. The same sub-steps, states
+                # and snap as without the skip, about half the Newton solves before a snap.
+                while f == 1.0 and done + frac >= 1.0 and frac > MIN_FRACTION:
+                    frac *= 0.5
+                if not (f == 1.0 and done + frac >= 1.0):
+                    continue
             # The path has lost stability here: follow the gradient flow to a stable state.
             theta, lam, conv = self._flow(self.theta.copy(), self.lam.copy(), g, c)
             jump = float(np.max(np.abs(theta - self.theta)))
@@ -591,39 +603,45 @@ class QuasiStaticChain:
         self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, bool]:
         """Overdamped gradient flow θ' = −P ∇E on the constraint manifold, by backward-Euler
-        steps (each a KKT solve with H + I/τ), τ doubling after a step that lowers the penalised
-        energy and quartered after one that does not; ends with Newton once the state is stable."""
+        steps (each a KKT solve with H + I/τ) to the next stable equilibrium; ends with Newton
+        once the state is stable.
+
+        A step is accepted when it does not raise the augmented Lagrangian
+        E + λ'·h + ρ/2 |h|² with the step's own multipliers λ' and a mild ρ = k/l² (the merit the
+        KKT step is a descent step for: E alone, or with a stiff penalty, also counts the
+        constraint's second-order error λ·h, which rejected every step longer than ~0.01 rad).
+        τ doubles after an accepted step and halves after a rejected one (pseudo-transient
+        continuation). Validated against the previous flow (`rodctl/sim/flow_reference.py`) on
+        real snap states: the same equilibrium, `tests/sim/test_snap_flow.py`."""
         m = self._model()
         k = m.k
-        rho = 1e3 * k / m.seg2  # penalty on the end-position constraint in the merit
+        rho = FLOW_PENALTY * k / m.seg2
         tau = 1.0 / k
         ends = _ends(grip, clamp)
         l0, l1 = lam.tolist()
         grad, diag, z, h0, h1 = self._eval(theta, l0, l1, m, ends)
-
-        def merit(th: np.ndarray, hx: float, hy: float) -> float:
-            return self.energy(th, grip, clamp) + 0.5 * rho * (hx * hx + hy * hy)
-
-        m0 = merit(theta, h0, h1)
+        e0 = self._flow_energy(z, m)
         # Newton is tried once the flow is near a stable state, then again only after the
         # residual has fallen 4-fold or FLOW_RETRY accepted steps later: each failed try costs
-        # up to MAX_NEWTON iterations with their line searches, and trying after every flow
-        # step made a snap cost seconds.
+        # up to MAX_NEWTON iterations with their line searches.
         retry_res, since_try = math.inf, 0
         for _ in range(MAX_FLOW_STEPS):
+            self.flow_steps += 1
             try:
                 # One backward-Euler step: the KKT solve with H + I/τ.
                 dth, d0, d1, _ = self._newton_step(diag + 1.0 / tau, z, grad, h0, h1, m)
             except (np.linalg.LinAlgError, ValueError):
-                tau *= 0.25
+                tau *= 0.5
                 if tau * k < 1e-12:
                     break
                 continue
             th2, n0, n1 = theta + dth, l0 + d0, l1 + d1
             grad2, diag2, z2, g0, g1 = self._eval(th2, n0, n1, m, ends)
-            m2 = merit(th2, g0, g1)
-            if math.isfinite(float(_SUM(th2))) and m2 <= m0 + 1e-15 * abs(m0):
-                theta, l0, l1, grad, diag, z, h0, h1, m0 = th2, n0, n1, grad2, diag2, z2, g0, g1, m2
+            e2 = self._flow_energy(z2, m)
+            before = e0 + n0 * h0 + n1 * h1 + 0.5 * rho * (h0 * h0 + h1 * h1)
+            after = e2 + n0 * g0 + n1 * g1 + 0.5 * rho * (g0 * g0 + g1 * g1)
+            if math.isfinite(after) and after <= before + 1e-15 * abs(before):
+                theta, l0, l1, grad, diag, z, h0, h1, e0 = th2, n0, n1, grad2, diag2, z2, g0, g1, e2
                 tau *= 2.0
                 res = self._measures(grad, h0, h1, m)[0]
                 since_try += 1
@@ -635,10 +653,21 @@ class QuasiStaticChain:
                         return th3, lam3, True
                     retry_res, since_try = res, 0
             else:
-                tau *= 0.25
+                tau *= 0.5
                 if tau * k < 1e-12:
                     break
         return theta, np.array([l0, l1]), False
+
+    def _flow_energy(self, z: np.ndarray, m: _Model) -> float:
+        """The chain's energy, up to a constant of the end poses, at the angles `_eval` was last
+        called with (its padded angles are still in `m.pad`; z = e^{iθ}): the springs
+        ½ Σ k_j Δθ_j² plus the body loads −Σ Re(w_j e^{iθ_j}) (gravity at the centres, the tip
+        load: `energy` without the terms that do not depend on θ)."""
+        d = np.subtract(m.pad_hi, m.pad_lo)
+        e = 0.5 * float(_SUM(m.kk * d * d))
+        if m.wg is not None:
+            e -= float(_SUM((m.wg * z).real))
+        return e
 
     def _hermite_guess(self, grip: np.ndarray, clamp: np.ndarray) -> np.ndarray:
         """Segment angles along the cubic Hermite curve between the two end poses."""
