@@ -100,7 +100,7 @@ _ORACLE_METHODS: dict[str, Any] = {}
 
 def _oracle_method(cfg: ExperimentConfig) -> Any:
     """The method's feature and controller with the oracle estimator. An autoencoder's feature
-    map loads and checks its checkpoint when built (~4 ms of CPU, 5 % of a quasi-static
+    map loads and checks its checkpoint when built (2.6-4.5 ms of CPU, 3-5 % of a quasi-static
     diagnosis) and its forward pass keeps no state, so that method is built once per config and
     process, as `rodctl.bench.episodes` does for the episodes' own (`Method.start` gives each
     diagnosis a fresh estimator and controller: the same bits). It is never the episode's
