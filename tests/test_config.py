@@ -219,3 +219,45 @@ def test_run_expect_takes_only_an_outcome_a_config_can_reach(value):
     cfg = load_config(REPO / "configs/default.yaml", ["run.expect=completed"])
     assert cfg.run.expect == "completed"
     assert "expect: completed" in dump_config(cfg)  # the outcome's value, as it was written
+
+
+def _shipped_dumps():
+    """What `dump_config` writes of every shipped config under configs/ (the experiment, compare
+    and sweep configs as read and validated, experiments also `clean`; the suites (and each
+    scenario) and the tuning files as read)."""
+    from rodctl.bench.sweep import load_sweep_config
+
+    for path in sorted((REPO / "configs").rglob("*.yaml")):
+        data = read_yaml(path)
+        if path.parent.name == "tuning":
+            yield path, data
+        elif "parameters" in data or "methods" in data:
+            yield path, data
+            load = load_sweep_config if "parameters" in data else load_compare_config
+            yield path, load(path).model_dump(mode="json")
+        elif "scenarios" in data:
+            yield path, data
+            for name, scenario in data["scenarios"].items():
+                yield path, {name: scenario, "base": data.get("base")}
+        else:
+            cfg = load_config(path)
+            yield path, cfg.model_dump(mode="json")
+            yield path, yaml.safe_load(dump_config(cfg, clean=True))
+
+
+@pytest.mark.skipif(not hasattr(yaml, "CSafeDumper"), reason="PyYAML built without libyaml")
+def test_libyaml_dumper_writes_the_python_emitters_bytes():
+    """`dump_config` uses libyaml's CSafeDumper (issue 24): the same text as PyYAML's own
+    SafeDumper for every shipped config, so run directories and checkpoints keep their bytes."""
+    seen = 0
+    for path, data in _shipped_dumps():
+        opts = dict(sort_keys=False, default_flow_style=None)
+        c_text = yaml.dump(data, Dumper=yaml.CSafeDumper, **opts)
+        assert c_text == yaml.dump(data, Dumper=yaml.SafeDumper, **opts), path
+        seen += 1
+    assert seen > 30
+    cfg = load_config(REPO / "configs/default.yaml")
+    opts = dict(sort_keys=False, default_flow_style=None)
+    assert dump_config(cfg) == yaml.dump(
+        cfg.model_dump(mode="json"), Dumper=yaml.SafeDumper, **opts
+    )

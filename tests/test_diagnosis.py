@@ -110,3 +110,27 @@ def test_a_dual_arm_episode_that_stalls_on_a_shape_no_pose_makes_is_unreachable(
     row = run_episode_task(_diagnosed_task(env, cfg))
     assert row["outcome"] == "stalled" and row["diagnosis"] == "unreachable", row
     assert row["error"] == ""
+
+
+def test_the_oracle_method_reused_by_a_later_diagnosis_moves_the_rod_as_a_fresh_one():
+    """An autoencoder's oracle method is built once per config and process (issue 24): a second
+    diagnosis with it makes the same moves, to the bit, as one with a method built for it."""
+    import rodctl.diagnosis as diagnosis
+
+    over = ["logging.mcap=false", "logging.rerun=false", "logging.figures=false"]
+    cfg = load_config(REPO / "configs/default.yaml", [*over, "rod.engine=quasistatic"])
+    assert cfg.feature.type == "autoencoder"
+
+    def moves() -> tuple[bool, bytes]:
+        env = ShapeServoEnv(cfg)
+        env.reset()
+        t = env.target
+        moved = Target(t.pose, t.centerline, t.pixels + np.array([6.0, 0.0]), t.difficulty)
+        env.reset(options={"target": moved})
+        done = diagnosis.true_jacobian_converges(env, cfg, 6)
+        return done, env.sim.centerline().tobytes() + env.frame.extracted.tobytes()
+
+    diagnosis._ORACLE_METHODS.clear()
+    fresh = moves()
+    assert moves() == fresh and len(diagnosis._ORACLE_METHODS) == 1  # built once, used twice
+    diagnosis._ORACLE_METHODS.clear()

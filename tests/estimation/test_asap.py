@@ -8,6 +8,7 @@ from scipy.optimize import least_squares
 
 from rodctl.estimation.asap import (
     OfflineJacobian,
+    _cached_asap,
     asap_from_centerline,
     asap_jacobian,
     asap_matrix,
@@ -166,3 +167,15 @@ def test_offline_jacobian_ignores_measurements():
     np.testing.assert_array_equal(out, Jm)
     np.testing.assert_array_equal(est.J, Jm)
     assert est.info() == {}
+
+
+def test_the_per_process_model_cache_gives_a_fresh_builds_bits():
+    """The ASAP model cached per rest shape (issue 24): a hit is the same bytes as a fresh build,
+    another rest shape or q is not served the cached one, and a caller's edit cannot reach it."""
+    for rest, q in ((arc(m=120), 3), (arc(m=120, bend=0.7), 3), (arc(m=120), 6)):
+        fresh = asap_from_centerline(rest, 24, [0.25, 0.5, 0.75], q=q)
+        for _ in range(2):
+            got = _cached_asap(rest, 24, [0.25, 0.5, 0.75], q)
+            for a, b in zip(got, fresh, strict=True):
+                assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+            got[0][:] = 0.0  # the caller's copy
