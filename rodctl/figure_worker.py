@@ -24,9 +24,6 @@ input (with no record sent: "no figures", the helper exits). The reply: `{file n
 from __future__ import annotations
 
 import dataclasses
-import os
-import pickle
-import sys
 import threading
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -160,10 +157,9 @@ def helper_main() -> None:
         received.extend(helper_process.messages())
         ended.set()
 
-    reader = threading.Thread(target=read, name="rodctl-figures-read", daemon=True)
-    reader.start()
+    threading.Thread(target=read, name="rodctl-figures-read", daemon=True).start()
     try:
-        pngs = _draw(received, ended, reader)
+        pngs = _draw(received, ended)
     except BaseException:  # noqa: BLE001 - the traceback to stderr, exit 1 (a reading thread
         helper_process.fail()  # would make the interpreter's shut-down abort)
     if pngs is None:
@@ -171,9 +167,7 @@ def helper_main() -> None:
     helper_process.reply(out, pngs, "figures")
 
 
-def _draw(
-    received: list[Any], ended: threading.Event, reader: threading.Thread
-) -> dict[str, bytes] | None:
+def _draw(received: list[Any], ended: threading.Event) -> dict[str, bytes] | None:
     """The figures of the run `received` once `ended` is set (None: no run came)."""
     # The slow part (matplotlib), while the parent runs the episode; the command never imports it.
     from rodctl import plots  # noqa: PLC0415
@@ -189,56 +183,4 @@ def _draw(
     records = [value for kind, value in received if kind == "record"]
     if header is None or not records:
         return None
-    reader.join()  # done: no thread but this one when `_in_two` forks
-    return _in_two(figures, header, records)
-
-
-#: The figure a forked copy of the helper draws (`_in_two`): the costliest of the three.
-_FORKED = ("commands.png",)
-
-
-def _idle_core() -> bool:
-    """Whether another core is likely free now: Linux, two cores or more, and a 1-minute load
-    average at least one below their number."""
-    if not sys.platform.startswith("linux") or not hasattr(os, "sched_getaffinity"):
-        return False
-    cores = len(os.sched_getaffinity(0))
-    return cores >= 2 and os.getloadavg()[0] <= cores - 1
-
-
-def _in_two(figures: Any, header: RunHeader, records: list[StepRecord]) -> dict[str, bytes]:
-    """The figures, Fig. 3 drawn by a forked copy of this process on another core: after the
-    episode the command only waits, and Fig. 3 is about half of the drawing. Each figure is drawn
-    on its own, so the bytes are the same. The copy costs ~20 % more CPU in all (the fork, and
-    copy-on-write as it draws), so only where a core is likely idle (`_idle_core`; on a loaded
-    2-core machine the split measured slower); elsewhere, off Linux (fork there only), or
-    when the copy fails, all are drawn here."""
-    from rodctl.plots import RUN_FIGURES  # noqa: PLC0415 (imported already: helper side)
-
-    if not _idle_core():
-        return figures.render(header, records)
-    read_end, write_end = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the copy: Fig. 3 into the pipe, then gone (nothing of the helper's exit)
-        code = 1
-        try:
-            os.close(read_end)
-            helper_process.die_with_parent(os.getppid())
-            with os.fdopen(write_end, "wb") as pipe:
-                pickle.dump(figures.render(header, records, _FORKED), pipe)
-            code = 0
-        finally:
-            os._exit(code)
-    os.close(write_end)
-    pngs = figures.render(header, records, [n for n in RUN_FIGURES if n not in _FORKED])
-    with os.fdopen(read_end, "rb") as pipe:
-        data = pipe.read()
-    _, status = os.waitpid(pid, 0)
-    try:
-        theirs = pickle.loads(data) if status == 0 else {}
-    except Exception:  # noqa: BLE001 - a copy that sent nothing usable: drawn here instead
-        theirs = {}
-    if set(theirs) != set(_FORKED):
-        theirs = figures.render(header, records, _FORKED)
-    both = {**pngs, **theirs}
-    return {name: both[name] for name in RUN_FIGURES}
+    return figures.render(header, records)

@@ -275,7 +275,7 @@ class Helpers:
 # --- helper side ------------------------------------------------------------------------------
 
 
-def die_with_parent(parent: int) -> None:
+def _die_with_parent(parent: int) -> None:
     """Be killed when the parent dies (Linux), and exit now if it already has."""
     if sys.platform.startswith("linux"):
         try:
@@ -292,7 +292,7 @@ def begin(role: str) -> IO[bytes]:
     goes to stderr); the reply stream, for `reply`."""
     out = sys.stdout.buffer
     sys.stdout = sys.stderr  # anything printed while working must not corrupt the reply
-    die_with_parent(int(sys.argv[2]))
+    _die_with_parent(int(sys.argv[2]))
     timeline.mark(role, "started")
     return out
 

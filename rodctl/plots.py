@@ -295,43 +295,35 @@ class RunFigures:
                 return
             fig.canvas.draw()
 
-    def render(
-        self,
-        header: RunHeader,
-        records: Sequence[StepRecord],
-        names: Sequence[str] = RUN_FIGURES,
-    ) -> dict[str, bytes]:
-        """The PNG bytes by file name (`render_figures`); `names`: only these (each figure is
-        drawn on its own: the bytes do not depend on which others are drawn)."""
-        draw = {"shapes.png": self._shapes, "t1.png": self._t1, "commands.png": self._commands}
-        return {name: draw[name](header, records) for name in RUN_FIGURES if name in names}
+    def render(self, header: RunHeader, records: Sequence[StepRecord]) -> dict[str, bytes]:
+        """The PNG bytes by file name (`render_figures`)."""
+        if True:  # one block per figure group; no rc_context (it re-validates every rcParam: slow)
+            fig, ax = self.shapes, self.shapes_ax
+            draw_shapes(ax, header, records)
+            _title(ax, _headline("Rod centerline every three frames", header.method, 5.6), FONT + 1)
+            pngs = {"shapes.png": _png(fig)}
 
-    # No rc_context in these (it re-validates every rcParam: slow).
-    def _shapes(self, header: RunHeader, records: Sequence[StepRecord]) -> bytes:
-        fig, ax = self.shapes, self.shapes_ax
-        draw_shapes(ax, header, records)
-        _title(ax, _headline("Rod centerline every three frames", header.method, 5.6), FONT + 1)
-        return _png(fig)
+            steps, t1, px, u = _series(records)
+            spans = _probe_spans(records)
+            fig, ax = self.t1, self.t1_ax
+            shade_probing(ax, spans)
+            ax.plot(steps, _log_safe(t1), color="tab:blue", marker="o", ms=3, lw=1.4, label="T1")
+            ax.set_xlabel("step")
+            ax.set_ylabel("T1 = ||s* − s|| (feature units)")
+            _ticks(ax, log_y=t1)
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=FONT - 1)
+            _title(ax, _headline("Deformation error T1", header.method, 6.4), FONT + 1)
+            pngs["t1.png"] = _png(fig)
 
-    def _t1(self, header: RunHeader, records: Sequence[StepRecord]) -> bytes:
-        steps, t1, _, _ = _series(records)
-        fig, ax = self.t1, self.t1_ax
-        shade_probing(ax, _probe_spans(records))
-        ax.plot(steps, _log_safe(t1), color="tab:blue", marker="o", ms=3, lw=1.4, label="T1")
-        ax.set_xlabel("step")
-        ax.set_ylabel("T1 = ||s* − s|| (feature units)")
-        _ticks(ax, log_y=t1)
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=FONT - 1)
-        _title(ax, _headline("Deformation error T1", header.method, 6.4), FONT + 1)
-        return _png(fig)
-
-    def _commands(self, header: RunHeader, records: Sequence[StepRecord]) -> bytes:
-        begun = None if _second_end(records) is not None else (self.commands, self.commands_grid)
-        fig = _commands(
-            {header.method: records}, speed_limits(header), speed_limits(header, "x0"), begun
-        )
-        return _png(fig)
+            begun = (
+                None if _second_end(records) is not None else (self.commands, self.commands_grid)
+            )
+            commands = _commands(
+                {header.method: records}, speed_limits(header), speed_limits(header, "x0"), begun
+            )
+            pngs["commands.png"] = _png(commands)
+        return pngs
 
 
 def _commands(

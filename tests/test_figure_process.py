@@ -23,7 +23,6 @@ from typer.testing import CliRunner
 from rodctl import figure_worker, plots
 from rodctl.cli import app
 from rodctl.config import load_config
-from rodctl.logs.synthetic import SyntheticRun
 from rodctl.replay import read_run
 from rodctl.simulate import simulate
 
@@ -200,23 +199,3 @@ def test_the_summary_is_shown_before_the_figures_are_waited_for(tmp_path):
     (run_dir,) = out.iterdir()
     assert json.loads((run_dir / "meta.json").read_text())["status"] == "completed"
     assert {p.name for p in (run_dir / "figures").iterdir()} == FIGURES
-
-
-@pytest.mark.parametrize("copy", ["draws", "fails"])
-def test_figures_drawn_in_two_processes_are_the_figures_drawn_in_one(monkeypatch, copy):
-    """Where a core is idle the helper forks a copy that draws Fig. 3 (`_in_two`); begun
-    figures drawn empty first, as the helper does. A copy that fails: drawn by the helper."""
-    run = SyntheticRun(seed=2, image_every=0)
-    records = run.records(20)
-    monkeypatch.setattr(figure_worker, "_idle_core", lambda: True)
-    if copy == "fails":
-        monkeypatch.setattr(figure_worker.pickle, "dump", _raise)  # only the copy dumps
-    figures = plots.RunFigures()
-    figures.draw_empty()
-    got = figure_worker._in_two(figures, run.header, records)
-    assert got == plots.render_figures(run.header, records)
-    assert list(got) == list(plots.RUN_FIGURES)
-
-
-def _raise(*_args, **_kw):
-    raise RuntimeError("injected: the copy fails")
