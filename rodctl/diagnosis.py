@@ -35,13 +35,16 @@ events do not fire during it.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from rodctl.config import ExperimentConfig
 from rodctl.env import ShapeServoEnv, pixel_error
 from rodctl.geometry import resample_polyline
+
+if TYPE_CHECKING:
+    from rodctl.method import Method
 
 #: The values of the `diagnosis` column (None for episodes that did not stall or get pinned).
 DIAGNOSES = ("workspace", "estimator", "unreachable", "other", "inconclusive")
@@ -129,6 +132,15 @@ def true_jacobian_converges(env: ShapeServoEnv, cfg: ExperimentConfig, steps: in
     state (the last frame), reach the pixel tolerance within `steps` moves."""
     method = _oracle_method(cfg)
     assert env.task is not None  # the episode's reset set it
+    try:
+        return _oracle_run(method, env, cfg, steps)
+    finally:
+        method.release()  # a cached method must not keep this env alive
+
+
+def _oracle_run(method: Method, env: ShapeServoEnv, cfg: ExperimentConfig, steps: int) -> bool:
+    """`true_jacobian_converges`' moves, with `method` (the oracle's) on `env`."""
+    assert env.task is not None
     method.start(env.task)
     obs: dict[str, Any] = env._observation(np.zeros(env.q))
     if not obs["extraction_ok"]:

@@ -144,6 +144,15 @@ class Method:
         self._probe_pairs: tuple[list, list] = ([], [])
         self._probing_left = 0
 
+    def release(self) -> None:
+        """Let go of the last episode: its task, whose true-Jacobian closure holds that
+        episode's env (rod, camera, frames), and the estimator and controller built for it
+        (the oracle's holds the same closure). For a method kept for later episodes
+        (`rodctl.bench.episodes`, `rodctl.diagnosis`); `start` builds them again."""
+        self.task = None
+        for name in ("estimator", "controller"):
+            self.__dict__.pop(name, None)
+
     @property
     def open_loop(self) -> bool:
         """The controller ignores the feature and J (a scripted path): nothing to converge."""

@@ -334,3 +334,17 @@ def test_seeds_with_fixed_target_poses_are_refused(tmp_path):
     )  # fmt: skip
     assert res.exit_code == 2 and "targets.poses fix the poses" in res.output, res.output
     assert not list(tmp_path.iterdir())
+
+
+def test_each_scenario_records_the_executor_the_suite_ran_on(tmp_path):
+    """The scenarios share the suite's one pool, and each scenario's meta.json names the
+    executor it ran on (here the example plug-in's `thread`), not the default `local`."""
+    res = CliRunner().invoke(
+        app,
+        ["compare", SMOKE, "-q", "-o", str(tmp_path), "--executor", "thread", "--workers", "2"],
+    )
+    assert res.exit_code == 0, res.output
+    folder = Path(res.output.strip().splitlines()[-1])
+    metas = [json.loads(p.read_text()) for p in (folder / "scenarios").glob("*/meta.json")]
+    assert len(metas) == 3
+    assert all("thread" in json.dumps(m["executor"]) for m in metas), metas[0]["executor"]

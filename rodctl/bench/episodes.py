@@ -122,15 +122,19 @@ def _run(
         (log_dir / "config.yaml").write_text(dump_config(cfg), encoding="utf-8")
         sinks = make_sinks(cfg, log_dir)
     env = ShapeServoEnv(cfg)
-    return env, run_episode(
-        env,
-        _method(cfg),
-        sinks=sinks,
-        run_id=task.name,
-        options=_target_options(task),
-        # SIGINT/SIGTERM of this process (or Ray's cancel) end it whole, between two steps.
-        stop_requested=stop_reason,
-    )
+    method = _method(cfg)
+    try:
+        return env, run_episode(
+            env,
+            method,
+            sinks=sinks,
+            run_id=task.name,
+            options=_target_options(task),
+            # SIGINT/SIGTERM of this process (or Ray's cancel) end it whole, between two steps.
+            stop_requested=stop_reason,
+        )
+    finally:
+        method.release()  # a cached method must not keep this episode's env alive
 
 
 def _diagnose(

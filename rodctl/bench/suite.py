@@ -183,10 +183,15 @@ def run_suite(
         # imports again (spawn) and the caches warmed again, and a Ray its start (17-19 s).
         pending = [n for n in scenarios if not _completed(Path(folders.get(n) or "-"))]
         pool = make_pool(executor, workers, cfg.workers, address) if pending else None
-        with pool or contextlib.nullcontext(), stop_handlers():
+        # The handlers around the pool's start too, as `run_study` has them: a SIGTERM while a
+        # pool (a Ray: 17-19 s) starts ends the suite as interrupted, not by the default action.
+        with stop_handlers(), pool or contextlib.nullcontext(), stop_handlers():
             shared = SharedExecutor(pool) if pool is not None else None
+            # executor and address too: each scenario's meta.json records where it ran.
             options = {"progress": progress, "workers": workers, "pool": shared}
-            _run_scenarios(run, scenarios, folders, wall, **options)
+            _run_scenarios(
+                run, scenarios, folders, wall, executor=executor, address=address, **options
+            )
         report = write_suite_outputs(cfg, run.path, folders, wall())
         if progress:
             stderr.print(report)
