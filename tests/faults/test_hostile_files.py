@@ -77,10 +77,12 @@ def test_verify_reports_a_config_yaml_that_no_longer_matches_the_log(tmp_path, d
         assert "run.max_steps" in res.output
 
 
-def test_messages_print_plain_numbers():
+def test_messages_print_plain_numbers(tmp_path):
     """A user reads 0.4, not np.float64(0.4), in error messages."""
     res = CliRunner().invoke(
-        app, ["simulate", DEFAULT, "--set", "run.target.pose=[5.0, 0.0, 0.0]", "-q", *QUICK]
+        app,
+        ["simulate", DEFAULT, "--set", "run.target.pose=[5.0, 0.0, 0.0]", "-q", "-o", str(tmp_path)]
+        + list(QUICK),
     )
     assert res.exit_code == 2 and "np.float64" not in res.output, res.output
     assert "run.target.pose" in res.output
