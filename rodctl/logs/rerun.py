@@ -42,7 +42,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import rerun as rr
@@ -54,7 +54,19 @@ from rodctl.records import RunHeader, RunSummary, StepRecord
 
 if TYPE_CHECKING:  # the writer process (`rodctl.logs.rerun_process`) does without pydantic
     from rodctl.config.logging import LoggingConfig
-    from rodctl.logs.rerun_process import RerunOptions
+
+
+class RerunSettings(Protocol):
+    """What `RerunSink` reads of its config: a `LoggingConfig`, or the plain `RerunOptions` of
+    the writer process (`rodctl.logs.rerun_process`, which imports this module, not back)."""
+
+    @property
+    def flush_every_steps(self) -> int: ...
+    @property
+    def image_rate_hz(self) -> float: ...
+    @property
+    def png_compression(self) -> int: ...
+
 
 APPLICATION_ID = "rodctl"
 
@@ -310,7 +322,7 @@ class RerunSink:
     def __init__(
         self,
         path: str | Path | None,
-        cfg: LoggingConfig | RerunOptions | None = None,
+        cfg: LoggingConfig | RerunSettings | None = None,
         *,
         url: str | None = None,
     ) -> None:
