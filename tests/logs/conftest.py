@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -73,11 +74,22 @@ def rerun_exe() -> str:
     return RERUN
 
 
+def rrd_compare(a: Path, b: Path) -> int:
+    """`rerun rrd compare --unordered a b`'s exit code: 0 when the recordings hold the same."""
+    return subprocess.run(
+        [RERUN, "rrd", "compare", "--unordered", str(a), str(b)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    ).returncode
+
+
 @pytest.fixture(scope="session")
 def helpers():
-    """`write_run` and `summary_of` (test modules cannot import conftest by name)."""
+    """`write_run`, `summary_of` and `rrd_compare` (test modules cannot import conftest by
+    name)."""
 
-    return SimpleNamespace(write_run=write_run, summary_of=summary_of)
+    return SimpleNamespace(write_run=write_run, summary_of=summary_of, rrd_compare=rrd_compare)
 
 
 @pytest.fixture(scope="session")

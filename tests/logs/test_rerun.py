@@ -103,23 +103,15 @@ def test_logged_values(rrd_file, synthetic):
     assert img_steps == [r.step for r in records if r.image is not None]
 
 
-def test_two_recordings_of_the_same_records_compare_equal(tmp_path, synthetic, helpers, rerun_exe):
+def test_two_recordings_of_the_same_records_compare_equal(tmp_path, synthetic, helpers):
     header, records = synthetic
     a = helpers.write_run(RerunSink, tmp_path / "a.rrd", header, records[:12], None)
     b = helpers.write_run(RerunSink, tmp_path / "b.rrd", header, records[:12], None)
     other = SyntheticRun(seed=4, image_every=5)
     c = helpers.write_run(RerunSink, tmp_path / "c.rrd", header, other.records(12), None)
 
-    def compare(x, y):
-        return subprocess.run(
-            [rerun_exe, "rrd", "compare", "--unordered", str(x), str(y)],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        ).returncode
-
-    assert compare(a, b) == 0
-    assert compare(a, c) != 0
+    assert helpers.rrd_compare(a, b) == 0
+    assert helpers.rrd_compare(a, c) != 0
 
 
 def test_close_is_idempotent_and_write_after_close_fails(tmp_path, synthetic):

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
 
 import pytest
 
@@ -26,7 +25,7 @@ def _through(helpers: Helpers):
     return make
 
 
-def test_the_helper_writes_the_recording_rerun_sink_writes(tmp_path, synthetic, helpers, rerun_exe):
+def test_the_helper_writes_the_recording_rerun_sink_writes(tmp_path, synthetic, helpers):
     header, records = synthetic  # frames on every 5th step: chosen and encoded by this process
     summary = helpers.summary_of(records)
     cfg = LoggingConfig(flush_every_steps=7)
@@ -40,16 +39,8 @@ def test_the_helper_writes_the_recording_rerun_sink_writes(tmp_path, synthetic, 
             _through(started), tmp_path / "short.rrd", header, records[:-1], summary, cfg=cfg
         )
 
-    def compare(a, b) -> int:
-        return subprocess.run(
-            [rerun_exe, "rrd", "compare", "--unordered", str(a), str(b)],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        ).returncode
-
-    assert compare(here, there) == 0
-    assert compare(here, shorter) != 0  # the comparison can fail
+    assert helpers.rrd_compare(here, there) == 0
+    assert helpers.rrd_compare(here, shorter) != 0  # the comparison can fail
 
 
 @pytest.mark.parametrize("status", ["completed", "interrupted"])
