@@ -771,12 +771,16 @@ class QuasiStaticChain:
         entry is how far the chain's end is from the gripper (the constraint residual)."""
         gaps = np.zeros(self.segments + (1 if self.gripped else 0))
         if self.gripped:
-            ex, ey = self._joints()[-1].tolist()
-            gx, gy, _ = self._grip.tolist()
-            gaps[-1] = math.hypot(ex - gx, ey - gy)
+            gaps[-1] = self._end_gap()
         if not self._finite():
             gaps[:] = math.nan
         return gaps
+
+    def _end_gap(self) -> float:
+        """How far the chain's end is from the gripper (m): `joint_gaps`' last entry."""
+        ex, ey = self._joints()[-1].tolist()
+        gx, gy, _ = self._grip.tolist()
+        return math.hypot(ex - gx, ey - gy)
 
     def max_speed(self) -> float:
         return 0.0 if self._finite() else math.nan
@@ -877,6 +881,12 @@ class QuasiStaticSim(RodSim):
         if not self._qs._finite():
             return False, True
         return bool(self._qs.converged), False
+
+    def _max_gap(self) -> float:
+        """`max(joint_gaps())` after a move `_settle` found not diverged: the angles are finite
+        there, so the gaps are zeros but the last (a free end: all zeros)."""
+        c = self._qs
+        return c._end_gap() if c.gripped else 0.0
 
     def _hold(self) -> ApplyResult:
         """After a change of the rod itself: re-solve at the same end poses."""

@@ -442,13 +442,18 @@ class RodSim:
         # check otherwise): a pose inside the box and the reach is returned unchanged, exactly
         # what the cuts below would return for it.
         x, y, t = pose.tolist()
-        cx, cy = np.asarray(clamp, dtype=float)[:2].tolist()  # where the x0 end will be
+        cx, cy = clamp[:2].tolist()  # where the x0 end will be
         reach = self._reach()
         if (
             ws.x_limits[0] <= x <= ws.x_limits[1]
             and ws.y_limits[0] <= y <= ws.y_limits[1]
             and ws.theta_limits[0] <= t <= ws.theta_limits[1]
-            and float(np.hypot(x - cx, y - cy)) <= reach
+            # |d| <= |dx| + |dy|: well inside the reach needs no hypot (np.hypot's own rounding
+            # decides only near the reach, as before).
+            and (
+                abs(x - cx) + abs(y - cy) <= 0.999 * reach
+                or float(np.hypot(x - cx, y - cy)) <= reach
+            )
         ):
             return pose.copy(), False
         lo = np.array([ws.x_limits[0], ws.y_limits[0], ws.theta_limits[0]])
@@ -483,12 +488,15 @@ class RodSim:
         if self.dual_arm:
             return self._apply_both(u)
         u = np.asarray(u, dtype=float).reshape(3)
-        if not np.all(np.isfinite(u)):
+        # On Python floats (a few numpy calls cost more than the quasi-static step's algebra):
+        # min(max(u, −m), m) is np.clip's value for a finite u and m > 0, bit for bit.
+        ux, uy, ut = u.tolist()
+        if not (math.isfinite(ux) and math.isfinite(uy) and math.isfinite(ut)):
             raise ValueError(f"RodSim.apply: non-finite command {u}")
-        u_sat = np.minimum(np.maximum(u, -self._max_step), self._max_step)  # np.clip, cheaper
-        saturated = u_sat != u
-        result = self._move(self.gripper_pose + u_sat)
-        result.saturated = saturated
+        mx, my, mt = self.cfg.max_step
+        sat = [min(max(ux, -mx), mx), min(max(uy, -my), my), min(max(ut, -mt), mt)]
+        result = self._move(self.gripper_pose + sat)
+        result.saturated = np.array([sat[0] != ux, sat[1] != uy, sat[2] != ut])
         return result
 
     def move_to(self, pose: np.ndarray) -> ApplyResult:
@@ -562,8 +570,7 @@ class RodSim:
         settled, diverged = self._settle(allowed)
         settle_steps = chain.steps - steps0 - n
         if not diverged:
-            gaps = chain.joint_gaps()
-            diverged = not float(_MAX(gaps)) <= self.cfg.gap_limit  # NaN and inf: diverged
+            diverged = not self._max_gap() <= self.cfg.gap_limit  # NaN and inf: diverged
         if diverged:
             self._diverged = True
             settled = False
@@ -752,6 +759,11 @@ class RodSim:
             settle_time=(self.chain.steps - steps0) * self.dt,
             sim_steps=self.chain.steps - steps0,
         )
+
+    def _max_gap(self) -> float:
+        """The widest joint gap (m) after a move that `_settle` found not diverged (NaN when a
+        gap is not finite)."""
+        return float(_MAX(self.chain.joint_gaps()))
 
     def _gaps_too_wide(self) -> bool:
         gaps = self.chain.joint_gaps()
