@@ -227,10 +227,13 @@ class QuasiStaticChain:
         pad[0] = ends[0]
         m.pad_mid[...] = theta
         pad[-1] = ends[1]
-        tau = np.subtract(m.pad_hi, m.pad_lo)
+        tau = m.tau
+        np.subtract(m.pad_hi, m.pad_lo, out=tau)
         tau *= m.kk
-        grad = np.subtract(tau[:-1], tau[1:])
-        z = np.exp(theta * 1j)
+        grad = np.subtract(m.tau_lo, m.tau_hi)
+        # The padded angles are the imaginary part of a complex buffer whose real part stays
+        # 0, so e^{iθ} needs no θ·1j first (exp(±0 + iθ): the same bits).
+        z = np.exp(m.zpad_mid)
         seg = m.seg
         lam = complex(-seg * l0, seg * l1)
         prod = z * lam if m.wg is None else (m.wg + lam) * z
@@ -306,14 +309,15 @@ class QuasiStaticChain:
         stability check and the tangent predictor: (S, A H⁻¹ e_{N−1}, the solution columns)."""
         if not self.gripped:
             return self._tridiag(diag, -grad), 0.0, 0.0, None
+        seg, off = m.seg, m.off
         np.negative(grad, out=m.rhs_grad)
-        np.multiply(z.imag, -m.seg, out=m.rhs_a0)
-        np.multiply(z.real, m.seg, out=m.rhs_a1)
-        _, _, _, sol, info = m.gtsv(m.off, diag, m.off, m.rhs)
+        np.multiply(z.imag, -seg, out=m.rhs_a0)
+        np.multiply(z.real, seg, out=m.rhs_a1)
+        _, _, _, sol, info = m.gtsv(off, diag, off, m.rhs)
         if info != 0:
             raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
-        seg = m.seg
-        r0, r1, r2, r3 = _SUM(z[:, None] * sol, axis=0).tolist()  # Σ e^{iθ} (H⁻¹ columns)
+        # Σ e^{iθ} (H⁻¹ columns); z as an (N, 1) view by reshape, cheaper than z[:, None].
+        r0, r1, r2, r3 = _SUM(z.reshape(-1, 1) * sol, axis=0).tolist()
         s00, s01 = -seg * r1.imag, -seg * r2.imag
         s10, s11 = seg * r1.real, seg * r2.real
         det = s00 * s11 - s01 * s10
@@ -344,20 +348,24 @@ class QuasiStaticChain:
         m = self._model()
         ends = _ends(grip, clamp)
         l0, l1 = lam.tolist()
-        grad, diag, z, h0, h1 = self._eval(theta, l0, l1, m, ends)
-        res, merit = self._measures(grad, h0, h1, m)
+        # The methods and constants as locals: a step is a few dozen small calls, and at N = 50
+        # their Python overhead is as large as their arithmetic.
+        evaluate, measures, newton_step = self._eval, self._measures, self._newton_step
+        converged_step, absolute = m.converged_step, np.abs
+        grad, diag, z, h0, h1 = evaluate(theta, l0, l1, m, ends)
+        res, merit = measures(grad, h0, h1, m)
         for _ in range(MAX_NEWTON):
             if res <= 1.0:
                 return theta, np.array([l0, l1]), True, (diag, z, None)
             self.newton_iterations += 1
             try:
-                dth, d0, d1, info = self._newton_step(diag, z, grad, h0, h1, m)
+                dth, d0, d1, info = newton_step(diag, z, grad, h0, h1, m)
             except (np.linalg.LinAlgError, ValueError):
                 return theta, np.array([l0, l1]), False, (diag, z, None)
-            top = float(_MAX(np.abs(dth)))
+            top = float(_MAX(absolute(dth)))
             if top != top:
                 return theta, np.array([l0, l1]), False, (diag, z, None)
-            if top < m.converged_step:
+            if top < converged_step:
                 # Quadratic convergence: the residual after this step is O(step²), far below
                 # the tolerance; the Hessian at θ stands for the one at θ + dθ.
                 return theta + dth, np.array([l0 + d0, l1 + d1]), True, (diag, z, info)
@@ -365,8 +373,8 @@ class QuasiStaticChain:
             for _ in range(30):
                 th2 = theta + step * dth if step != 1.0 else theta + dth
                 m0, m1 = l0 + step * d0, l1 + step * d1
-                grad2, diag2, z2, g0, g1 = self._eval(th2, m0, m1, m, ends)
-                res2, merit2 = self._measures(grad2, g0, g1, m)
+                grad2, diag2, z2, g0, g1 = evaluate(th2, m0, m1, m, ends)
+                res2, merit2 = measures(grad2, g0, g1, m)
                 if res2 <= 1.0 or merit2 < (1.0 - 1e-4 * step) * merit:
                     break
                 step *= 0.5
@@ -431,11 +439,11 @@ class QuasiStaticChain:
         or NaN pivot); > 2 is returned as 3 (unstable whatever S)."""
         k = self._model().k
         off2 = k * k
-        values = diag.tolist()
-        pivot = values[0]
+        values = iter(diag.tolist())
+        pivot = next(values)
         negative = pivot < 0.0
         try:
-            for di in values[1:]:
+            for di in values:
                 pivot = di - off2 / pivot
                 if pivot < 0.0:
                     negative += 1
@@ -453,12 +461,15 @@ class QuasiStaticChain:
         last Newton solve left over; None when there are none for this state, or the
         prediction turns a segment by more than `MAX_BRANCH_STEP`."""
         tangent = self.__dict__.get("_tangent")
-        if tangent is None or tangent[0] is not self.theta or tangent[1] != self._model().key:
+        if tangent is None or tangent[0] is not self.theta:
+            return None
+        m = self._model()
+        if tangent[1] != m.key:
             return None
         (s00, s01, s10, s11), (aw0, aw1), cols = tangent[2]
         gx, gy, gt = grip.tolist()
         ox, oy, ot = self._grip.tolist()
-        r = self._model().ke * (gt - ot)
+        r = m.ke * (gt - ot)
         b0, b1 = r * aw0 - (gx - ox), r * aw1 - (gy - oy)
         det = s00 * s11 - s01 * s10
         y0 = (s11 * b0 - s01 * b1) / det
@@ -526,8 +537,8 @@ class QuasiStaticChain:
         # Unchanged end poses (a change of the rod itself, or a free end): there is no path to
         # sub-step along, so where Newton does not reach a stable state near the old one the
         # overdamped gradient flow from the old shape is the rod's response, not a snap.
-        moving = not (grip.tolist() == g0.tolist() and clamp.tolist() == c0.tolist())
         clamp_fixed = clamp.tolist() == c0.tolist()
+        moving = not (clamp_fixed and grip.tolist() == g0.tolist())
         done, frac = 0.0, 1.0
         ok = True
         while done < 1.0:
@@ -747,7 +758,7 @@ class QuasiStaticChain:
             w = np.empty(self.segments + 1, dtype=np.complex128)
             w[0] = complex(clamp[0], clamp[1])
             np.multiply(self._tangents(), self.seg_length, out=w[1:])
-            np.cumsum(w, out=w)
+            np.add.accumulate(w, out=w)  # np.cumsum's loop without its Python layer
             cached = (self.theta, clamp, w.view(np.float64).reshape(self.segments + 1, 2))
             self._points_cache = cached
         return cached[2]
@@ -986,7 +997,7 @@ class _Model:
     __slots__ = (
         "key", "k", "ke", "seg", "seg2", "off", "diag0", "kk", "pad", "pad_mid", "pad_lo",
         "pad_hi", "wg", "scale2", "torque_unit", "position_unit", "converged_step", "rhs",
-        "rhs_grad", "rhs_a0", "rhs_a1", "gtsv",
+        "rhs_grad", "rhs_a0", "rhs_a1", "gtsv", "zpad_mid", "tau", "tau_lo", "tau_hi",
     )  # fmt: skip
 
     def __init__(self, chain: QuasiStaticChain, key: tuple) -> None:
@@ -1001,8 +1012,14 @@ class _Model:
         self.kk = np.full(n + 1, k)
         self.kk[0] = ke
         self.kk[-1] = ke if chain.gripped else 0.0
-        self.pad = np.zeros(n + 2)
+        # The padded angles [θ_c, θ, θ_g] (`_eval`): the imaginary part of a complex buffer
+        # whose real part stays 0, so that e^{iθ} is one exp of `zpad_mid`.
+        zpad = np.zeros(n + 2, dtype=np.complex128)
+        self.pad = zpad.imag
+        self.zpad_mid = zpad[1:-1]
         self.pad_mid, self.pad_lo, self.pad_hi = self.pad[1:-1], self.pad[:-1], self.pad[1:]
+        self.tau = np.empty(n + 1)
+        self.tau_lo, self.tau_hi = self.tau[:-1], self.tau[1:]
         # Body loads as complex weights: gravity at the centres (segment j's angle moves the
         # centres of j, by l/2, and of all after it) and a dead tip load.
         gx, gy = chain.gravity
