@@ -54,7 +54,7 @@ import numpy as np
 
 from rodctl.config.rod import RodConfig
 from rodctl.records import SNAP_NOTE
-from rodctl.sim.rod import ApplyResult, RodSim, register_engine
+from rodctl.sim.rod import ApplyResult, RodHealth, RodSim, register_engine
 
 
 @functools.cache
@@ -898,6 +898,23 @@ class QuasiStaticSim(RodSim):
         there, so the gaps are zeros but the last (a free end: all zeros)."""
         c = self._qs
         return c._end_gap() if c.gripped else 0.0
+
+    def health(self) -> RodHealth:
+        """`RodSim.health` without building the (N, 3) states and velocities (the env asks every
+        step): with finite angles the velocities are zeros and the gaps zeros but the end's, so
+        only the joints decide `has_nan` (their sum is finite exactly when they all are: the
+        coordinates are metres, far from overflow); with a NaN or inf angle every figure is
+        the non-finite one `RodSim.health` gives."""
+        c = self._qs
+        if not c._finite():
+            return RodHealth(math.inf, True, math.nan, math.nan)
+        gap = c._end_gap() if c.gripped else 0.0
+        return RodHealth(
+            max_joint_gap=gap if math.isfinite(gap) else math.inf,
+            has_nan=not math.isfinite(float(_SUM(c._joints(), axis=None))),
+            kinetic_energy=0.0,
+            max_speed=0.0,
+        )
 
     def _hold(self) -> ApplyResult:
         """After a change of the rod itself: re-solve at the same end poses."""
