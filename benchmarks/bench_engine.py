@@ -5,7 +5,7 @@ default-config episode with logging off >= 8x faster (CPU time: the first episod
 env, and later ones on the same env); `rodctl simulate configs/default.yaml --set
 rod.engine=quasistatic` <= 1.0 s for the whole process.
 
-    python benchmarks/bench_engine.py [--moves 30] [--episode-only]
+    python benchmarks/bench_engine.py [--moves 30] [--repeats 9] [--step-only | --episode-only]
 """
 
 from __future__ import annotations
@@ -27,23 +27,29 @@ from rodctl.config.rod import RodConfig  # noqa: E402
 from rodctl.sim import RodSim  # noqa: E402
 
 
-def physics(n: int, moves: int) -> tuple[float, float, float, float, float]:
+def physics(n: int, moves: int, repeats: int = 1) -> tuple[float, float, float, float, float]:
     """ms per `apply` for pymunk and quasistatic on the same random moves (wall, then CPU time
     of this process: on a loaded machine the wall time also counts waiting for a core), and
-    the largest centerline difference in % of L."""
+    the largest centerline difference in % of L. The quasi-static engine's moves take ~3 ms
+    in all, a few scheduler ticks: with `repeats` > 1 they are replayed on that many fresh
+    rods and each figure is the median (the same shapes every time)."""
     rng = np.random.default_rng(0)
     cfg = RodConfig(segments=n)
     us = rng.uniform(-1, 1, (moves, 3)) * np.asarray(cfg.max_step)
     out, cpu, lines = [], [], []
     for engine in ("pymunk", "quasistatic"):
-        sim = RodSim(cfg.model_copy(update={"engine": engine}))
-        t0, c0 = time.perf_counter(), time.process_time()
-        got = []
-        for u in us:
-            sim.apply(u)
-            got.append(sim.centerline())
-        out.append(1e3 * (time.perf_counter() - t0) / moves)
-        cpu.append(1e3 * (time.process_time() - c0) / moves)
+        walls, cpus = [], []
+        for _ in range(1 if engine == "pymunk" else max(1, repeats)):
+            sim = RodSim(cfg.model_copy(update={"engine": engine}))
+            t0, c0 = time.perf_counter(), time.process_time()
+            got = []
+            for u in us:
+                sim.apply(u)
+                got.append(sim.centerline())
+            walls.append(1e3 * (time.perf_counter() - t0) / moves)
+            cpus.append(1e3 * (time.process_time() - c0) / moves)
+        out.append(float(np.median(walls)))
+        cpu.append(float(np.median(cpus)))
         lines.append(np.array(got))
     d = lines[0] - lines[1]
     err = float(np.max(np.hypot(d[..., 0], d[..., 1])))
@@ -134,6 +140,10 @@ def episodes() -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--moves", type=int, default=30)
+    ap.add_argument(
+        "--repeats", type=int, default=9, help="quasi-static replays of the moves (median)"
+    )
+    ap.add_argument("--step-only", action="store_true", help="only the control-step figures")
     ap.add_argument("--episode-only", action="store_true", help="only the episode figure")
     args = ap.parse_args()
     if args.episode_only:
@@ -141,13 +151,15 @@ def main() -> None:
         return
     print("one control step's physics (RodSim.apply, same random moves):")
     for n in (25, 50, 100):
-        p, q, pc, qc, err = physics(n, args.moves)
+        p, q, pc, qc, err = physics(n, args.moves, args.repeats)
         goal = "   (goal >= 50x)" if n == 50 else ""
         print(
             f"  N = {n:3d}: wall pymunk {p:7.2f} ms, quasistatic {q:6.3f} ms: {p / q:6.1f}x;"
             f"  CPU {pc:7.2f} / {qc:6.3f} ms: {pc / qc:6.1f}x{goal}"
             f"   shapes within {err:.4f} % of L"
         )
+    if args.step_only:
+        return
     episodes()
     t, cpu = process()
     print(

@@ -565,8 +565,10 @@ class RodSim:
         steps0 = chain.steps
         # Velocity-driven linear ramp of the gripper over the control period (pitfall 3).
         n = self._move_steps
-        for k in range(1, n + 1):
-            chain.step(start + (allowed - start) * (k / n))
+        ramp = allowed - start
+        for k in range(1, n):
+            chain.step(start + ramp * (k / n))
+        chain.step(start + ramp)  # k = n: ramp · 1.0 is ramp, bit for bit
         settled, diverged = self._settle(allowed)
         settle_steps = chain.steps - steps0 - n
         if not diverged:
