@@ -52,6 +52,7 @@ normalised observations, a success bonus, a goal-conditioned form for HER): docs
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, replace
 from typing import Any, Protocol, runtime_checkable
@@ -473,7 +474,7 @@ class ShapeServoEnv(gym.Env):
             events = [*events, *notes]
         info["events"] = events
         err = info["pixel_error"]
-        reward = -err if np.isfinite(err) else -self._lost_frame_cost
+        reward = -err if math.isfinite(err) else -self._lost_frame_cost
         diverged = bool(res.diverged)
         converged = self.frame.ok and err < self.cfg.run.pixel_tolerance
         terminated = diverged or bool(converged)
