@@ -316,8 +316,7 @@ class QuasiStaticChain:
         _, _, _, sol, info = m.gtsv(off, diag, off, m.rhs)
         if info != 0:
             raise np.linalg.LinAlgError(f"singular tridiagonal system (gtsv info {info})")
-        # Σ e^{iθ} (H⁻¹ columns); z as an (N, 1) view by reshape, cheaper than z[:, None].
-        r0, r1, r2, r3 = _SUM(z.reshape(-1, 1) * sol, axis=0).tolist()
+        r0, r1, r2, r3 = _SUM(z[:, None] * sol, axis=0).tolist()  # Σ e^{iθ} (H⁻¹ columns)
         s00, s01 = -seg * r1.imag, -seg * r2.imag
         s10, s11 = seg * r1.real, seg * r2.real
         det = s00 * s11 - s01 * s10
