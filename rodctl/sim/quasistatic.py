@@ -231,9 +231,11 @@ class QuasiStaticChain:
         np.subtract(m.pad_hi, m.pad_lo, out=tau)
         tau *= m.kk
         grad = np.subtract(m.tau_lo, m.tau_hi)
-        # The padded angles are the imaginary part of a complex buffer whose real part stays
-        # 0, so e^{iθ} needs no θ·1j first (exp(±0 + iθ): the same bits).
-        z = np.exp(m.zpad_mid)
+        # e^{iθ} as exp of a complex buffer whose real part stays 0 and whose imaginary part
+        # is θ + 0: the bits of exp(θ·1j), whose imaginary part is θ·1 + 0·0 (a −0 angle gives
+        # +0 there), without the complex temporary.
+        np.add(theta, 0.0, out=m.zarg_imag)
+        z = np.exp(m.zarg)
         seg = m.seg
         lam = complex(-seg * l0, seg * l1)
         prod = z * lam if m.wg is None else (m.wg + lam) * z
@@ -1013,7 +1015,7 @@ class _Model:
     __slots__ = (
         "key", "k", "ke", "seg", "seg2", "off", "diag0", "kk", "pad", "pad_mid", "pad_lo",
         "pad_hi", "wg", "scale2", "torque_unit", "position_unit", "converged_step", "rhs",
-        "rhs_grad", "rhs_a0", "rhs_a1", "gtsv", "zpad_mid", "tau", "tau_lo", "tau_hi",
+        "rhs_grad", "rhs_a0", "rhs_a1", "gtsv", "zarg", "zarg_imag", "tau", "tau_lo", "tau_hi",
     )  # fmt: skip
 
     def __init__(self, chain: QuasiStaticChain, key: tuple) -> None:
@@ -1028,12 +1030,11 @@ class _Model:
         self.kk = np.full(n + 1, k)
         self.kk[0] = ke
         self.kk[-1] = ke if chain.gripped else 0.0
-        # The padded angles [θ_c, θ, θ_g] (`_eval`): the imaginary part of a complex buffer
-        # whose real part stays 0, so that e^{iθ} is one exp of `zpad_mid`.
-        zpad = np.zeros(n + 2, dtype=np.complex128)
-        self.pad = zpad.imag
-        self.zpad_mid = zpad[1:-1]
+        self.pad = np.zeros(n + 2)
         self.pad_mid, self.pad_lo, self.pad_hi = self.pad[1:-1], self.pad[:-1], self.pad[1:]
+        # i·θ for `_eval`'s e^{iθ}: the real part stays 0, the imaginary part is written.
+        self.zarg = np.zeros(n, dtype=np.complex128)
+        self.zarg_imag = self.zarg.imag
         self.tau = np.empty(n + 1)
         self.tau_lo, self.tau_hi = self.tau[:-1], self.tau[1:]
         # Body loads as complex weights: gravity at the centres (segment j's angle moves the
