@@ -35,8 +35,10 @@ def test_health_and_gap_match_the_generic_readouts(gravity: tuple[float, float])
         sim.apply(u)
         assert _same(sim.health(), RodSim.health(sim))
         assert sim._max_gap() == float(np.max(sim.chain.joint_gaps()))
+    chain = sim.chain
+    assert isinstance(chain, QuasiStaticChain)
     for bad in (np.nan, np.inf):
-        sim.chain.theta[4] = bad
+        chain.theta[4] = bad  # a blow-up, injected
         assert _same(sim.health(), RodSim.health(sim))
         assert sim.health().has_nan and sim.health().max_joint_gap == np.inf
 
