@@ -594,7 +594,7 @@ class ShapeServoEnv(gym.Env):
         dpix = _chain_2x2(self.camera.projection_jacobian(points), dpoints)
         pixels = self.camera.project(points)
         h = np.asarray(steps, dtype=float)
-        move = np.moveaxis(dpix * h, 2, 0)  # (q, N, 2): h_a dpix[:, :, a]
+        move = (dpix * h).transpose(2, 0, 1)  # (q, N, 2): h_a dpix[:, :, a] (a view)
         shifted = np.empty((2 * len(steps), *pixels.shape))  # pixels + and - each move
         np.add(pixels, move, out=shifted[0::2])
         np.subtract(pixels, move, out=shifted[1::2])
