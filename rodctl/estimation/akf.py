@@ -261,9 +261,9 @@ class AdaptiveKalmanJacobian:
         """
         return {
             **self._info,
-            "trace_P": float(np.trace(self._P)),
-            "trace_Q": float(np.trace(self._Q)),
-            "trace_R": float(np.trace(self._R)),
+            "trace_P": float(self._P.trace()),
+            "trace_Q": float(self._Q.trace()),
+            "trace_R": float(self._R.trace()),
         }
 
 
