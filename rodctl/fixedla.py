@@ -374,7 +374,7 @@ def tridiagonalize(
     # Reduced in place: step k reads column k below the diagonal and updates the trailing
     # block k+1.., so W[k, k] is final from step k on and the diagonal is read at the end. The
     # views have the strides the sums always had (a strided column, rows of unit stride), so
-    # numpy runs the same loops on them (tests/test_fixedla.py checks the bits).
+    # numpy runs the same loops on them (tests/test_fixedla_bits.py checks the bits).
     W = np.array(a, dtype=np.float64)
     n = W.shape[0]
     sub: list[float] = []
