@@ -18,10 +18,16 @@ to about 20 x 20) where BLAS's advantage is small; `benchmarks/` measure what th
 
 from __future__ import annotations
 
+import importlib
 import math
 from operator import mul
 
 import numpy as np
+
+try:  # what `numpy.einsum` calls when `optimize` is False, without its Python wrapper (~0.6 us)
+    einsum = importlib.import_module("numpy._core._multiarray_umath").c_einsum
+except (ImportError, AttributeError):  # pragma: no cover - another numpy: the same loops
+    einsum = np.einsum
 
 __all__ = [
     "apply_reflectors",
@@ -32,6 +38,7 @@ __all__ = [
     "clip_eigenvalues",
     "dot",
     "eigh_small",
+    "einsum",
     "gershgorin_clip",
     "inv3",
     "matmul",
@@ -69,13 +76,13 @@ def matvec(a: np.ndarray, x: np.ndarray) -> np.ndarray:
     SIMD baseline (not dispatched per CPU), so the order of the sums is fixed by the numpy build.
     Twice as fast as multiplying and summing, and 2-3x slower than BLAS for a 128 x 200 layer.
     """
-    return np.einsum("...k,k->...", a, x)
+    return einsum("...k,k->...", a, x)
 
 
 def matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a (m, k) times b (k, n) -> (m, n) in a fixed order of operations (`numpy.einsum`
     without `optimize`, see `matvec`). Meant for small matrices."""
-    return np.einsum("ik,kj->ij", a, b)
+    return einsum("ik,kj->ij", a, b)
 
 
 def cholesky(a: np.ndarray) -> list[list[float]] | None:
@@ -207,24 +214,33 @@ def eigh_small(
     return w[order], (np.array(V)[:, order] if vectors else None)
 
 
-def _svd_columns(j: np.ndarray) -> tuple[list[float], list[list[float]], list[list[float]]]:
+def _svd_columns(
+    j: np.ndarray, vectors: bool = True
+) -> tuple[list[float], list[list[float]], list[list[float]]]:
     """One-sided Jacobi SVD (Hestenes) of a (p, q) matrix with p >= q, in Python floats.
 
     Rotates pairs of columns until all are orthogonal: then the column norms are the singular
     values (each to a few ulps of itself, unlike the eigenvalues of J^T J), the normalised
-    columns are U and the accumulated rotations V. Returns (sigma, U columns, V columns).
+    columns are U and the accumulated rotations V. Returns (sigma, U columns, V columns); U and
+    V are empty lists unless `vectors` (they never feed back into sigma).
     """
     cols = np.asarray(j, dtype=np.float64).T.tolist()
     q = len(cols)
-    V = [[1.0 if i == k else 0.0 for i in range(q)] for k in range(q)]
+    V = [[1.0 if i == k else 0.0 for i in range(q)] for k in range(q)] if vectors else []
+    # sum() adds the products left to right, as a loop would; map is faster. A column's sum
+    # of squares is the same number until the column is rotated: computed once until then.
+    sq: list[float | None] = [None] * q
     for _ in range(60):
         rotated = False
         for a in range(q - 1):
             for b in range(a + 1, q):
                 ca, cb = cols[a], cols[b]
-                # sum() adds the products left to right, as a loop would; map is faster
-                alpha = sum(map(mul, ca, ca))
-                beta = sum(map(mul, cb, cb))
+                alpha = sq[a]
+                if alpha is None:
+                    alpha = sq[a] = sum(map(mul, ca, ca))
+                beta = sq[b]
+                if beta is None:
+                    beta = sq[b] = sum(map(mul, cb, cb))
                 gamma = sum(map(mul, ca, cb))  # columns of one matrix: equal lengths
                 if gamma == 0.0 or abs(gamma) <= 1e-15 * math.sqrt(alpha * beta):
                     continue
@@ -235,12 +251,19 @@ def _svd_columns(j: np.ndarray) -> tuple[list[float], list[list[float]], list[li
                 s = c * t
                 cols[a] = [c * x - s * y for x, y in zip(ca, cb, strict=True)]
                 cols[b] = [s * x + c * y for x, y in zip(ca, cb, strict=True)]
-                va, vb = V[a], V[b]
-                V[a] = [c * x - s * y for x, y in zip(va, vb, strict=True)]
-                V[b] = [s * x + c * y for x, y in zip(va, vb, strict=True)]
+                sq[a] = sq[b] = None
+                if vectors:
+                    va, vb = V[a], V[b]
+                    V[a] = [c * x - s * y for x, y in zip(va, vb, strict=True)]
+                    V[b] = [s * x + c * y for x, y in zip(va, vb, strict=True)]
         if not rotated:
             break
-    sigma = [math.sqrt(sum(map(mul, col, col))) for col in cols]
+    sigma = [
+        math.sqrt(sum(map(mul, col, col)) if ss is None else ss)
+        for col, ss in zip(cols, sq, strict=True)
+    ]
+    if not vectors:
+        return sigma, [], []
     U = [
         [x / sg for x in col] if sg > 0.0 else [0.0] * len(col)
         for col, sg in zip(cols, sigma, strict=True)
@@ -256,7 +279,7 @@ def singular_values(j: np.ndarray) -> np.ndarray:
     j = np.asarray(j, dtype=np.float64)
     if j.size == 0:
         return np.zeros(0)
-    sigma, _, _ = _svd_columns(j if j.shape[0] >= j.shape[1] else j.T)
+    sigma, _, _ = _svd_columns(j if j.shape[0] >= j.shape[1] else j.T, vectors=False)
     return np.array(sorted(sigma, reverse=True))
 
 
@@ -298,7 +321,7 @@ def pinv_tall(a: np.ndarray) -> np.ndarray:
             if j:
                 c = matvec(Q[:j], v)
                 R[:j, j] += c
-                v -= np.einsum("j,jn->n", c, Q[:j])
+                v -= einsum("j,jn->n", c, Q[:j])
         r = norm(v)
         if not r > 1e-13 * size:
             raise np.linalg.LinAlgError(f"column {j} is linearly dependent on the others")
@@ -308,7 +331,7 @@ def pinv_tall(a: np.ndarray) -> np.ndarray:
     for i in range(k - 1, -1, -1):
         row = Q[i].copy()
         if i + 1 < k:
-            row -= np.einsum("j,jn->n", R[i, i + 1 :], out[i + 1 :])
+            row -= einsum("j,jn->n", R[i, i + 1 :], out[i + 1 :])
         out[i] = row / R[i, i]
     return out
 
@@ -348,38 +371,36 @@ def tridiagonalize(
         (diagonal (n), subdiagonal (n - 1), reflectors [(k, v, beta)]), to be applied by
         `apply_reflectors` to vectors of T.
     """
-    W = np.array(a, dtype=np.float64)  # the trailing block still to reduce, rows/cols k..
+    # Reduced in place: step k reads column k below the diagonal and updates the trailing
+    # block k+1.., so W[k, k] is final from step k on and the diagonal is read at the end. The
+    # views have the strides the sums always had (a strided column, rows of unit stride), so
+    # numpy runs the same loops on them (tests/test_fixedla_bits.py checks the bits).
+    W = np.array(a, dtype=np.float64)
     n = W.shape[0]
-    diag: list[float] = []
     sub: list[float] = []
     refl: list[tuple[int, np.ndarray, float]] = []
     for k in range(n - 2):
-        diag.append(float(W[0, 0]))
-        x = W[1:, 0]
-        xx = float(np.einsum("i,i->", x, x))
+        x = W[k + 1 :, k]
+        xx = einsum("i,i->", x, x)
         if xx == 0.0:  # column already reduced: no reflector
             sub.append(0.0)
-            W = W[1:, 1:]
             continue
         norm_x = math.sqrt(xx)
-        x0 = float(x[0])
+        x0 = x.item(0)
         alpha = -norm_x if x0 >= 0.0 else norm_x  # sign opposite x0: no cancellation in v0
         v = x.copy()
         v[0] = x0 - alpha
         beta = 1.0 / (norm_x * (norm_x + abs(x0)))  # 2 / (v^T v), in closed form
-        B = W[1:, 1:]
-        p = np.einsum("ij,j->i", B, v)
-        w = beta * p - (0.5 * beta * beta * float(np.einsum("i,i->", p, v))) * v
-        vw = np.multiply.outer(v, w)
-        W = B - (vw + vw.T)  # exactly symmetric: v_i w_j + w_i v_j, in either order
+        B = W[k + 1 :, k + 1 :]
+        p = einsum("ij,j->i", B, v)
+        w = beta * p - (0.5 * beta * beta * einsum("i,i->", p, v).item()) * v
+        vw = v[:, None] * w  # the outer product v w^T
+        B -= vw + vw.T  # exactly symmetric: v_i w_j + w_i v_j, in either order
         sub.append(alpha)
         refl.append((k, v, beta))
     if n >= 2:
-        diag += [float(W[0, 0]), float(W[1, 1])]
-        sub.append(float(W[1, 0]))
-    elif n == 1:
-        diag.append(float(W[0, 0]))
-    return diag, sub, refl
+        sub.append(W.item(n - 1, n - 2))
+    return W.diagonal().tolist(), sub, refl
 
 
 #: Iteration cap of the QL method per eigenvalue (EISPACK's tql1 uses 30; Numerical Recipes 30).
@@ -412,66 +433,88 @@ def tridiagonal_eigenvalues(
     """
     d = list(diag)
     n = len(d)
-    e = list(sub) + [0.0]
+    e = list(sub)
+    e.append(0.0)
     rots: list[tuple[int, float, float]] = []
     record = rots.append
     sqrt = math.sqrt
-    fabs = math.fabs
+    last = n - 1
     for l in range(n):  # noqa: E741 (the classic name of the index)
         it = 0
         while True:
+            # A negligible subdiagonal entry splits the matrix. |x| is written x or -x (no
+            # call): it differs from fabs only in the sign of a zero, which no comparison sees.
             m = l
-            while m < n - 1:  # a negligible subdiagonal entry splits the matrix
-                dd = fabs(d[m]) + fabs(d[m + 1])
-                if fabs(e[m]) + dd == dd:
+            x = d[l]
+            ax = x if x >= 0.0 else -x
+            while m < last:
+                x = d[m + 1]
+                ay = x if x >= 0.0 else -x
+                dd = ax + ay
+                x = e[m]
+                if (x if x >= 0.0 else -x) + dd == dd:
                     break
+                ax = ay
                 m += 1
             if m == l:
                 break
             it += 1
             if it > max_iterations:
                 raise np.linalg.LinAlgError("tridiagonal QL did not converge")
-            g = (d[l + 1] - d[l]) / (2.0 * e[l])
+            dl = d[l]
+            el = e[l]
+            g = (d[l + 1] - dl) / (2.0 * el)
             r = sqrt(g * g + 1.0)
-            g = d[m] - d[l] + e[l] / (g + (r if g >= 0.0 else -r))
+            g = d[m] - dl + el / (g + (r if g >= 0.0 else -r))
             s = c = 1.0
             p = 0.0
-            i = m - 1
-            split = False
-            while i >= l:
-                f = s * e[i]
-                b = c * e[i]
+            dn = d[m]  # d[i + 1] as it was before this sweep
+            for i in range(m - 1, l - 1, -1):
+                ei = e[i]
+                f = s * ei
+                b = c * ei
                 r = sqrt(f * f + g * g)
                 e[i + 1] = r
                 if r == 0.0:  # underflow: the matrix splits here
-                    d[i + 1] -= p
+                    d[i + 1] = dn - p
                     e[m] = 0.0
-                    split = True
                     break
                 s = f / r
                 c = g / r
-                g = d[i + 1] - p
-                r = (d[i] - g) * s + 2.0 * c * b
+                g = dn - p
+                dn = d[i]
+                r = (dn - g) * s + 2.0 * c * b
                 p = s * r
                 d[i + 1] = g + p
                 g = c * r - b
                 record((i, c, s))
-                i -= 1
-            if split:
-                continue
-            d[l] -= p
-            e[l] = g
-            e[m] = 0.0
+            else:
+                d[l] -= p
+                e[l] = g
+                e[m] = 0.0
     return d, rots
 
 
 def tridiagonal_eigenvector(n: int, j: int, rots: list[tuple[int, float, float]]) -> list[float]:
     """Column j of Z = G_1 ... G_R (the rotations of `tridiagonal_eigenvalues`): the
     eigenvector of the tridiagonal matrix for its j-th eigenvalue, as G_1 (G_2 (... G_R e_j)).
-    Four multiplications per rotation, in Python floats."""
+    Four multiplications per rotation, in Python floats.
+
+    The rotations applied before the first that touches coordinate j act on two zeros: they
+    are skipped, which can only change the sign of a zero entry (c 0 + s 0 is a zero of either
+    sign). No result of `clip_eigenvalues` depends on such a sign: every use of a vector entry
+    there is a product summed into an accumulator that starts at +0.0 (`einsum`), which a zero
+    of either sign leaves the same."""
     x = [0.0] * n
     x[j] = 1.0
-    for i, c, s in reversed(rots):
+    todo = reversed(rots)
+    for i, c, s in todo:
+        if i == j or i + 1 == j:
+            a, b = x[i], x[i + 1]
+            x[i] = c * a + s * b
+            x[i + 1] = c * b - s * a
+            break
+    for i, c, s in todo:
         a, b = x[i], x[i + 1]
         x[i] = c * a + s * b
         x[i + 1] = c * b - s * a
@@ -504,7 +547,7 @@ def apply_reflectors(refl: list[tuple[int, np.ndarray, float]], x: np.ndarray) -
     x = np.array(x, dtype=np.float64)
     for k, v, beta in reversed(refl):
         blk = x[k + 1 :]
-        blk -= np.multiply.outer(v, beta * np.einsum("i,ij->j", v, blk))
+        blk -= v[:, None] * (beta * einsum("i,ij->j", v, blk))  # v (beta v^T blk)
     return x
 
 
@@ -518,18 +561,28 @@ def cholesky_ok(a: np.ndarray) -> bool:
     n = m.shape[0]
     if not np.isfinite(m).all():
         return False
-    if n <= 32:  # Python floats are faster at this size (61 vs 104 us at 18 x 18)
-        return cholesky(m) is not None
+    if n <= 32:
+        # `cholesky`'s pivots, right-looking: after column j is divided by its pivot, the
+        # trailing block loses its outer product, so entry (i, l) is m_il - L_i0 L_l0 - L_i1 L_l1
+        # - ... in the order `cholesky` subtracts them, one rounding each (the same bits, so
+        # the same verdict), with one numpy pass per column (62 against 93 us at 18 x 18).
+        for j in range(n):
+            d = m.item(j, j)
+            if not d > 0.0:
+                return False
+            col = m[j + 1 :, j] / math.sqrt(d)
+            m[j + 1 :, j + 1 :] -= col[:, None] * col
+        return True
     L = np.zeros_like(m)
     for j in range(n):
         row = L[j, :j]
-        d = m[j, j] - float(np.einsum("k,k->", row, row))
+        d = m[j, j] - float(einsum("k,k->", row, row))
         if not d > 0.0:
             return False
         ljj = math.sqrt(d)
         L[j, j] = ljj
         if j + 1 < n:
-            L[j + 1 :, j] = (m[j + 1 :, j] - np.einsum("ik,k->i", L[j + 1 :, :j], row)) / ljj
+            L[j + 1 :, j] = (m[j + 1 :, j] - einsum("ik,k->i", L[j + 1 :, :j], row)) / ljj
     return True
 
 
@@ -607,5 +660,5 @@ def clip_eigenvalues(
             z = np.array([tridiagonal_eigenvector(n, j, rots) for j in side]).T  # (n, k)
         v = apply_reflectors(refl, z)
         gap = np.array([abs(floor - w[j]) for j in side])  # raise the low, or the kept above floor
-        out = out + np.einsum("ik,k,jk->ij", v, gap, v)
+        out = out + einsum("ik,k,jk->ij", v, gap, v)
     return 0.5 * (out + out.T)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import yaml
@@ -13,7 +14,7 @@ import yaml
 from rodctl.bench.compare import CSV_COLUMNS, run_compare
 from rodctl.config import validate_config
 from rodctl.env import ShapeServoEnv
-from rodctl.episode import run_episode
+from rodctl.episode import _jacobian_error_summary, run_episode
 from rodctl.estimation.akf import AdaptiveKalmanJacobian
 from rodctl.logs.codec import control_message, record_from_messages
 from rodctl.method import Method
@@ -131,3 +132,21 @@ def test_compare_results_have_the_jacobian_error_columns(tmp_path) -> None:
         rows = {r["method"]: r for r in csv.DictReader(fh)}
     assert 0.0 < float(rows["akf"]["jacobian_error_median"]) < 10.0
     assert 0.0 < float(rows["akf"]["jacobian_error_final"]) < 10.0
+
+
+def test_the_summary_median_is_numpys() -> None:
+    """The episode summary's median Jacobian error is np.median's, bit for bit (it is computed
+    without numpy so that an episode does not import numpy.ma), NaN steps left out."""
+    rng = np.random.default_rng(9)
+    for n in range(1, 30):
+        errors = list(rng.lognormal(-2.0, 1.5, n))
+        errors[:: max(2, n // 3)] = [math.nan] * len(errors[:: max(2, n // 3)])
+        got = _jacobian_error_summary([SimpleNamespace(jacobian_error=e) for e in errors])
+        finite = np.array([e for e in errors if math.isfinite(e)])
+        want = float(np.median(finite)) if finite.size else None
+        assert got["jacobian_error_median"] == want, n
+        assert got["jacobian_error_final"] == (None if math.isnan(errors[-1]) else errors[-1])
+    assert _jacobian_error_summary([]) == {
+        "jacobian_error_median": None,
+        "jacobian_error_final": None,
+    }

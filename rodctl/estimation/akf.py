@@ -100,11 +100,11 @@ def _joseph(
     indefinite the way the subtraction can; fixed-order `einsum` throughout (no BLAS).
     """
     n = PMt.shape[0]
-    Sinv = np.einsum("ki,kj->ij", Li, Li)
-    K = inv_a * np.einsum("nk,kj->nj", PMt, Sinv)  # (n, p)
-    A = np.eye(n) - np.einsum("ai,j->aij", K, u).reshape(n, n)  # I - K M
-    AP = np.einsum("ab,bc->ac", A, inv_a * P_pred)
-    out = np.einsum("ac,dc->ad", AP, A) + np.einsum("ai,ij,bj->ab", K, R, K)
+    Sinv = fixedla.einsum("ki,kj->ij", Li, Li)
+    K = inv_a * fixedla.einsum("nk,kj->nj", PMt, Sinv)  # (n, p)
+    A = np.eye(n) - fixedla.einsum("ai,j->aij", K, u).reshape(n, n)  # I - K M
+    AP = fixedla.einsum("ab,bc->ac", A, inv_a * P_pred)
+    out = fixedla.einsum("ac,dc->ad", AP, A) + fixedla.einsum("ai,ij,bj->ab", K, R, K)
     return 0.5 * (out + out.T)
 
 
@@ -201,7 +201,7 @@ class AdaptiveKalmanJacobian:
         P_pred = self._P + self._Q  # A = I (eq. 11)
         eps = y - fixedla.matvec(self._J, u)  # eq. 16: z_k - C_k x_{k|k-1}
         PMt = fixedla.matvec(P_pred.reshape(n, p, q), u)  # (n, p) = P- M^T, M = I_p kron u^T
-        G = np.einsum("j,ijk->ik", u, PMt.reshape(p, q, p))  # (p, p) = M P- M^T (eq. 16)
+        G = fixedla.einsum("j,ijk->ik", u, PMt.reshape(p, q, p))  # (p, p) = M P- M^T (eq. 16)
         trG = float(G.trace())
         stat = math.sqrt(fixedla.dot(eps, eps) / trG) if trG > 0.0 else 0.0  # eq. 15
         alpha = igg3_factor(stat, self._c0, self._c1, self._floor)  # eq. 14
@@ -212,12 +212,12 @@ class AdaptiveKalmanJacobian:
         if factor is None:  # only if P lost definiteness to rounding: make S PD again
             factor = fixedla.cholesky_inverse_factor(clip_psd(S, self._r_min, test_first=False))
         Li = np.array(factor)
-        W = np.einsum("ik,jk->ij", Li, PMt)  # (p, n) = L^-1 M P-
-        Keps = inv_a * np.einsum("ki,k->i", W, fixedla.matvec(Li, eps))  # K eps (eq. 13)
+        W = fixedla.einsum("ik,jk->ij", Li, PMt)  # (p, n) = L^-1 M P-
+        Keps = inv_a * fixedla.einsum("ki,k->i", W, fixedla.matvec(Li, eps))  # K eps (eq. 13)
         self._J = self._J + Keps.reshape(p, q)
         # (1/alpha)(I - K M) P- with K M P- = (1/alpha) P- M^T S^-1 M P- = (1/alpha) W^T W
         # (exactly symmetric as computed: entry (i, j) and (j, i) sum the same products)
-        P_new = inv_a * (P_pred - inv_a * np.einsum("ki,kj->ij", W, W))
+        P_new = inv_a * (P_pred - inv_a * fixedla.einsum("ki,kj->ij", W, W))
         repaired = 0.0
         if not fixedla.cholesky_ok(P_new):
             # The subtraction cancelled below rounding (large p q, a covariance spanning many
@@ -261,9 +261,9 @@ class AdaptiveKalmanJacobian:
         """
         return {
             **self._info,
-            "trace_P": float(np.trace(self._P)),
-            "trace_Q": float(np.trace(self._Q)),
-            "trace_R": float(np.trace(self._R)),
+            "trace_P": float(self._P.trace()),
+            "trace_Q": float(self._Q.trace()),
+            "trace_R": float(self._R.trace()),
         }
 
 

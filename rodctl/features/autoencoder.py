@@ -683,7 +683,7 @@ class AutoencoderFeatureMap:
         x = x.reshape(x.shape[0], -1)
         last = len(self._enc) - 1
         for i, (w, b) in enumerate(self._enc):
-            x = np.einsum("ok,bk->bo", w, x) + b
+            x = fla.einsum("ok,bk->bo", w, x) + b
             if i < last:
                 np.maximum(x, 0.0, out=x)
         return x
