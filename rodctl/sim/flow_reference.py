@@ -143,10 +143,11 @@ def reference_solve_to(chain: QuasiStaticChain, grip: np.ndarray, clamp: np.ndar
     """The continuation of `QuasiStaticChain._solve_to` as it was until 2026-12-02 (`self` is
     `chain`): every try, before and after a failed one, runs Newton in full (`MAX_NEWTON`
     iterations of up to 30 step halvings), so that near a fold each of the ~9 halvings down to
-    `MIN_FRACTION` of the move pays two slowly failing Newton solves. The current one gives up
-    early on the tries after a failure and runs in full only the tries whose failure starts
-    the flow (docs/engines.md, "Snaps"); `benchmarks/bench_snap.py` runs both from the same
-    step states. Returns whether the step ended converged, as `_solve_to`."""
+    `MIN_FRACTION` of the move pays two slowly failing Newton solves, and the flow's Newton
+    tries on the way ran in full too. The current one gives up early on the tries after a
+    failure and runs in full only the tries whose failure starts the flow (docs/engines.md,
+    "Snaps"); `benchmarks/bench_snap.py` runs both from the same step states. Returns whether
+    the step ended converged, as `_solve_to`."""
     from rodctl.sim.quasistatic import (  # noqa: PLC0415 (no cycle)
         _MAX,
         MAX_BRANCH_STEP,
@@ -213,7 +214,7 @@ def reference_solve_to(chain: QuasiStaticChain, grip: np.ndarray, clamp: np.ndar
             if not (f == 1.0 and done + frac >= 1.0):
                 continue
         # The path has lost stability here: follow the gradient flow to a stable state.
-        theta, lam, conv = self._flow(self.theta.copy(), self.lam.copy(), g, c)
+        theta, lam, conv = self._flow(self.theta.copy(), self.lam.copy(), g, c, self._newton)
         jump = float(np.max(np.abs(theta - self.theta)))
         if not moving:
             self.theta, self.lam = theta, lam
