@@ -148,6 +148,16 @@ def reference_solve_to(chain: QuasiStaticChain, grip: np.ndarray, clamp: np.ndar
     failure and runs in full only the tries whose failure starts the flow (docs/engines.md,
     "Snaps"); `benchmarks/bench_snap.py` runs both from the same step states. Returns whether
     the step ended converged, as `_solve_to`."""
+    # The flow's Newton tries in full too, as until 2026-12-02 (the current flow's are quick).
+    chain._quick_newton = chain._newton  # type: ignore[method-assign]
+    try:
+        return _continuation(chain, grip, clamp)
+    finally:
+        del chain._quick_newton
+
+
+def _continuation(chain: QuasiStaticChain, grip: np.ndarray, clamp: np.ndarray) -> bool:
+    """`reference_solve_to` without the flow's Newton setting."""
     from rodctl.sim.quasistatic import (  # noqa: PLC0415 (no cycle)
         _MAX,
         MAX_BRANCH_STEP,
@@ -214,7 +224,7 @@ def reference_solve_to(chain: QuasiStaticChain, grip: np.ndarray, clamp: np.ndar
             if not (f == 1.0 and done + frac >= 1.0):
                 continue
         # The path has lost stability here: follow the gradient flow to a stable state.
-        theta, lam, conv = self._flow(self.theta.copy(), self.lam.copy(), g, c, self._newton)
+        theta, lam, conv = self._flow(self.theta.copy(), self.lam.copy(), g, c)
         jump = float(np.max(np.abs(theta - self.theta)))
         if not moving:
             self.theta, self.lam = theta, lam

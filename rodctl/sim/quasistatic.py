@@ -636,26 +636,18 @@ class QuasiStaticChain:
         self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, bool, tuple]:
         """`_newton` giving up after `QUICK_NEWTON` iterations or a step halved
-        `QUICK_HALVINGS` times (`_patience`)."""
+        `QUICK_HALVINGS` times (`_patience`). Also the flow's Newton tries on the way: from
+        the ghost of the fold a full Newton failed slowly (about half a flow's CPU time until
+        2026-12-02; `reference_solve_to` still runs it so); near the equilibrium Newton takes
+        full steps, and a quick Newton that converges is the full one, step for step."""
         return self._newton(theta, lam, grip, clamp, QUICK_NEWTON, QUICK_HALVINGS)
 
     def _flow(
-        self,
-        theta: np.ndarray,
-        lam: np.ndarray,
-        grip: np.ndarray,
-        clamp: np.ndarray,
-        newton: Callable[..., tuple[np.ndarray, np.ndarray, bool, tuple]] | None = None,
+        self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, bool]:
         """Overdamped gradient flow θ' = −P ∇E on the constraint manifold, by backward-Euler
         steps (each a KKT solve with H + I/τ) to the next stable equilibrium; ends with Newton
-        (`newton`, by default `_quick_newton`) once the state is stable.
-
-        Newton is tried on the way with the patience of the continuation's quick tries: from
-        the ghost of the fold it fails, and a full Newton failed slowly there (about half a
-        flow's CPU time until 2026-12-02, `newton=self._newton` as `reference_solve_to` still
-        runs it); near the equilibrium it takes full steps and converges within them, so a
-        quick Newton that converges is the full one, step for step.
+        (`_quick_newton`: see there) once the state is stable.
 
         A step is accepted when it does not raise the augmented Lagrangian
         E + λ'·h + ρ/2 |h|² with the step's own multipliers λ' and a mild ρ = k/l² (the merit the
@@ -664,7 +656,6 @@ class QuasiStaticChain:
         τ doubles after an accepted step and halves after a rejected one (pseudo-transient
         continuation). Validated against the previous flow (`rodctl/sim/flow_reference.py`) on
         real snap states: the same equilibrium, `tests/sim/test_snap_flow.py`."""
-        newton = self._quick_newton if newton is None else newton
         m = self._model()
         k = m.k
         rho = FLOW_PENALTY * k / m.seg2
@@ -674,8 +665,7 @@ class QuasiStaticChain:
         grad, diag, z, h0, h1 = self._eval(theta, l0, l1, m, ends)
         e0 = self._flow_energy(z, m)
         # Newton is tried once the flow is near a stable state, then again only after the
-        # residual has fallen 4-fold or FLOW_RETRY accepted steps later: each failed try costs
-        # up to MAX_NEWTON iterations with their line searches.
+        # residual has fallen 4-fold or FLOW_RETRY accepted steps later.
         retry_res, since_try = math.inf, 0
         for _ in range(MAX_FLOW_STEPS):
             self.flow_steps += 1
@@ -700,7 +690,7 @@ class QuasiStaticChain:
                 due = res < 0.25 * retry_res or since_try >= FLOW_RETRY
                 if res < 1e6 and due and self._stable_newton((diag, z, None)):
                     lam = np.array([l0, l1])
-                    th3, lam3, conv, hess = newton(theta, lam, grip, clamp)
+                    th3, lam3, conv, hess = self._quick_newton(theta, lam, grip, clamp)
                     if conv and self._stable_newton(hess):
                         return th3, lam3, True
                     retry_res, since_try = res, 0
