@@ -32,7 +32,8 @@ pivots of the tridiagonal H come from its LDLᵀ recurrence. The path is followe
 the end poses move along their straight line in sub-steps that are halved when Newton fails,
 lands on an unstable equilibrium or moves the shape by more than `MAX_BRANCH_STEP` (a would-be
 branch jump). When the sub-step is below `MIN_FRACTION` of the move and still fails, the path has
-lost stability (a fold: snap-through). The engine then follows the overdamped gradient flow
+lost stability (a fold: snap-through); after a failed try, the tries that cannot declare the fold
+give up early (`QuasiStaticChain._patience`). The engine then follows the overdamped gradient flow
 θ' = −∇E (projected on the constraints) by backward-Euler steps — a Newton step with the shift
 I/τ added to H, τ growing as the flow settles — to the next stable equilibrium, counts a snap
 and keeps a note of it (`QuasiStaticChain.snap_notes`). A jump inside a converged sub-step is
@@ -80,9 +81,10 @@ MAX_BRANCH_STEP = 0.35
 #: Smallest continuation sub-step, as a fraction of the move; below it the path has a fold.
 MIN_FRACTION = 1.0 / 512.0
 #: The tries after a failed one that cannot start the flow give up after this many Newton
-#: iterations, or when a step must be halved this many times (`QuasiStaticChain._patience`).
+#: iterations, or when none of this many step lengths 1, 1/2, ... of a Newton step lowers the
+#: residual (`QuasiStaticChain._patience`; a full Newton tries 30).
 QUICK_NEWTON = 6
-QUICK_HALVINGS = 2
+QUICK_LENGTHS = 2
 #: Backward-Euler gradient-flow steps allowed for one snap.
 MAX_FLOW_STEPS = 4000
 #: Accepted flow steps after a failed Newton try before the next one (unless the residual has
@@ -347,12 +349,12 @@ class QuasiStaticChain:
         grip: np.ndarray,
         clamp: np.ndarray,
         iterations: int = MAX_NEWTON,
-        halvings: int = 30,
+        lengths: int = 30,
     ) -> tuple[np.ndarray, np.ndarray, bool, tuple]:
         """Newton with backtracking on the KKT residual; (θ, λ, converged, hess) where hess =
         (diag of H, e^{iθ}, the last solve's left-overs or None) at the last linearisation.
-        At most `iterations` iterations of at most `halvings` step halvings each (fewer: the
-        continuation's tries after a failed one, `_quick_newton`)."""
+        At most `iterations` iterations, each trying at most `lengths` step lengths 1, 1/2, ...
+        (fewer: the continuation's tries after a failed one, `_quick_newton`)."""
         m = self._model()
         ends = _ends(grip, clamp)
         l0, l1 = lam.tolist()
@@ -374,7 +376,7 @@ class QuasiStaticChain:
                 # the tolerance; the Hessian at θ stands for the one at θ + dθ.
                 return theta + dth, np.array([l0 + d0, l1 + d1]), True, (diag, z, info)
             step = 1.0
-            for _ in range(halvings):
+            for _ in range(lengths):
                 th2 = theta + step * dth if step != 1.0 else theta + dth
                 m0, m1 = l0 + step * d0, l1 + step * d1
                 grad2, diag2, z2, g0, g1 = self._eval(th2, m0, m1, m, ends)
@@ -635,12 +637,13 @@ class QuasiStaticChain:
     def _quick_newton(
         self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, bool, tuple]:
-        """`_newton` giving up after `QUICK_NEWTON` iterations or a step halved
-        `QUICK_HALVINGS` times (`_patience`). Also the flow's Newton tries on the way: from
-        the ghost of the fold a full Newton failed slowly (about half a flow's CPU time until
-        2026-12-02; `reference_solve_to` still runs it so); near the equilibrium Newton takes
-        full steps, and a quick Newton that converges is the full one, step for step."""
-        return self._newton(theta, lam, grip, clamp, QUICK_NEWTON, QUICK_HALVINGS)
+        """`_newton` giving up after `QUICK_NEWTON` iterations or when the step lengths 1 and
+        1/2 (`QUICK_LENGTHS`) do not lower the residual (`_patience`). Also the flow's Newton
+        tries on the way: from the ghost of the fold a full Newton failed slowly (about half a
+        flow's CPU time until 2026-12-02; `reference_solve_to` still runs it so); near the
+        equilibrium Newton takes full steps, and a quick Newton that converges is the full one,
+        step for step."""
+        return self._newton(theta, lam, grip, clamp, QUICK_NEWTON, QUICK_LENGTHS)
 
     def _flow(
         self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
