@@ -25,8 +25,8 @@ from rodctl.sim.flow_reference import reference_flow, reference_solve_to
 from rodctl.sim.quasistatic import QuasiStaticChain
 
 _spec = importlib.util.spec_from_file_location("bench_snap", REPO / "benchmarks" / "bench_snap.py")
+assert _spec is not None and _spec.loader is not None
 bench_snap = importlib.util.module_from_spec(_spec)
-assert _spec.loader is not None
 _spec.loader.exec_module(bench_snap)
 chain_of, load = bench_snap.chain_of, bench_snap.load
 
