@@ -1,22 +1,28 @@
-"""The quasi-static engine's snap flow against the flow it replaced, on real snap states
-(issue 24: the snaps dominated data collection and the suite's hard-targets scenario).
+"""The quasi-static engine's snaps against the code they replaced, on real snap steps (issue 24:
+the snaps dominated data collection and the suite's hard-targets scenario).
 
-Collects the states every gradient flow of `QuasiStaticChain._flow` starts from (the state where
-the equilibrium path lost stability, or a rod change Newton did not follow) in the runs that
-produce them: `train-encoder` collection walks (`collect_chunk`) on the default rod, the heavy
-rod, the s-shape config and the dual-arm rod, and episodes of the suite's hard-targets scenario
-(its targets and the suite's methods, `rodctl compare` in this process). Then runs, from each
-state, the current flow and the previous one (`rodctl/sim/flow_reference.py`; where it stops
-unconverged, again with `--reference-cap` steps to see where it goes; where it does not converge
-at all, the flow integrated finely, `accurate_flow`, is the judge) and prints: how often both
-end at the same equilibrium (largest joint distance <= 1e-6 L; also <= 1e-9 L), the largest
-distance, and what each flow cost (KKT solves, CPU time, in this process).
+Collects, in the runs that produce them, the state at the start of every control step whose
+continuation failed a try (the state, the multipliers, the end poses before and after, the
+tangent predictor's columns): `train-encoder` collection walks (`collect_chunk`) on the default
+rod, the heavy rod, the s-shape config and the dual-arm rod, and episodes of the suite's
+hard-targets scenario (its targets and the suite's methods, `rodctl compare` in this process).
+Then runs, from each state, the step as it is now (`QuasiStaticChain._solve_to`) and as it was
+before the continuation's tries after a failure were made to give up early
+(`rodctl/sim/flow_reference.py`, `reference_solve_to`, with the same flow), and prints: how often
+both end at the same equilibrium (largest joint distance <= 1e-6 L; also <= 1e-9 L and exactly),
+with the same number of snaps, and what each cost before the flow, in the flow and in all (CPU
+time in this process).
+
+`--flows` compares instead, from the start state of every gradient flow, the current flow with
+the flow it replaced (`reference_flow`; where it stops unconverged, again with
+`--reference-cap` steps; where it does not converge at all, the flow integrated finely,
+`accurate_flow`, is the judge).
 
     .venv/bin/python benchmarks/bench_snap.py [--walks 3] [--samples 1500] [--hard-targets 5]
-        [--save STATES.npz] [--states STATES.npz]
+        [--flows] [--save STATES.npz] [--states STATES.npz]
 
 `--save` writes the collected states (an .npz of arrays; tests/sim/data/snap_states.npz holds a
-few of them for `tests/sim/test_snap_flow.py`); `--states` reads such a file instead of
+few flow states for `tests/sim/test_snap_flow.py`); `--states` reads such a file instead of
 collecting.
 """
 
@@ -38,11 +44,17 @@ import yaml  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from rodctl.sim.flow_reference import accurate_flow, reference_flow  # noqa: E402
+from rodctl.sim.flow_reference import (  # noqa: E402
+    accurate_flow,
+    reference_flow,
+    reference_solve_to,
+)
 from rodctl.sim.quasistatic import QuasiStaticChain  # noqa: E402
 
 #: Same equilibrium: the largest joint distance at most this fraction of L.
 SAME = 1e-6
+#: The continuation's failing tries before a snap's flow: at least this many times less CPU.
+GOAL = 5.0
 CONFIGS = (
     "configs/default.yaml",
     "configs/heavy-rod.yaml",
@@ -73,7 +85,51 @@ def capture(run: Any) -> list[dict[str, Any]]:
     return states
 
 
-def walk_states(walks: int, samples: int) -> list[dict[str, Any]]:
+def capture_steps(run: Any) -> list[dict[str, Any]]:
+    """The start state of every control step whose continuation failed a try (it snapped, or
+    went on after a halved sub-step) while `run()` runs (the steps themselves run as
+    shipped)."""
+    states: list[dict[str, Any]] = []
+    solve, patience = QuasiStaticChain._solve_to, QuasiStaticChain._patience
+    tries = [0]
+
+    def counting(self, *args):  # noqa: ANN001, ANN002, ANN202
+        tries[0] += 1
+        return patience(self, *args)
+
+    def recording(self: QuasiStaticChain, grip, clamp):  # noqa: ANN001, ANN202
+        state = {p: np.asarray(getattr(self, p), dtype=float) for p in PARAMS}
+        state.update(
+            gripped=np.asarray(self.gripped),
+            theta=self.theta.copy(),
+            lam=self.lam.copy(),
+            grip0=self._grip.copy(),
+            clamp0=self._clamp.copy(),
+            straight=np.asarray(self._maybe_straight),
+            grip=grip.copy(),
+            clamp=clamp.copy(),
+        )
+        tangent = self.__dict__.get("_tangent")
+        if tangent is not None and tangent[0] is self.theta and tangent[1] == self._model().key:
+            (s, aw, cols) = tangent[2]
+            state.update(tan_s=np.array(s), tan_aw=np.array(aw), tan_cols=np.array(cols))
+        tries[0], snaps = 0, self.snaps
+        ok = solve(self, grip, clamp)
+        if tries[0] > 1 or self.snaps > snaps:
+            states.append(state)
+        return ok
+
+    QuasiStaticChain._solve_to = recording  # type: ignore[method-assign]
+    QuasiStaticChain._patience = counting  # type: ignore[method-assign]
+    try:
+        run()
+    finally:
+        QuasiStaticChain._solve_to = solve  # type: ignore[method-assign]
+        QuasiStaticChain._patience = patience  # type: ignore[method-assign]
+    return states
+
+
+def walk_states(walks: int, samples: int, capture: Any = capture) -> list[dict[str, Any]]:
     from rodctl.config import load_config  # noqa: PLC0415
     from rodctl.training.collection import collect_chunk  # noqa: PLC0415
 
@@ -88,7 +144,7 @@ def walk_states(walks: int, samples: int) -> list[dict[str, Any]]:
     return states
 
 
-def hard_target_states(targets: int) -> list[dict[str, Any]]:
+def hard_target_states(targets: int, capture: Any = capture) -> list[dict[str, Any]]:
     from rodctl.bench.compare import run_compare  # noqa: PLC0415
 
     suite = yaml.safe_load((REPO / "configs/benchmarks/suite.yaml").read_text())
@@ -119,6 +175,101 @@ def chain_of(state: dict[str, Any]) -> QuasiStaticChain:
     return QuasiStaticChain(**kwargs)
 
 
+def chain_at(state: dict[str, Any]) -> QuasiStaticChain:
+    """A chain in the state a control step started from (`capture_steps`)."""
+    chain = chain_of(state)
+    chain.theta, chain.lam = state["theta"].copy(), state["lam"].copy()
+    chain._grip, chain._clamp = state["grip0"].copy(), state["clamp0"].copy()
+    chain._maybe_straight = bool(state["straight"])
+    if "tan_s" in state:
+        left = (tuple(state["tan_s"].tolist()), tuple(state["tan_aw"].tolist()))
+        chain._tangent = (chain.theta, chain._model().key, (*left, state["tan_cols"].copy()))
+    return chain
+
+
+def compare_step(state: dict[str, Any]) -> dict[str, Any]:
+    """The step as it was and as it is, from one state: where each ends, and its cost."""
+    out: dict[str, Any] = {}
+    ends = []
+    for name, solve in (("ref", reference_solve_to), ("new", QuasiStaticChain._solve_to)):
+        chain = chain_at(state)
+        flow, in_flow = chain._flow, [0.0]
+
+        def timed(*args, _flow=flow, _in=in_flow):  # noqa: ANN002, ANN202
+            t0 = time.process_time()
+            try:
+                return _flow(*args)
+            finally:
+                _in[0] += time.process_time() - t0
+
+        chain._flow = timed  # type: ignore[method-assign]
+        t0 = time.process_time()
+        ok = solve(chain, state["grip"].copy(), state["clamp"].copy())
+        cpu = time.process_time() - t0
+        ends.append(chain._points(chain.theta, chain._clamp))
+        out.update(
+            {
+                f"{name}_ok": ok,
+                f"{name}_snaps": chain.snaps,
+                f"{name}_cpu": cpu,
+                f"{name}_flow_cpu": in_flow[0],
+                f"{name}_newton": chain.newton_iterations,
+                f"{name}_theta": chain.theta,
+            }
+        )
+    out["distance"] = float(np.max(np.abs(ends[0] - ends[1]))) / float(state["length"])
+    out["exact"] = out["ref_theta"].tobytes() == out["new_theta"].tobytes()
+    return out
+
+
+def report_steps(rows: list[dict[str, Any]]) -> None:
+    """Print how the steps compare (`compare_step`)."""
+    n = len(rows)
+    snapped = [r for r in rows if r["ref_snaps"]]
+    dist = np.array([r["distance"] for r in rows])
+    print(
+        f"{n} step states ({sum('walk' in r['source'] for r in rows)} from walks): "
+        f"{len(snapped)} snapped as before ({sum(r['ref_snaps'] for r in rows)} snaps), "
+        f"{n - len(snapped)} went on after a halved sub-step"
+    )
+    print(
+        f"same equilibrium at the end of the step (<= {SAME:g} L): {int(np.sum(dist <= SAME))} "
+        f"of {n}; <= 1e-9 L: {int(np.sum(dist <= 1e-9))}; bit-identical angles: "
+        f"{sum(r['exact'] for r in rows)}; largest distance {dist.max():.2e} L; the same "
+        f"number of snaps: {sum(r['ref_snaps'] == r['new_snaps'] for r in rows)} of {n}; the "
+        f"same converged flag: {sum(r['ref_ok'] == r['new_ok'] for r in rows)} of {n}"
+    )
+    for label, part in (
+        ("before the flow", lambda r, k: r[f"{k}_cpu"] - r[f"{k}_flow_cpu"]),
+        ("in the flow", lambda r, k: r[f"{k}_flow_cpu"]),
+        ("the whole step", lambda r, k: r[f"{k}_cpu"]),
+    ):
+        for group, sel in (("snapping steps", snapped), ("all steps", rows)):
+            if not sel or (label == "in the flow" and group == "all steps"):
+                continue
+            ref = 1e3 * np.array([part(r, "ref") for r in sel])
+            new = 1e3 * np.array([part(r, "new") for r in sel])
+            ratio = ref.sum() / max(new.sum(), 1e-9)
+            goal = ""
+            if label == "before the flow" and group == "snapping steps":
+                goal = f"   (goal >= {GOAL:g}x: {'met' if ratio >= GOAL else 'NOT met'})"
+            print(
+                f"CPU ms {label:<16} {group:<15} before: median {np.median(ref):7.2f} total "
+                f"{ref.sum():9.1f}; now: median {np.median(new):7.2f} total {new.sum():8.1f}; "
+                f"ratio of totals {ratio:5.1f}x{goal}"
+            )
+    newton = [(r["ref_newton"], r["new_newton"]) for r in snapped]
+    if newton:
+        print(
+            "Newton iterations a snapping step, median: before "
+            f"{np.median([a for a, _ in newton]):.0f}, now {np.median([b for _, b in newton]):.0f}"
+        )
+    for r in rows:
+        if r["distance"] > SAME or r["ref_snaps"] != r["new_snaps"] or r["ref_ok"] != r["new_ok"]:
+            keep = ("source", "distance", "ref_snaps", "new_snaps", "ref_ok", "new_ok")
+            print(f"  DIFFERENT: { {k: r[k] for k in keep} }")
+
+
 def compare(state: dict[str, Any], reference_cap: int) -> dict[str, Any]:
     """Both flows from one state: their ends, how far apart, and their cost."""
     args = (state["theta"], state["lam"], state["grip"], state["clamp"])
@@ -128,7 +279,8 @@ def compare(state: dict[str, Any], reference_cap: int) -> dict[str, Any]:
     ref_cpu = time.process_time() - t0
     capped = not ref[2]
     if capped:
-        ref = reference_flow(chain_of(state), *(a.copy() for a in args), max_steps=reference_cap)
+        theta, lam, grip, clamp = (a.copy() for a in args)
+        ref = reference_flow(chain_of(state), theta, lam, grip, clamp, max_steps=reference_cap)
     judge = "previous flow"
     if not ref[2]:  # it does not converge at all: integrate the flow finely instead
         judge = "fine flow"
@@ -156,7 +308,9 @@ def compare(state: dict[str, Any], reference_cap: int) -> dict[str, Any]:
 
 
 def save(path: str, states: list[dict[str, Any]]) -> None:
-    arrays = {f"{i}/{k}": np.asarray(v) for i, s in enumerate(states) for k, v in s.items()}
+    arrays: dict[str, Any] = {
+        f"{i}/{k}": np.asarray(v) for i, s in enumerate(states) for k, v in s.items()
+    }
     np.savez_compressed(path, **arrays)
 
 
@@ -176,22 +330,34 @@ def main() -> None:
     ap.add_argument("--walks", type=int, default=3, help="collection walks per config")
     ap.add_argument("--samples", type=int, default=1500, help="shapes per walk")
     ap.add_argument("--hard-targets", type=int, default=5, help="targets x the suite's methods")
+    ap.add_argument("--flows", action="store_true", help="compare the flows, not the steps")
     ap.add_argument("--reference-cap", type=int, default=100_000)
     ap.add_argument("--save", help="write the collected states to this .npz")
     ap.add_argument("--states", help="read the states from this .npz instead of collecting")
     args = ap.parse_args()
     print(f"load average before: {os.getloadavg()}")
+    how = capture if args.flows else capture_steps
     if args.states:
         states = load(args.states)
     else:
-        states = walk_states(args.walks, args.samples) + hard_target_states(args.hard_targets)
+        states = walk_states(args.walks, args.samples, how)
+        states += hard_target_states(args.hard_targets, how)
     if args.save:
         save(args.save, states)
-    rows = [dict(compare(s, args.reference_cap), source=s["source"]) for s in states]
-    n = len(rows)
-    if not n:
-        print("no flow ran")
+    if not states:
+        print("no state collected")
         return
+    if args.flows:
+        rows = [dict(compare(s, args.reference_cap), source=s["source"]) for s in states]
+        report_flows(rows, args.reference_cap)
+    else:
+        report_steps([dict(compare_step(s), source=s["source"]) for s in states])
+    print(f"load average after: {os.getloadavg()}")
+
+
+def report_flows(rows: list[dict[str, Any]], reference_cap: int) -> None:
+    """Print how the flows compare (`compare`)."""
+    n = len(rows)
     dist = np.array([r["distance"] for r in rows])
     same = int(np.sum(dist <= SAME))
     print(f"{n} flow start states ({sum('walk' in r['source'] for r in rows)} from walks)")
@@ -204,7 +370,7 @@ def main() -> None:
     fine = [r for r in rows if r["judge"] == "fine flow"]
     print(
         f"previous flow: {capped} of {n} stopped unconverged (its 4,000-step cap, or its τ "
-        f"collapsed); with {args.reference_cap} steps {capped - len(fine)} of them converged; "
+        f"collapsed); with {reference_cap} steps {capped - len(fine)} of them converged; "
         f"the other {len(fine)} were judged by the flow integrated finely (τ <= 4/k), which "
         f"converged on {sum(r['ref_converged'] for r in fine)}. Current flow: "
         f"{sum(r['new_stable'] for r in rows)} of {n} converged to a stable state"
@@ -221,7 +387,6 @@ def main() -> None:
     for r in rows:
         if r["distance"] > SAME or not r["new_stable"]:
             print(f"  DIFFERENT: {r}")
-    print(f"load average after: {os.getloadavg()}")
 
 
 if __name__ == "__main__":

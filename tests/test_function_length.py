@@ -28,6 +28,7 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("rodctl/fixedla.py", "tridiagonal_eigenvalues"): KERNEL,
     ("rodctl/sim/quasistatic.py", "QuasiStaticChain._solve_to"): KERNEL,
     ("rodctl/sim/quasistatic.py", "QuasiStaticChain.__init__"): KERNEL,
+    ("rodctl/sim/flow_reference.py", "_continuation"): KERNEL,
     ("rodctl/sim/chain.py", "RodChain.__init__"): KERNEL,
     ("rodctl/sim/friction.py", "FrictionalChain._newton_eps"): KERNEL,
     ("rodctl/sim/friction.py", "FrictionalChain._system"): KERNEL,

@@ -32,7 +32,8 @@ pivots of the tridiagonal H come from its LDLᵀ recurrence. The path is followe
 the end poses move along their straight line in sub-steps that are halved when Newton fails,
 lands on an unstable equilibrium or moves the shape by more than `MAX_BRANCH_STEP` (a would-be
 branch jump). When the sub-step is below `MIN_FRACTION` of the move and still fails, the path has
-lost stability (a fold: snap-through). The engine then follows the overdamped gradient flow
+lost stability (a fold: snap-through); after a failed try, the tries that cannot declare the fold
+give up early (`QuasiStaticChain._patience`). The engine then follows the overdamped gradient flow
 θ' = −∇E (projected on the constraints) by backward-Euler steps — a Newton step with the shift
 I/τ added to H, τ growing as the flow settles — to the next stable equilibrium, counts a snap
 and keeps a note of it (`QuasiStaticChain.snap_notes`). A jump inside a converged sub-step is
@@ -79,6 +80,11 @@ MAX_NEWTON = 25
 MAX_BRANCH_STEP = 0.35
 #: Smallest continuation sub-step, as a fraction of the move; below it the path has a fold.
 MIN_FRACTION = 1.0 / 512.0
+#: The tries after a failed one that cannot start the flow give up after this many Newton
+#: iterations, or when none of this many step lengths 1, 1/2, ... of a Newton step lowers the
+#: residual (`QuasiStaticChain._patience`; a full Newton tries 30).
+QUICK_NEWTON = 6
+QUICK_LENGTHS = 2
 #: Backward-Euler gradient-flow steps allowed for one snap.
 MAX_FLOW_STEPS = 4000
 #: Accepted flow steps after a failed Newton try before the next one (unless the residual has
@@ -342,10 +348,18 @@ class QuasiStaticChain:
         return max(g, hh), merit
 
     def _newton(
-        self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
+        self,
+        theta: np.ndarray,
+        lam: np.ndarray,
+        grip: np.ndarray,
+        clamp: np.ndarray,
+        iterations: int = MAX_NEWTON,
+        lengths: int = 30,
     ) -> tuple[np.ndarray, np.ndarray, bool, tuple]:
         """Newton with backtracking on the KKT residual; (θ, λ, converged, hess) where hess =
-        (diag of H, e^{iθ}, the last solve's left-overs or None) at the last linearisation."""
+        (diag of H, e^{iθ}, the last solve's left-overs or None) at the last linearisation.
+        At most `iterations` iterations, each trying at most `lengths` step lengths 1, 1/2, ...
+        (fewer: the continuation's tries after a failed one, `_quick_newton`)."""
         m = self._model()
         ends = _ends(grip, clamp)
         l0, l1 = lam.tolist()
@@ -355,7 +369,7 @@ class QuasiStaticChain:
         converged_step, absolute = m.converged_step, np.abs
         grad, diag, z, h0, h1 = evaluate(theta, l0, l1, m, ends)
         res, merit = measures(grad, h0, h1, m)
-        for _ in range(MAX_NEWTON):
+        for _ in range(iterations):
             if res <= 1.0:
                 return theta, np.array([l0, l1]), True, (diag, z, None)
             self.newton_iterations += 1
@@ -371,7 +385,7 @@ class QuasiStaticChain:
                 # the tolerance; the Hessian at θ stands for the one at θ + dθ.
                 return theta + dth, np.array([l0 + d0, l1 + d1]), True, (diag, z, info)
             step = 1.0
-            for _ in range(30):
+            for _ in range(lengths):
                 th2 = theta + step * dth if step != 1.0 else theta + dth
                 m0, m1 = l0 + step * d0, l1 + step * d1
                 grad2, diag2, z2, g0, g1 = evaluate(th2, m0, m1, m, ends)
@@ -542,6 +556,7 @@ class QuasiStaticChain:
         moving = not (clamp_fixed and grip.tolist() == g0.tolist())
         done, frac = 0.0, 1.0
         ok = True
+        quick = False  # after a failed try: Newton gives up early (`_patience`)
         while done < 1.0:
             f = min(1.0, done + frac)
             if f == 1.0:
@@ -562,8 +577,9 @@ class QuasiStaticChain:
                 predicted = self._predict(g)
                 if predicted is not None:
                     guesses.insert(0, predicted)
-            for guess, lam0 in guesses:
-                theta, lam, conv, hess = self._newton(guess, lam0, g, c)
+            newton, starts = self._patience(quick, moving, done, frac, f)
+            for guess, lam0 in guesses[:starts]:
+                theta, lam, conv, hess = newton(guess, lam0, g, c)
                 good = (
                     conv
                     and float(_MAX(np.abs(theta - self.theta))) <= MAX_BRANCH_STEP
@@ -579,6 +595,7 @@ class QuasiStaticChain:
                 frac = min(2.0 * frac, 1.0)
                 continue
             if moving and frac > MIN_FRACTION:
+                quick = True
                 frac *= 0.5
                 # Where the halved sub-step still reaches the end of the move (done + frac >= 1:
                 # after a success the sub-step doubles past it), the next try would be this one
@@ -611,12 +628,41 @@ class QuasiStaticChain:
         self._grip, self._clamp = grip, clamp
         return ok
 
+    def _patience(
+        self, quick: bool, moving: bool, done: float, frac: float, f: float
+    ) -> tuple[Callable[..., tuple[np.ndarray, np.ndarray, bool, tuple]], int]:
+        """(the Newton a continuation try runs, from how many of its starts). In full
+        (`_newton`, from the tangent predictor and then from the last state) for a step's
+        first try and for every try whose failure starts the gradient flow (a sub-step of
+        `MIN_FRACTION`, or the move's end within it), so that a fold is declared exactly where
+        the full tries fail, as before; after a failed try (`quick`) the others run
+        `_quick_newton` from the first start only.
+
+        Near a fold nearly every try after the first fails, and a full Newton fails slowly
+        (~10 iterations with ~15 line-search evaluations each, ~1.5 ms); a try that succeeds
+        there takes 1-4 full Newton steps. Giving up early changes no snap or equilibrium: a
+        try given up that would have succeeded is only halved and tried again from the same
+        stable state, and the fold is declared by the full tries only."""
+        final = not moving or frac <= MIN_FRACTION or (f == 1.0 and done + MIN_FRACTION >= 1.0)
+        return (self._newton, 2) if final or not quick else (self._quick_newton, 1)
+
+    def _quick_newton(
+        self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, bool, tuple]:
+        """`_newton` giving up after `QUICK_NEWTON` iterations or when the step lengths 1 and
+        1/2 (`QUICK_LENGTHS`) do not lower the residual (`_patience`). Also the flow's Newton
+        tries on the way: from the ghost of the fold a full Newton failed slowly (about half a
+        flow's CPU time until 2026-12-02; `reference_solve_to` still runs it so); near the
+        equilibrium Newton takes full steps, and a quick Newton that converges is the full one,
+        step for step."""
+        return self._newton(theta, lam, grip, clamp, QUICK_NEWTON, QUICK_LENGTHS)
+
     def _flow(
         self, theta: np.ndarray, lam: np.ndarray, grip: np.ndarray, clamp: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, bool]:
         """Overdamped gradient flow θ' = −P ∇E on the constraint manifold, by backward-Euler
         steps (each a KKT solve with H + I/τ) to the next stable equilibrium; ends with Newton
-        once the state is stable.
+        (`_quick_newton`: see there) once the state is stable.
 
         A step is accepted when it does not raise the augmented Lagrangian
         E + λ'·h + ρ/2 |h|² with the step's own multipliers λ' and a mild ρ = k/l² (the merit the
@@ -634,8 +680,7 @@ class QuasiStaticChain:
         grad, diag, z, h0, h1 = self._eval(theta, l0, l1, m, ends)
         e0 = self._flow_energy(z, m)
         # Newton is tried once the flow is near a stable state, then again only after the
-        # residual has fallen 4-fold or FLOW_RETRY accepted steps later: each failed try costs
-        # up to MAX_NEWTON iterations with their line searches.
+        # residual has fallen 4-fold or FLOW_RETRY accepted steps later.
         retry_res, since_try = math.inf, 0
         for _ in range(MAX_FLOW_STEPS):
             self.flow_steps += 1
@@ -660,7 +705,7 @@ class QuasiStaticChain:
                 due = res < 0.25 * retry_res or since_try >= FLOW_RETRY
                 if res < 1e6 and due and self._stable_newton((diag, z, None)):
                     lam = np.array([l0, l1])
-                    th3, lam3, conv, hess = self._newton(theta, lam, grip, clamp)
+                    th3, lam3, conv, hess = self._quick_newton(theta, lam, grip, clamp)
                     if conv and self._stable_newton(hess):
                         return th3, lam3, True
                     retry_res, since_try = res, 0
