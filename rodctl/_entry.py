@@ -106,8 +106,13 @@ def start_helpers() -> None:
     jobs = wanted(args[args.index("simulate") + 1 :])
     if not jobs:
         return
-    import numpy  # noqa: F401, PLC0415 - the helpers get it with the fork (helper_process)
+    import importlib  # noqa: PLC0415
 
+    import numpy  # noqa: F401, PLC0415 - the helpers get it with the fork (helper_process)
+    import yaml  # noqa: F401, PLC0415 - and what both sides import anyway: the config's YAML,
+
+    for _, module, _ in JOBS:  # the jobs' modules (records, codec: no thread started)
+        importlib.import_module(module)
     from rodctl import helper_process  # noqa: PLC0415
 
     helper_process.start_early(jobs)
