@@ -410,7 +410,8 @@ def fork_helper(module: str) -> _Forked:
     parent = os.getpid()
     pipes = [os.pipe() for _ in range(3)]  # stdin, stdout, stderr; not inheritable
     for stream in (sys.stdout, sys.stderr):
-        stream.flush()  # nothing buffered here may be written twice, by the child too
+        if stream is not None:
+            stream.flush()  # nothing buffered here may be written twice, by the child too
     pid = os.fork()
     if pid == 0:  # pragma: no cover - the child (its coverage is not collected)
         _forked_child(module, parent, pipes)
@@ -430,6 +431,13 @@ def _forked_child(module: str, parent: int, pipes: list[tuple[int, int]]) -> NoR
         for fd, target in ((in_r, 0), (out_w, 1), (err_w, 2)):
             os.dup2(fd, target)
         os.closerange(3, _max_fd())  # the parent's ends (and the other helper's) closed here
+        # The streams on the three pipes (the parent's may be None: started with one closed),
+        # kept alive here as sys.__stdout__ keeps a spawned helper's (`begin` replaces stdout).
+        _STDIO[:] = [
+            open(fd, mode, encoding="utf-8", closefd=False)  # noqa: SIM115 - for good
+            for fd, mode in ((0, "r"), (1, "w"), (2, "w"))
+        ]
+        sys.stdin, sys.stdout, sys.stderr = _STDIO
         _PARENT = parent
         _bare_package()
         import importlib  # noqa: PLC0415 (the child only)
@@ -471,6 +479,8 @@ def _max_fd() -> int:
 
 #: The parent's pid in a forked helper (a spawned one has it as argv[2]).
 _PARENT: int | None = None
+#: A forked helper's stdin, stdout and stderr streams (`_forked_child`).
+_STDIO: list[Any] = []
 
 #: Helpers forked by the entry point before the command's own imports (`start_early`), by
 #: module, until `Helpers.start` takes them (or `stop_early` stops those the run does not need).
@@ -479,7 +489,10 @@ _EARLY: dict[str, Helper] = {}
 
 def start_early(jobs: list[tuple[str, str]]) -> None:
     """Fork the helpers of `jobs` (module, name) now, for the run's `Helpers.start` to take:
-    the entry point's (`rodctl._entry`), before the command's imports and any thread."""
+    the entry point's (`rodctl._entry`), before the command's imports and any thread (with
+    another Python thread running, none: `Helpers.start` spawns them later)."""
+    if threading.active_count() > 1:
+        return
     for module, name in jobs:
         if module not in _EARLY:
             _EARLY[module] = Helper.fork(module, name)

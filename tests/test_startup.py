@@ -61,13 +61,20 @@ def test_only_the_rodctl_command_is_peeked_at(monkeypatch, argv, orig, expected)
     assert _entry.command_args() == expected
 
 
+def _without_stdin() -> None:
+    os.close(0)
+
+
 def test_simulate_forks_its_helpers_before_its_own_imports(tmp_path):
+    """Its stdin closed, too (no `sys.stdin` in the command: the forked helpers make their own
+    streams on their pipes)."""
     marks = tmp_path / "timeline.txt"
     env = {**os.environ, "RODCTL_TIMELINE": str(marks)}
     res = subprocess.run(
         [sys.executable, "-m", "rodctl", "simulate", str(REPO / "configs/default.yaml"), *SMALL,
          "-o", str(tmp_path / "runs")],
         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300,
+        preexec_fn=_without_stdin,  # noqa: PLW1509 - the child's fd 0 only
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     # each line: pid role event... monotonic cpu
