@@ -78,8 +78,10 @@ def _logging_block(config: str | None) -> dict[str, bool]:
     """What the config file's block-style `logging:` mapping sets `figures` and `rerun` to
     (nothing known: {})."""
     found: dict[str, bool] = {}
+    if not config or not os.path.isfile(config):  # a FIFO would block here: the loader refuses it
+        return found
     try:
-        with open(config or "", encoding="utf-8", errors="replace") as f:
+        with open(config, encoding="utf-8", errors="replace") as f:
             text = f.read(1 << 18)
     except (OSError, ValueError):
         return found

@@ -41,6 +41,9 @@ def test_the_peek_reads_the_config_files_logging_block_and_the_sets(tmp_path):
     assert _wanted("-o", str(cfg), "missing.yaml") == BOTH  # -o's value is not the config
     assert _wanted(str(cfg), "--set=logging.rerun=off") == set()
     assert _wanted("configs/default.yaml", "--set", "logging.rerun=maybe") == BOTH
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+    assert _wanted(str(fifo)) == BOTH  # not opened (it would block): the loader refuses it
     flow = tmp_path / "flow.yaml"
     flow.write_text("logging: {figures: false}\n")
     assert _wanted(str(flow)) == BOTH  # not understood: both, the config then decides
