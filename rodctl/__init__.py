@@ -40,4 +40,8 @@ def _register_env() -> None:
         register(id=GOAL_ENV_ID, entry_point="rodctl.rl:ShapeServoGoalEnv")
 
 
+# `rodctl simulate`: its helper processes forked first, before gymnasium (rodctl/_entry.py).
+from rodctl import _entry  # noqa: E402
+
+_entry.start_helpers()
 _register_env()

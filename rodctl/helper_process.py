@@ -15,7 +15,11 @@ every owner (`Helpers` stops all it started), kills it and reaps it.
 
 Protocol: the parent sends pickles to the helper's stdin (`send`), each pickled when sent (what
 changes afterwards is not sent), written by a thread so that a helper still importing never
-blocks the command; `end()` closes the input after them. The helper reads them until the end of
+blocks the command; `end()` closes the input after them. What waits for the thread is bounded
+(`QUEUE_BYTES`): when it is full, `send` waits up to `QUEUE_WAIT_S` for the helper to read,
+then gives the helper up (`failure` says so; later messages are dropped and `result()` raises),
+so that a helper that stops reading costs the command a bounded wait and memory, not a copy of
+every record of the run. The helper reads them until the end of
 its input (`messages`), writes one pickle, its reply, to its stdout and exits 0 (`reply`). A
 traceback goes to its stderr. The helper's program imports only its job's module (`-P`: no
 current folder on sys.path), with `rodctl` a bare package of the parent's folder: the package's
@@ -23,18 +27,33 @@ current folder on sys.path), with `rodctl` a bare package of the parent's folder
 
 Failure: a helper that cannot start, fails, is killed or does not reply within the timeout makes
 `result()` raise `HelperFailed` with the reason, naming the helper; it never raises anything else.
+`ended()` tells, without waiting, whether a helper has already ended before its reply (an import
+that failed, a kill), so that its owner can say so at once instead of at the end.
+
+Forked helpers (issue #24): `rodctl simulate` starts its helpers from the entry point
+(`rodctl._entry`), before its own imports, by `fork_helper` instead of a new interpreter: the
+child has the interpreter and numpy already (~0.1 s of CPU each, and as much of latency). It is
+safe there: no Python thread exists yet, and OpenBLAS (numpy's BLAS) stops its own threads
+before a fork and starts them again when next used (its `pthread_atfork` handler), so that the
+child has one thread and the parent the same BLAS as without the fork. The child is made to
+look like a spawned helper (its own process group, stdin/stdout/stderr the three pipes, every
+other file descriptor closed), runs the job's `helper_main()` and leaves by `os._exit`, never
+returning into the parent's code. Anywhere else (a library use of `rodctl.simulate`, the tests,
+not Linux) the helpers are spawned as before.
 """
 
 from __future__ import annotations
 
+import collections
 import ctypes
 import os
 import pickle
-import queue
+import selectors
 import signal
 import subprocess
 import sys
 import threading
+import time
 import traceback
 from collections.abc import Iterator
 from concurrent.futures import Future
@@ -46,6 +65,12 @@ from rodctl.errors import describe_os_error
 
 #: Seconds `result()` waits by default for a helper whose input has ended.
 TIMEOUT_S = 60.0
+
+#: Bytes of pickles a helper's input may hold back (its sender thread's queue): ~70 of the
+#: largest records (a 640x480 frame's PNG), thousands of the usual ones.
+QUEUE_BYTES = 64 << 20
+#: Seconds `send` waits for room when the queue is full before it gives the helper up.
+QUEUE_WAIT_S = 10.0
 
 #: The `rodctl` package folder the parent imported: the helper imports from the same one.
 _PACKAGE = str(Path(__file__).resolve().parent)
@@ -75,12 +100,14 @@ class Helper:
         name: what the helper is called in messages ("figure process").
     """
 
-    def __init__(self, proc: subprocess.Popen | None, name: str, failure: str | None = None):
+    def __init__(
+        self, proc: subprocess.Popen | _Forked | None, name: str, failure: str | None = None
+    ):
         self.proc = proc
         self.name = name
         #: Why there will be no reply, known before `result()` (no process, data unpicklable).
         self.failure = failure
-        self._queue: queue.SimpleQueue[Any] | None = None
+        self._queue: _Inbox | None = None
         self._sender: threading.Thread | None = None
         self._ended = False
         self._broken = False  # the helper stopped reading: later messages are dropped
@@ -104,16 +131,45 @@ class Helper:
             return cls(None, name, f"could not start the {name}: {why}")
         return cls(proc, name)
 
+    @classmethod
+    def fork(cls, module: str, name: str) -> Helper:
+        """Start the helper as a fork of this process (`fork_helper`; only where the module
+        docstring says it is safe). Never raises: a helper that cannot be forked is reported by
+        `result()`."""
+        try:
+            return cls(fork_helper(module), name)
+        except OSError as exc:
+            return cls(None, name, f"could not start the {name}: {describe_os_error(exc)}")
+
+    def ended(self) -> str | None:
+        """Why the helper ended before its reply was asked for (it failed, was killed), or None
+        while it runs. Does not wait; once it says why, `failure` does too."""
+        if self.failure is not None:
+            return self.failure
+        if self.proc is None or self._ended or self.proc.poll() is None:
+            return None
+        err = b""
+        if self.proc.stderr is not None:
+            try:
+                err = self.proc.stderr.read()  # it has exited: the pipe ends
+            except (OSError, ValueError):
+                pass
+        self.failure = _ended_why(self.name, self.proc.returncode, err)
+        self._broken = True
+        return self.failure
+
     @property
     def usable(self) -> bool:
         """Whether messages still reach the helper (started, not failed, input not ended)."""
         return not (self.proc is None or self.failure or self._ended or self._broken)
 
-    def send(self, message: Any, pending: Future | None = None) -> None:
+    def send(self, message: Any, pending: Future | None = None, pending_bytes: int = 0) -> None:
         """Queue `message`, pickled now; then, if given, the result of `pending` (or the
-        exception it raised) once it is done, as the next pickle. Returns at once and never
-        raises (the parent's sinks call it, where an exception would fail the run's logs): a
-        message that cannot be pickled makes `failure` say so and ends the exchange."""
+        exception it raised) once it is done, as the next pickle (`pending_bytes`: about how
+        large, for the queue's bound). Returns at once unless the queue is full (the module
+        docstring) and never raises (the parent's sinks call it, where an exception would fail
+        the run's logs): a message that cannot be pickled makes `failure` say so and ends the
+        exchange."""
         if not self.usable:
             return
         try:
@@ -122,14 +178,20 @@ class Helper:
             self.failure = f"the run could not be handed to the {self.name}: {exc!r}"
             self.end()
             return
-        self._inbox().put((data, pending))
+        size = len(data) + (pending_bytes if pending is not None else 0)
+        if not self._inbox().put((data, pending, size), size, QUEUE_WAIT_S):
+            self.failure = (
+                f"the {self.name} stopped reading its input ({QUEUE_BYTES >> 20} MB of the run "
+                f"waited for it {QUEUE_WAIT_S:g} s): given up"
+            )
+            self._broken = True
 
     def end(self) -> None:
         """No more messages: the helper's input closes once the queued ones are written."""
         if self._ended or self.proc is None:
             self._ended = True
             return
-        self._inbox().put(_END)
+        self._inbox().put(_END, 0, None)
         self._ended = True
 
     def result(self, timeout: float | None = None) -> Any:
@@ -150,17 +212,8 @@ class Helper:
             if self._sender is not None:
                 self._sender.join(timeout=1.0)
         code = self.proc.returncode
-        if code < 0:
-            try:
-                how = signal.Signals(-code).name
-            except ValueError:
-                how = f"signal {-code}"
-            raise HelperFailed(f"the {self.name} was killed by {how}")
         if code != 0:
-            lines = err.decode("utf-8", "replace").strip().splitlines()
-            raise HelperFailed(
-                f"the {self.name} failed: {lines[-1] if lines else f'exit code {code}'}"
-            )
+            raise HelperFailed(_ended_why(self.name, code, err))
         try:
             return pickle.loads(out)
         except Exception:  # noqa: BLE001 - whatever it sent, it is no reply
@@ -194,12 +247,12 @@ class Helper:
     def __exit__(self, *exc: Any) -> None:
         self.stop()
 
-    def _inbox(self) -> queue.SimpleQueue[Any]:
+    def _inbox(self) -> _Inbox:
         """The sender thread's queue, the thread started (and stdin taken over) on first use."""
         if self._queue is None:
             assert self.proc is not None and self.proc.stdin is not None  # started with PIPE
             stdin, self.proc.stdin = self.proc.stdin, None  # ours now; communicate() leaves it
-            self._queue = queue.SimpleQueue()
+            self._queue = _Inbox(QUEUE_BYTES)
             self._sender = threading.Thread(
                 target=self._write_all,
                 args=(stdin, self._queue),
@@ -209,10 +262,10 @@ class Helper:
             self._sender.start()
         return self._queue
 
-    def _write_all(self, stdin: IO[bytes], inbox: queue.SimpleQueue[Any]) -> None:
+    def _write_all(self, stdin: IO[bytes], inbox: _Inbox) -> None:
         try:
             while (item := inbox.get()) is not _END:
-                data, pending = item
+                data, pending, size = item
                 stdin.write(data)
                 if pending is not None:
                     try:
@@ -221,6 +274,7 @@ class Helper:
                         value = exc
                     stdin.write(_dumps_or_repr(value))
                 stdin.flush()
+                inbox.done(size)
         except (OSError, ValueError):  # the helper is gone: result() says why
             self._broken = True
         finally:
@@ -230,6 +284,56 @@ class Helper:
                 pass
 
 
+def _ended_why(name: str, code: int | None, err: bytes) -> str:
+    """Why a helper that exited with `code` (negative: killed by that signal) gave no reply,
+    from the last line of its stderr `err`."""
+    if code is not None and code < 0:
+        try:
+            how = signal.Signals(-code).name
+        except ValueError:
+            how = f"signal {-code}"
+        return f"the {name} was killed by {how}"
+    lines = err.decode("utf-8", "replace").strip().splitlines()
+    return f"the {name} failed: {lines[-1] if lines else f'exit code {code}'}"
+
+
+class _Inbox:
+    """A FIFO of messages for the sender thread, holding at most `limit` bytes of them (one
+    message larger than that still passes, alone)."""
+
+    def __init__(self, limit: int) -> None:
+        self._items: collections.deque[Any] = collections.deque()
+        self._bytes = 0
+        self._limit = limit
+        self._cond = threading.Condition()
+
+    def put(self, item: Any, size: int, timeout: float | None) -> bool:
+        """Queue `item` of `size` bytes, waiting up to `timeout` s for room (None: no limit and
+        no wait, for the end mark). False: no room came in time, nothing queued."""
+        with self._cond:
+            if timeout is not None:
+                room = self._cond.wait_for(
+                    lambda: self._bytes == 0 or self._bytes + size <= self._limit, timeout
+                )
+                if not room:
+                    return False
+            self._items.append(item)
+            self._bytes += size
+            self._cond.notify_all()
+            return True
+
+    def get(self) -> Any:
+        with self._cond:
+            self._cond.wait_for(lambda: bool(self._items))
+            return self._items.popleft()
+
+    def done(self, size: int) -> None:
+        """`size` bytes of a message taken by `get` have been written: room for more."""
+        with self._cond:
+            self._bytes -= size
+            self._cond.notify_all()
+
+
 def _dumps_or_repr(value: Any) -> bytes:
     try:
         return pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
@@ -237,10 +341,175 @@ def _dumps_or_repr(value: Any) -> bytes:
         return pickle.dumps(RuntimeError(repr(value)), protocol=pickle.HIGHEST_PROTOCOL)
 
 
+class _Forked:
+    """What `Helper` uses of a `subprocess.Popen`, for a helper forked from this process."""
+
+    def __init__(self, pid: int, stdin: IO[bytes], stdout: IO[bytes], stderr: IO[bytes]) -> None:
+        self.pid = pid
+        self.stdin: IO[bytes] | None = stdin
+        self.stdout: IO[bytes] | None = stdout
+        self.stderr: IO[bytes] | None = stderr
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG)
+            except ChildProcessError:  # reaped elsewhere: its status is lost
+                pid, status = self.pid, 255 << 8
+            if pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        delay = 0.0005
+        while self.poll() is None:  # no pidfd in every kernel: short naps, growing to 20 ms
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                raise subprocess.TimeoutExpired(f"helper {self.pid}", timeout or 0.0)
+            time.sleep(delay if left is None else min(delay, left))
+            delay = min(delay * 2, 0.02)
+        return self.poll() or 0
+
+    def kill(self) -> None:
+        if self.poll() is None:  # not reaped yet: the pid is still this child's
+            os.kill(self.pid, signal.SIGKILL)
+
+    def communicate(self, timeout: float | None = None) -> tuple[bytes, bytes]:
+        """Everything the helper writes to stdout and stderr until both end, then its exit (as
+        `Popen.communicate` with stdin taken over: `subprocess.TimeoutExpired` after
+        `timeout` s)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        chunks: dict[int, list[bytes]] = {}
+        with selectors.DefaultSelector() as sel:
+            for stream in (self.stdout, self.stderr):
+                if stream is not None:
+                    chunks[stream.fileno()] = []
+                    sel.register(stream.fileno(), selectors.EVENT_READ)
+            while sel.get_map():
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    raise subprocess.TimeoutExpired(f"helper {self.pid}", timeout or 0.0)
+                for key, _ in sel.select(left):
+                    data = os.read(key.fd, 1 << 16)
+                    if data:
+                        chunks[key.fd].append(data)
+                    else:
+                        sel.unregister(key.fd)
+        left = None if deadline is None else max(0.0, deadline - time.monotonic())
+        self.wait(left)
+        out = b"".join(chunks.get(self.stdout.fileno(), [])) if self.stdout else b""
+        err = b"".join(chunks.get(self.stderr.fileno(), [])) if self.stderr else b""
+        return out, err
+
+
+def fork_helper(module: str) -> _Forked:
+    """Fork a helper that runs `module.helper_main()` (module docstring, "Forked helpers"):
+    call only while this process has no other thread. Raises `OSError` (no fork, no pipes)."""
+    parent = os.getpid()
+    pipes = [os.pipe() for _ in range(3)]  # stdin, stdout, stderr; not inheritable
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None:
+            stream.flush()  # nothing buffered here may be written twice, by the child too
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child (its coverage is not collected)
+        _forked_child(module, parent, pipes)
+    (in_r, in_w), (out_r, out_w), (err_r, err_w) = pipes
+    for fd in (in_r, out_w, err_w):
+        os.close(fd)
+    return _Forked(pid, os.fdopen(in_w, "wb"), os.fdopen(out_r, "rb"), os.fdopen(err_r, "rb"))
+
+
+def _forked_child(module: str, parent: int, pipes: list[tuple[int, int]]) -> NoReturn:
+    """The forked helper: made to look like a spawned one, then its job; never returns."""
+    global _PARENT
+    code = 1
+    try:
+        os.setpgid(0, 0)  # its own group: the terminal's Ctrl-C reaches only the command
+        (in_r, _), (_, out_w), (_, err_w) = pipes
+        for fd, target in ((in_r, 0), (out_w, 1), (err_w, 2)):
+            os.dup2(fd, target)
+        os.closerange(3, _max_fd())  # the parent's ends (and the other helper's) closed here
+        # The streams on the three pipes (the parent's may be None: started with one closed),
+        # kept alive here as sys.__stdout__ keeps a spawned helper's (`begin` replaces stdout).
+        _STDIO[:] = [
+            open(fd, mode, encoding="utf-8", closefd=False)  # noqa: SIM115 - for good
+            for fd, mode in ((0, "r"), (1, "w"), (2, "w"))
+        ]
+        sys.stdin, sys.stdout, sys.stderr = _STDIO
+        _PARENT = parent
+        _bare_package()
+        import importlib  # noqa: PLC0415 (the child only)
+
+        importlib.import_module(module).helper_main()
+        code = 0
+    except BaseException:  # noqa: BLE001 - to stderr, then out: never back into the parent's code
+        try:
+            traceback.print_exc()
+            sys.stderr.flush()
+        except BaseException:  # noqa: BLE001, S110 - nothing left to report it with
+            pass
+    finally:
+        os._exit(code)
+
+
+def _bare_package() -> None:
+    """Make `rodctl` a bare package of the same folder in a forked helper, as in a spawned one.
+    Why: the fork happens while `rodctl/__init__` runs, so the package stays "being imported"
+    in the child for good, and any other thread that imports from it (the figure process's
+    reader, unpickling a record) would wait forever for the import lock of the main thread."""
+    import types  # noqa: PLC0415 (the child only)
+
+    old = sys.modules["rodctl"]
+    package = types.ModuleType("rodctl", old.__doc__)
+    package.__path__ = list(old.__path__)
+    for key, value in vars(old).items():  # the submodules imported before the fork
+        if isinstance(value, types.ModuleType) and value.__name__.startswith("rodctl."):
+            setattr(package, key, value)
+    sys.modules["rodctl"] = package
+
+
+def _max_fd() -> int:
+    try:
+        return min(int(os.sysconf("SC_OPEN_MAX")), 1 << 20)
+    except (OSError, ValueError):  # pragma: no cover
+        return 1024
+
+
+#: The parent's pid in a forked helper (a spawned one has it as argv[2]).
+_PARENT: int | None = None
+#: A forked helper's stdin, stdout and stderr streams (`_forked_child`).
+_STDIO: list[Any] = []
+
+#: Helpers forked by the entry point before the command's own imports (`start_early`), by
+#: module, until `Helpers.start` takes them (or `stop_early` stops those the run does not need).
+_EARLY: dict[str, Helper] = {}
+
+
+def start_early(jobs: list[tuple[str, str]]) -> None:
+    """Fork the helpers of `jobs` (module, name) now, for the run's `Helpers.start` to take:
+    the entry point's (`rodctl._entry`), before the command's imports and any thread (with
+    another Python thread running, none: `Helpers.start` spawns them later)."""
+    if threading.active_count() > 1:
+        return
+    for module, name in jobs:
+        if module not in _EARLY:
+            _EARLY[module] = Helper.fork(module, name)
+            timeline.mark("main", f"started {module}")
+
+
+def stop_early() -> None:
+    """Stop the helpers forked early that no run took (the config switched their job off)."""
+    while _EARLY:
+        _EARLY.popitem()[1].stop()
+
+
 class Helpers:
     """Helpers started before the run needs them (`start`), so that their imports overlap the
     command's; each is `take`n by the sink that uses it. A context manager: every helper it
-    started or handed out is stopped at the end."""
+    started or handed out is stopped at the end. `start` takes a helper the entry point forked
+    for this module already (`start_early`), if there is one."""
 
     def __init__(self) -> None:
         self._waiting: dict[str, Helper] = {}
@@ -249,9 +518,11 @@ class Helpers:
     def start(self, module: str, name: str) -> None:
         """Start the helper of `module` now (once)."""
         if module not in self._waiting:
-            self._waiting[module] = helper = Helper.start(module, name)
+            early = _EARLY.pop(module, None)
+            self._waiting[module] = helper = early or Helper.start(module, name)
             self._all.append(helper)
-            timeline.mark("main", f"started {module}")
+            if early is None:
+                timeline.mark("main", f"started {module}")
 
     def take(self, module: str, name: str) -> Helper:
         """The helper of `module` started earlier, or one started now; stopped with the rest."""
@@ -292,7 +563,7 @@ def begin(role: str) -> IO[bytes]:
     goes to stderr); the reply stream, for `reply`."""
     out = sys.stdout.buffer
     sys.stdout = sys.stderr  # anything printed while working must not corrupt the reply
-    _die_with_parent(int(sys.argv[2]))
+    _die_with_parent(_PARENT if _PARENT is not None else int(sys.argv[2]))
     timeline.mark(role, "started")
     return out
 

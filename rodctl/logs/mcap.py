@@ -40,6 +40,7 @@ reader detects the missing footer and refuses the file unless asked to recover w
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -166,10 +167,19 @@ def _flatten(prefix: str, value: Any, out: dict[str, str]) -> None:
         out[prefix] = json.dumps(value, default=str)
 
 
+@functools.lru_cache(maxsize=2)
+def _parsed(config_yaml: str) -> Any:
+    """The run header's config YAML, parsed once for `config_metadata` and `camera_views` (read
+    only: the same object goes to both), by libyaml where PyYAML has it: ~10x faster than the
+    pure-Python parser (~40 ms of CPU a run), the same values (the YAML is rodctl's own
+    `dump_config`; the same resolver and constructor, only the parser is in C)."""
+    return yaml.load(config_yaml, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+
+
 def config_metadata(config_yaml: str) -> dict[str, str]:
     """The resolved config as MCAP metadata: dotted keys, JSON-encoded values."""
     try:
-        data = yaml.safe_load(config_yaml)
+        data = _parsed(config_yaml)
     except yaml.YAMLError:
         data = None
     if not isinstance(data, dict):
@@ -338,7 +348,7 @@ def camera_views(config_yaml: str) -> CameraViews:
     from rodctl.vision.camera import Camera
 
     try:
-        data = yaml.safe_load(config_yaml)
+        data = _parsed(config_yaml)
         cam = Camera(CameraConfig.model_validate(data.get("camera", {})))
         run = data.get("run") or {}
         bumps = [

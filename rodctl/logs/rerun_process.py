@@ -14,7 +14,11 @@ shared encoder (`codec.FRAMES`: the MCAP's frames, encoded once for both), and s
 header, each record (its frame as PNG bytes, not pixels) and the close to the helper. What the
 recording meets (a full disk, a bad record) is known when the helper replies, at `close`: raised
 for a completed run, a warning otherwise, as `RerunSink.close` does. A helper that cannot start,
-fails, is killed or does not answer is the same kind of error ("the Rerun process …"). Whatever
+fails, is killed or does not answer is the same kind of error ("the Rerun process …"), and
+is said as soon as the command sees it: a helper that has ended already at `open` (rerun-sdk
+that does not import: the helper's first act) fails the open, before the first step, as
+`RerunSink.open` would; one that ends during the run is a warning at the next `write`, and
+the error at `close` as above. Whatever
 ends the run (an exception, SIGINT/SIGTERM at the command), the episode closes its sinks, so
 the helper finishes the file with the run's real status and what was logged is kept; a command
 killed outright takes its helper with it (the recording then ends where the helper had got to).
@@ -27,6 +31,7 @@ Protocol: `("open", path, options, header)`, then `("write", record, has_frame)`
 from __future__ import annotations
 
 import dataclasses
+import sys
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,6 +80,7 @@ class RerunProcessSink:
         self.options = RerunOptions.of(cfg)
         self._frames = codec.FrameSchedule(self.options.image_rate_hz)
         self._opened = self._closed = False
+        self._warned = False  # the helper's end was reported during the run
 
     def open(self, header: RunHeader) -> None:
         if self._opened:
@@ -82,20 +88,28 @@ class RerunProcessSink:
         # Rerun reports a file it cannot create with no path or reason: open it here, so a
         # read-only or full disk is an OSError that names both (as `RerunSink.open`).
         open(self.path, "ab").close()
-        if self.helper.failure is not None:  # it could not start: the run cannot have its file
-            raise RuntimeError(self.helper.failure)
+        # It could not start, or it has ended already (rerun-sdk does not import, say): the run
+        # cannot have its file, and says so now, before its first step (as `RerunSink.open`).
+        if (why := self.helper.ended()) is not None:
+            raise RuntimeError(why)
         self._opened = True
         self.helper.send(("open", str(self.path), self.options, header))
 
     def write(self, record: StepRecord) -> None:
         if not self._opened or self._closed:
             raise RuntimeError("RerunProcessSink.write called before open (or after close)")
+        if not self._warned and (why := self.helper.ended()) is not None:
+            # Said at once, not only at close (where it is raised for a completed run, as any
+            # error of the recording's).
+            self._warned = True
+            warnings.warn(f"{self.path}: {why}; run.rrd will be incomplete", RuntimeWarning, 2)
         frame = None
         if record.image is not None and self._frames.due(record):
             frame = codec.FRAMES.submit(record.image, self.options.png_compression)
             self._frames.take(record)
         bare = record if record.image is None else dataclasses.replace(record, image=None)
-        self.helper.send(("write", bare, frame is not None), pending=frame)
+        size = 0 if record.image is None else int(record.image.nbytes)  # the PNG is less
+        self.helper.send(("write", bare, frame is not None), pending=frame, pending_bytes=size)
 
     def close(self, summary: RunSummary | None, status: str) -> None:
         """Have the helper finish the file and wait for it; its errors as `RerunSink.close`
@@ -130,7 +144,11 @@ class RerunProcessSink:
 def helper_main() -> None:
     """The helper: import rerun, then write what the command sends (see the module docstring)."""
     out = helper_process.begin("rerun")
-    from rodctl.logs.rerun import RerunSink  # noqa: PLC0415 (the slow part: while the run starts)
+    try:
+        from rodctl.logs.rerun import RerunSink  # noqa: PLC0415 (the slow part: while the run starts)
+    except ImportError as exc:  # the command sees this process end, and says why at once
+        print(f"rerun-sdk cannot be imported: {exc}", file=sys.stderr)
+        helper_process.exit_now(1)
 
     _without_pandas()
     timeline.mark("rerun", "ready")
@@ -192,8 +210,6 @@ def _without_pandas() -> None:
     array is a pandas object; Rerun converts every column it logs that way, and this process
     logs nothing else. Importing pandas from here on fails (as where it is not installed, which
     pyarrow handles), so no pandas object can exist here."""
-    import sys  # noqa: PLC0415 (helper side only)
-
     if "pandas" not in sys.modules:
         sys.meta_path.insert(0, _NoPandas())
 

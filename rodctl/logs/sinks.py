@@ -145,14 +145,15 @@ def start_helpers(logging: LoggingConfig) -> Any:
     context manager that stops them; give it to the sinks as `SinkContext.helpers`). The figure
     process first: it has the longer way to go (matplotlib, then drawing after the episode)."""
     from rodctl import figure_worker  # noqa: PLC0415 (lazily: `_mcap`)
-    from rodctl.helper_process import Helpers  # noqa: PLC0415
+    from rodctl.helper_process import Helpers, stop_early  # noqa: PLC0415
     from rodctl.logs import rerun_process  # noqa: PLC0415
 
-    helpers = Helpers()
+    helpers = Helpers()  # it takes those the entry point forked (`rodctl._entry`)
     if logging.figures:
         helpers.start(figure_worker.MODULE, figure_worker.NAME)
     if logging.rerun:
         helpers.start(rerun_process.MODULE, rerun_process.NAME)
+    stop_early()  # forked for a job this config switches off
     return helpers
 
 

@@ -50,9 +50,12 @@ def test_a_helper_that_dies_costs_the_recording_with_the_reason(tmp_path, synthe
         sink = _through(started)(tmp_path / "run.rrd", LoggingConfig())
         sink.open(header)
         os.kill(sink.helper.proc.pid, signal.SIGKILL)
-        for rec in records:
-            sink.write(rec)  # the run goes on
+        sink.helper.proc.wait(timeout=30)
         reason = "the Rerun process was killed by SIGKILL"
+        with pytest.warns(RuntimeWarning, match=reason):  # said at once, not only at close
+            sink.write(records[0])
+        for rec in records[1:]:
+            sink.write(rec)  # the run goes on
         if status == "completed":
             with pytest.raises(RuntimeError, match=reason):
                 sink.close(None, status)
@@ -78,4 +81,22 @@ def test_a_folder_that_cannot_take_the_file_is_an_os_error_naming_it(tmp_path, s
     with Helpers() as started:
         sink = _through(started)(tmp_path / "missing" / "run.rrd", LoggingConfig())
         with pytest.raises(FileNotFoundError, match="missing"):
+            sink.open(header)
+
+
+def test_rerun_that_cannot_be_imported_fails_the_open_before_the_first_step(
+    tmp_path, synthetic, monkeypatch
+):
+    """The helper's first act is importing rerun-sdk: when that fails the command is told at
+    `open` (the run fails before its first step), not at `close`, after the episode."""
+    header, _ = synthetic
+    fake = tmp_path / "fake" / "rerun"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("raise ImportError('injected: no rerun here')\n")
+    path = os.pathsep.join(filter(None, [str(fake.parent), os.environ.get("PYTHONPATH")]))
+    monkeypatch.setenv("PYTHONPATH", path)
+    with Helpers() as started:
+        sink = _through(started)(tmp_path / "run.rrd", LoggingConfig())
+        sink.helper.proc.wait(timeout=60)  # it knows (and has ended) before the run opens
+        with pytest.raises(RuntimeError, match="rerun-sdk cannot be imported: injected"):
             sink.open(header)
