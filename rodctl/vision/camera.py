@@ -62,6 +62,11 @@ def _box_corners(boxes: tuple) -> np.ndarray:
 
 #: `_box_corners` of the fixtures, per boxes tuple (do not modify).
 _CORNERS = {boxes: _box_corners(boxes) for boxes in (_CLAMP_BOXES, _GRIPPER_BOXES)}
+#: The same corners as Python floats, box by box ((along, lateral) of each corner).
+_CORNER_FLOATS = {
+    boxes: tuple(tuple(map(tuple, box)) for box in corners.reshape(-1, 4, 2).tolist())
+    for boxes, corners in _CORNERS.items()
+}
 
 
 def _pixel_box(fixed: np.ndarray, margin: int) -> tuple[int, int, int, int]:
@@ -353,9 +358,40 @@ class Camera:
         color: tuple[int, int, int],
         drawn: list[tuple[np.ndarray, int]],
     ) -> None:
-        """Fill fixture boxes given in the frame of `pose`; append their corners to `drawn`."""
+        """Fill fixture boxes given in the frame of `pose`; append their corners to `drawn`.
+
+        Corners in scalar arithmetic (a dozen points: numpy's per-call cost would dominate),
+        the operations of `project` and of `np.rint` (round half to even, as Python's round)
+        in the same order; anything unusual (a corner behind the camera or absurdly far out
+        of the image) goes through the array code below, which handles it."""
         x, y, th = (float(c) for c in np.asarray(pose, dtype=float).tolist())
         c, s = math.cos(th), math.sin(th)
+        corner_floats = _CORNER_FLOATS.get(boxes)
+        if corner_floats is not None:
+            (h00, h01, h02), (h10, h11, h12), (h20, h21, h22) = self.homography.tolist()
+            fixed_boxes = []
+            for box in corner_floats:
+                pts = []
+                for a, lat in box:
+                    wx = x + c * a - s * lat
+                    wy = y + s * a + c * lat
+                    w = wx * h20 + wy * h21 + h22
+                    if not w > 0:
+                        break
+                    u = (wx * h00 + wy * h01 + h02) / w * _SCALE
+                    v = (wx * h10 + wy * h11 + h12) / w * _SCALE
+                    if not (abs(u) < 2.0**30 and abs(v) < 2.0**30):
+                        break
+                    pts.append((round(u), round(v)))
+                else:
+                    fixed_boxes.append(np.array(pts, np.int32))
+                    continue
+                break
+            else:
+                for corners in fixed_boxes:
+                    cv2.fillConvexPoly(img, corners, color, cv2.LINE_AA, _SHIFT)
+                    drawn.append((corners, 0))
+                return
         # every box's four corners in one projection (element-wise: the same bits box by box)
         local = _CORNERS.get(boxes)
         if local is None:

@@ -387,6 +387,13 @@ def _analyse_rows(
     return offset, width, status
 
 
+#: `cv2.transform` matrix of the coverage's channel sum: (p0 + p1) + p2 (+ -0.0, which leaves
+#: every float32, -0.0 included, unchanged). OpenCV computes 1 * p0 + 1 * p1 + 1 * p2 + m3 in
+#: float32 from left to right; the products by 1 are exact, so even a fused multiply-add gives
+#: the bits of numpy's two additions, in one pass instead of two.
+_SUM3 = np.array([[1.0, 1.0, 1.0, -0.0]], np.float32)
+_SUM3.flags.writeable = False
+
 #: cv2.remap refuses maps of SHRT_MAX (32767) columns or more; longer samplings go in rows.
 _REMAP_MAX = 32767
 _REMAP_ROW = 4096
@@ -445,6 +452,7 @@ class CenterlineExtractor:
         ).reshape(1, 256, 3)
         self._bg_value = tuple(float(c) for c in r.background_color)
         self._walk_samplers: dict[tuple[int, int], Callable] = {}
+        self._section_buffers: dict[int, tuple[np.ndarray, ...]] = {}
         self._max_steps = int(4 * (camera.width + camera.height) / self._step) + 10
         # `_find_end`'s arc lengths: all, and the second part (after t[0])
         self._end_t = np.arange(0.0, self._step * _LOOKAHEAD + self._band_prior + 2.0, 0.25)
@@ -519,8 +527,47 @@ class CenterlineExtractor:
             borderValue=self._bg_value,
         )
         # not clipped to [0, 1]: only 50 % crossings are used, and clipping costs time
-        part = cv2.LUT(rgb, self._coverage_lut).reshape(-1, 3)
-        return ((part[:, 0] + part[:, 1]) + part[:, 2])[:n].reshape(shape)
+        part = cv2.LUT(rgb, self._coverage_lut)
+        return cv2.transform(part, _SUM3).reshape(-1)[:n].reshape(shape)
+
+    def _sample_sections(
+        self, image: np.ndarray, centres: np.ndarray, normals: np.ndarray, t: np.ndarray
+    ) -> np.ndarray:
+        """(T, K) coverage of the cross-sections through (2, K) planes of centres and normals at
+        offsets t: `_sample_maps` of `_section_maps`, bit for bit, in scratch arrays kept per T
+        and grown to the largest K seen (the result is one of them: use it before the next
+        call)."""
+        n, k = len(t), centres.shape[1]
+        size = n * k
+        if size >= _REMAP_MAX:
+            return self._sample_maps(image, _section_maps(centres, normals, t))
+        buffers = self._section_buffers.get(n)
+        if buffers is None or buffers[0].shape[1] < size:
+            cap = size + size // 4  # room for a slightly longer rod in the next frames
+            buffers = self._section_buffers[n] = (
+                np.empty((2, cap)),
+                np.empty((2, 1, cap), np.float32),
+                np.empty((1, cap, 3), np.uint8),
+                np.empty((1, cap, 3), np.float32),
+                np.empty((1, cap), np.float32),
+            )
+        prod_buf, maps_buf, rgb_buf, part_buf, cov_buf = buffers
+        prod = prod_buf[:, :size].reshape(2, n, k)
+        maps = maps_buf[:, :, :size]
+        # centre + normal * t in float64, rounded once into the float32 maps (`_section_maps`)
+        np.multiply(normals[:, None, :], t[:, None], out=prod)
+        np.add(prod, centres[:, None, :], out=maps.reshape(2, n, k))
+        rgb = cv2.remap(
+            image,
+            maps[0],
+            maps[1],
+            cv2.INTER_LINEAR,
+            rgb_buf[:, :size],
+            cv2.BORDER_CONSTANT,
+            self._bg_value,
+        )
+        part = cv2.LUT(rgb, self._coverage_lut, part_buf[:, :size])
+        return cv2.transform(part, _SUM3, cov_buf[:, :size]).reshape(n, k)
 
     def _walk_rows(self, image: np.ndarray, qn: list[float], t: np.ndarray) -> tuple[array, bytes]:
         """The walk's `_LOOKAHEAD` cross-sections in one call: ``qn`` holds the predicted
@@ -546,19 +593,17 @@ class CenterlineExtractor:
         map_x, map_y = maps[0], maps[1]
         rgb = np.empty((1, k * n, 3), np.uint8)
         part = np.empty((1, k * n, 3), np.float32)
-        p0, p1, p2 = part[0, :, 0], part[0, :, 1], part[0, :, 2]
-        cov = np.empty(k * n, np.float32)
+        cov = np.empty((1, k * n), np.float32)
         lut, bg = self._coverage_lut, self._bg_value
         remap, linear, constant = cv2.remap, cv2.INTER_LINEAR, cv2.BORDER_CONSTANT
-        to_coverage, multiply, add = cv2.LUT, np.multiply, np.add
+        to_coverage, channel_sum, multiply, add = cv2.LUT, cv2.transform, np.multiply, np.add
 
         def sample(image: np.ndarray, qn: list[float]) -> tuple[array, bytes]:
             qn_buf[:] = qn
             # centre + normal * t in float64, rounded once into the float32 maps
             add(centres, multiply(normals, t, out=prod), out=maps_kn)
             remap(image, map_x, map_y, linear, rgb, constant, bg)
-            to_coverage(rgb, lut, part)
-            add(add(p0, p1, out=cov), p2, out=cov)
+            channel_sum(to_coverage(rgb, lut, part), _SUM3, cov)
             return array("f", cov.tobytes()), (cov >= 0.5).tobytes()
 
         if len(self._walk_samplers) >= 16:
@@ -606,7 +651,7 @@ class CenterlineExtractor:
         m = int(round(half / _DT))
         t = _offsets(m)
         k = centres.shape[1]
-        s = self._sample_maps(image, _section_maps(centres, normals, t))
+        s = self._sample_sections(image, centres, normals, t)
         if k <= _SCALAR_ROWS:
             n = 2 * m + 1
             s = np.ascontiguousarray(s.T)  # one cross-section per row
@@ -759,14 +804,12 @@ class CenterlineExtractor:
         map_x, map_y = maps[0], maps[1]
         rgb = np.empty((1, n, 3), np.uint8)
         part = np.empty((1, n, 3), np.float32)
-        p0, p1, p2 = part[0, :, 0], part[0, :, 1], part[0, :, 2]
-        cov = np.empty(n, np.float32)
+        cov = np.empty((1, n), np.float32)
         lut, bg = self._coverage_lut, self._bg_value
 
         def sample(image: np.ndarray) -> np.ndarray:
             cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, rgb, cv2.BORDER_CONSTANT, bg)
-            cv2.LUT(rgb, lut, part)
-            return np.add(np.add(p0, p1, out=cov), p2, out=cov)
+            return cv2.transform(cv2.LUT(rgb, lut, part), _SUM3, cov)[0]
 
         if len(self._arc_samplers) >= 16:
             self._arc_samplers.clear()
