@@ -64,6 +64,11 @@ _DT = 0.5
 _LOOKAHEAD = 6
 _TRUST_PX = 3.0
 _MAX_TURN = 0.8
+#: Per predicted step i (1-based) of a walk batch: i and the slots of its x, y and normal's x,
+#: y in the batch's list of positions (all x first, then all y, ...).
+_WALK_SLOTS = tuple(
+    (i + 1, i, i + _LOOKAHEAD, i + 2 * _LOOKAHEAD, i + 3 * _LOOKAHEAD) for i in range(_LOOKAHEAD)
+)
 # A cross-section narrower than this fraction of the rod's band is the rod's tip.
 _NARROW = 0.75
 # A run wider than this fraction of the band is another stretch of rod touching it: ambiguous.
@@ -265,22 +270,25 @@ def _locate_row(
     return offset, width, _OK
 
 
-#: Per half-width m: (T, 1..T, T..1) as (T, 1) int16 columns (int64 for very long sections),
-#: `_analyse_rows`; and (T,) intp, the flat index of each offset's first sample is i * K.
-_ROW_TABLES: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+#: Per half-width m, `_analyse_rows`'s tables as (T, 1) int16 columns (int64 for very long
+#: sections): nearness to the prediction (index m; larger is nearer, >= 1), i + 1, T - i, and
+#: i + 1 above m, T - i below it (0 at m); and (2, 1) [1, 2m], for the crossings' rows.
+_ROW_TABLES: dict[int, tuple[np.ndarray, ...]] = {}
 
 
-def _row_tables(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _row_tables(m: int) -> tuple[np.ndarray, ...]:
     tables = _ROW_TABLES.get(m)
     if tables is None:
         n = 2 * m + 1
         idx = np.arange(n)
         kind = np.int16 if n < 16_000 else np.int64
-        # nearness to the prediction (index m): larger is nearer, >= 1; i + 1; n - i
+        up, down = idx + 1, n - idx
         tables = (
             (n - np.abs(idx - m)).astype(kind)[:, None],
-            (idx + 1).astype(kind)[:, None],
-            (n - idx).astype(kind)[:, None],
+            up.astype(kind)[:, None],
+            down.astype(kind)[:, None],
+            np.where(idx < m, up, np.where(idx > m, down, 0)).astype(kind)[:, None],
+            np.array([[1], [2 * m]], kind),
         )
         for table in tables:
             table.flags.writeable = False
@@ -314,41 +322,39 @@ def _analyse_rows(
 
     For each cross-section: j, the "rod" sample nearest the prediction (the first of a tie); a
     section without one is lost. left/right: the nearest non-rod samples on either side of j
-    (-1 and 2m + 1 when the run reaches the window's end). Every numpy pass runs along rows,
-    i.e. over all K sections at once.
+    (-1 and 2m + 1 when the run reaches the window's end), kept as the codes L = left + 1 and
+    R = 2m + 1 - right (0: the run leaves the window on that side). Every numpy pass runs
+    along rows, i.e. over all K sections at once.
     """
     n, k = s.shape
     notab = np.less(s, 0.5)
-    near, up, down = _row_tables(m)
-    # e: per section, where its left crossing (row 0: between samples lc and lc + 1) and its
-    # right crossing (row 1: between rc - 1 and rc) start
-    e = np.empty((2, k), np.intp)
+    near, up, down, up_down, ends = _row_tables(m)
+    codes = np.empty((2, k), up.dtype)  # L, R
     lost = None
-    if not np.count_nonzero(notab[m]):
+    if m > 0 and not np.count_nonzero(notab[m]):
         # every prediction lies on the rod (the rule in the refinement): j = m, and the run's
-        # ends are the nearest non-rod samples either side of m: left = max(i < m) and right =
-        # min(i > m) over non-rod i, read as the largest i + 1 (0: none, left = -1) and the
-        # largest n - i (0: none, right = n) among them
-        left = np.multiply(notab[:m], up[:m]).max(axis=0, initial=0).astype(np.intp)
-        left -= 1
-        right = np.multiply(notab[m + 1 :], down[m + 1 :]).max(axis=0, initial=0)
-        right = n - right.astype(np.intp)
+        # ends are the nearest non-rod samples either side of m: L is the largest i + 1 over
+        # non-rod i < m and R the largest n - i over non-rod i > m (0 when there is none)
+        coded = np.multiply(notab, up_down)
+        np.maximum.reduce(coded[:m], axis=0, out=codes[0])
+        np.maximum.reduce(coded[m + 1 :], axis=0, out=codes[1])
     else:
         cols = _columns(k)
         at_j = np.multiply(~notab, near).argmax(axis=0)  # the first of a tie: the left one
         lost = notab[at_j, cols]
         # running maxima of the non-rod samples' i + 1 from the top, and of their n - i from
         # the bottom (accumulated on the reversed rows: row j is row n - 1 - j there)
-        left = np.maximum.accumulate(np.multiply(notab, up), axis=0)[at_j, cols].astype(np.intp)
-        left -= 1
+        codes[0] = np.maximum.accumulate(np.multiply(notab, up), axis=0)[at_j, cols]
         from_end = np.maximum.accumulate(np.multiply(notab, down)[::-1], axis=0)
-        right = n - from_end[n - 1 - at_j, cols].astype(np.intp)
+        codes[1] = from_end[n - 1 - at_j, cols]
         if np.count_nonzero(lost):  # no rod sample at all: j = 0, whose left is -1 and right 1
-            left[lost] = -1
-            right[lost] = 1
-    left_off, right_off = left < 0, right > 2 * m
-    np.minimum(np.maximum(left, 0, out=e[0]), 2 * m - 1, out=e[0])  # lc
-    np.subtract(np.minimum(np.maximum(right, 1), 2 * m, out=e[1]), 1, out=e[1])  # rc - 1
+            codes[0, lost] = 0
+            codes[1, lost] = n - 1
+    left_off, right_off = codes == 0
+    # e: where the left crossing (row 0: between samples lc and lc + 1) and the right one
+    # (row 1: between rc - 1 and rc) start: lc = max(L, 1) - 1 and rc - 1 = 2m - max(R, 1)
+    # (the window's clipping, which is all a code of 0 needs)
+    e = np.abs(np.subtract(np.maximum(codes, 1), ends, dtype=np.intp))
     # Both 50 % crossings at once, between a = s[e] and b = s[e + 1]: the right edge's
     # (r0 - 0.5) and (r0 - r1) are the left formula's (0.5 - a) and (b - a) negated, exactly.
     idx = e * k
@@ -700,18 +706,20 @@ class CenterlineExtractor:
                 band + _MERGE_PX,
                 0.5 * band,
             )
-            xs, ys, nxs, nys = [], [], [], []
+            # qn: the predicted points' x, their y, the normals' x, their y (`_walk_rows`)
+            qn = [0.0] * (4 * _LOOKAHEAD)
             qx, qy = px, py
-            for i in range(1, _LOOKAHEAD + 1):
+            half_turn = 0.5 * turn
+            for i, ix, iy, inx, iny in _WALK_SLOTS:
                 a = heading + turn * i
                 qx += h * cos(a)
                 qy += h * sin(a)
-                xs.append(qx)
-                ys.append(qy)
-                a_t = a + 0.5 * turn
-                nxs.append(-sin(a_t))
-                nys.append(cos(a_t))
-            vals, rod = sample(image, xs + ys + nxs + nys)
+                qn[ix] = qx
+                qn[iy] = qy
+                a += half_turn
+                qn[inx] = -sin(a)
+                qn[iny] = cos(a)
+            vals, rod = sample(image, qn)
             accepted: list[tuple[float, float]] = []
             any_ok = False
             for i in range(_LOOKAHEAD):
@@ -747,7 +755,7 @@ class CenterlineExtractor:
                     st = _LOST
                 if st == _LOST or (i > 0 and (st == _AMBIGUOUS or abs(off) > _TRUST_PX)):
                     break  # beyond here the prediction is not trusted: re-predict
-                qx, qy = xs[i], ys[i]
+                qx, qy = qn[i], qn[i + _LOOKAHEAD]
                 if not (0.0 <= qx <= w_max and 0.0 <= qy <= h_max):
                     return (
                         out,
@@ -757,8 +765,8 @@ class CenterlineExtractor:
                         ("the rod leaves the image"),
                     )
                 if st == _OK:
-                    qx += off * nxs[i]
-                    qy += off * nys[i]
+                    qx += off * qn[i + 2 * _LOOKAHEAD]
+                    qy += off * qn[i + 3 * _LOOKAHEAD]
                     widths.append(wid)
                     any_ok = True
                 accepted.append((qx, qy))
