@@ -696,7 +696,14 @@ class CenterlineExtractor:
         out: list[tuple[float, float]] = []
         widths: list[float] = []
         w_max, h_max = self.camera.width - 1, self.camera.height - 1
-        cos, sin = math.cos, math.sin
+        cos, sin, hypot, atan2, remainder = (
+            math.cos,
+            math.sin,
+            math.hypot,
+            math.atan2,
+            math.remainder,
+        )
+        two_pi = 2 * math.pi
         for _ in range(self._max_steps):
             recent = widths[-8:]
             band = sorted(recent)[len(recent) // 2] if recent else self._band_prior
@@ -779,13 +786,13 @@ class CenterlineExtractor:
             else:
                 ax, ay = px, py
             lx, ly = accepted[-1]
-            if math.hypot(lx - ax, ly - ay) < 1e-6:
+            if hypot(lx - ax, ly - ay) < 1e-6:
                 break
-            new_heading = math.atan2(ly - ay, lx - ax)
+            new_heading = atan2(ly - ay, lx - ax)
             if any_ok:
                 # turn per step = mean change of chord heading over the batch (it telescopes);
                 # where the rod was ambiguous (a crossing), the predicted turn is kept.
-                change = math.remainder(new_heading - heading, 2 * math.pi)
+                change = remainder(new_heading - heading, two_pi)
                 turn = min(max(change / len(accepted), -_MAX_TURN), _MAX_TURN)
             heading = new_heading
             out.extend(accepted)
