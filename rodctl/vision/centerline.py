@@ -933,15 +933,14 @@ class CenterlineExtractor:
                 f"image is {img.shape[1]}x{img.shape[0]}, camera is "
                 f"{self.camera.width}x{self.camera.height}"
             )
-        fail = np.full((self.points, 2), np.nan)
         grip_px = grip_dir = None
         if gripper_pose is not None:
             grip_px, grip_dir = self.camera.project_pose_direction(np.asarray(gripper_pose))
         line, widths, gaps, why = self._trace(img, grip_px, grip_dir)
         if line is None:
-            return Extraction(fail, False, why)
+            return Extraction(self._failed(), False, why)
         # Refine every point across the band, on a resampled curve (one vectorised call).
-        return self._finish(img, line, widths, gaps, fail)
+        return self._finish(img, line, widths, gaps)
 
     def _trace(
         self, img: np.ndarray, grip_px: np.ndarray | None, grip_dir: np.ndarray | None
@@ -1028,18 +1027,19 @@ class CenterlineExtractor:
         line: np.ndarray,
         widths: list[float],
         gaps: list[float],
-        fail: np.ndarray,
     ) -> Extraction:
         """Refine and resample the traced line to N points, then judge it: bridged gaps and a
         traced length unlike the rod's make the frame not ok."""
         line = self._refine(img, line, _median(widths) if widths else self._band_prior)
         out = self._resample_out(line, self.points)
         if not np.isfinite(out).all():
-            return Extraction(fail, False, "the traced rod leaves the plane's visible side")
+            return Extraction(
+                self._failed(), False, "the traced rod leaves the plane's visible side"
+            )
         if gaps:
             note = f"occluded: bridged {len(gaps)} gap(s), {sum(gaps):.0f} px in all"
             if self.cfg.extract.on_gap == "fail":
-                return Extraction(fail, False, note)
+                return Extraction(self._failed(), False, note)
             return Extraction(out, False, note, bridged=True)
         if self.rod_length is not None:
             length = _length(self.camera.unproject(out))
@@ -1052,6 +1052,10 @@ class CenterlineExtractor:
                     f"by {100 * rel:+.0f} %: occluded or confused",
                 )
         return Extraction(out, True)
+
+    def _failed(self) -> np.ndarray:
+        """The points of a failed extraction: (N, 2) NaN, a new array each time."""
+        return np.full((self.points, 2), np.nan)
 
     @staticmethod
     def _trim_after(path: list[_Pixel], end: np.ndarray, d: np.ndarray) -> list[_Pixel]:
