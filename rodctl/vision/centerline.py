@@ -691,6 +691,11 @@ class CenterlineExtractor:
         n = 2 * m + 1
         t = _offsets(m)
         sample = self._walk_sampler(_LOOKAHEAD, t)
+        # per row: its index, its samples [b, e) with the prediction at c, its normal's slots
+        rows = [
+            (i, i * n, i * n + m, (i + 1) * n, i + 2 * _LOOKAHEAD, i + 3 * _LOOKAHEAD)
+            for i in range(_LOOKAHEAD)
+        ]
         px, py = float(p[0]), float(p[1])
         heading = math.atan2(float(d[1]), float(d[0]))
         out: list[tuple[float, float]] = []
@@ -729,24 +734,20 @@ class CenterlineExtractor:
             vals, rod = sample(image, qn)
             accepted: list[tuple[float, float]] = []
             any_ok = False
-            for i in range(_LOOKAHEAD):
-                b = i * n
-                c = b + m
+            for i, b, c, e, inx, iny in rows:
                 if (
                     rod[c]
                     and (left := rod.rfind(0, b, c)) >= 0
-                    and (right := rod.find(0, c + 1, b + n)) >= 0
+                    and (right := rod.find(0, c + 1, e)) >= 0
                 ):
                     # The usual row, a run under the prediction bounded on both sides:
                     # `_locate_row`'s arithmetic for it, inline (the same operations).
-                    s0, s1 = vals[left], vals[left + 1]
-                    t_left = (left - c) * _DT + (0.5 - s0) / (
-                        s1 - s0 if s1 - s0 > 1e-6 else 1.0
-                    ) * _DT
-                    r0, r1 = vals[right - 1], vals[right]
-                    t_right = (right - 1 - c) * _DT + (r0 - 0.5) / (
-                        r0 - r1 if r0 - r1 > 1e-6 else 1.0
-                    ) * _DT
+                    s0 = vals[left]
+                    ds = vals[left + 1] - s0
+                    t_left = (left - c) * _DT + (0.5 - s0) / (ds if ds > 1e-6 else 1.0) * _DT
+                    r0 = vals[right - 1]
+                    dr = r0 - vals[right]
+                    t_right = (right - 1 - c) * _DT + (r0 - 0.5) / (dr if dr > 1e-6 else 1.0) * _DT
                     wid = t_right - t_left
                     off = 0.5 * (t_left + t_right)
                     if wid > merge_w:
@@ -772,8 +773,8 @@ class CenterlineExtractor:
                         ("the rod leaves the image"),
                     )
                 if st == _OK:
-                    qx += off * qn[i + 2 * _LOOKAHEAD]
-                    qy += off * qn[i + 3 * _LOOKAHEAD]
+                    qx += off * qn[inx]
+                    qy += off * qn[iny]
                     widths.append(wid)
                     any_ok = True
                 accepted.append((qx, qy))
