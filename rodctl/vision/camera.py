@@ -35,7 +35,7 @@ _SCALE = float(1 << _SHIFT)
 _CHUNK = 16
 #: Side (px) of the tiles in which `Camera._blur` recomputes the blur.
 _TILE = 32
-#: Frames' worth of pixel noise drawn once per camera (`Camera._add_noise`).
+#: Frames' worth of pixel noise drawn once per camera (`Camera._noise_parts`).
 _NOISE_POOL_FRAMES = 2
 #: Backgrounds kept across cameras (`Camera._make_background`), oldest dropped first.
 _BACKGROUNDS_KEPT = 4
@@ -153,7 +153,7 @@ class Camera:
         cx, cy = principal_point(cfg)
         self.camera_matrix = np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
         self._noise_key: tuple[float, int] | None = None
-        # The noise pool as its saturated positive and negative parts (`_add_noise`).
+        # The noise pool as its saturated positive and negative parts (`_noise_parts`).
         self._noise_up = self._noise_down = np.empty(0, np.uint8)
         self._scratch = np.empty(0, np.uint8)  # the frame drawn before a blur or noise, reused
         # The base the scratch frame equals but for the boxes drawn over it (None: stale)
