@@ -35,7 +35,7 @@ _SCALE = float(1 << _SHIFT)
 _CHUNK = 16
 #: Side (px) of the tiles in which `Camera._blur` recomputes the blur.
 _TILE = 32
-#: Frames' worth of pixel noise drawn once per camera (`Camera._add_noise`).
+#: Frames' worth of pixel noise drawn once per camera (`Camera._noise_parts`).
 _NOISE_POOL_FRAMES = 2
 #: Backgrounds kept across cameras (`Camera._make_background`), oldest dropped first.
 _BACKGROUNDS_KEPT = 4
@@ -62,6 +62,11 @@ def _box_corners(boxes: tuple) -> np.ndarray:
 
 #: `_box_corners` of the fixtures, per boxes tuple (do not modify).
 _CORNERS = {boxes: _box_corners(boxes) for boxes in (_CLAMP_BOXES, _GRIPPER_BOXES)}
+#: The same corners as Python floats, box by box ((along, lateral) of each corner).
+_CORNER_FLOATS = {
+    boxes: tuple(tuple(map(tuple, box)) for box in corners.reshape(-1, 4, 2).tolist())
+    for boxes, corners in _CORNERS.items()
+}
 
 
 def _pixel_box(fixed: np.ndarray, margin: int) -> tuple[int, int, int, int]:
@@ -71,6 +76,26 @@ def _pixel_box(fixed: np.ndarray, margin: int) -> tuple[int, int, int, int]:
     lo, hi = fixed.min(axis=0) >> _SHIFT, fixed.max(axis=0) >> _SHIFT
     grow = margin + 2
     return int(lo[0]) - grow, int(lo[1]) - grow, int(hi[0]) + grow + 1, int(hi[1]) + grow + 1
+
+
+def _dirty_boxes(
+    drawn: list[tuple[np.ndarray, int]], rects: list[tuple[int, int, int, int]]
+) -> list[tuple[int, int, int, int]]:
+    """Pixel boxes [u0, u1) x [v0, v1) holding everything drawn: the rectangles `rects`, and
+    per (points in 1/16 px, half-thickness) of `drawn` its `_pixel_box`, a long polyline in
+    chunks of `_CHUNK` segments so that the boxes hug the curve."""
+    dirty = list(rects)
+    for fixed, margin in drawn:
+        if len(fixed) <= _CHUNK + 1:
+            dirty.append(_pixel_box(fixed, margin))
+            continue
+        lo = np.minimum(fixed[:-1], fixed[1:])
+        hi = np.maximum(fixed[:-1], fixed[1:])
+        starts = np.arange(0, len(lo), _CHUNK)
+        lo = (np.minimum.reduceat(lo, starts) >> _SHIFT) - (margin + 2)
+        hi = (np.maximum.reduceat(hi, starts) >> _SHIFT) + (margin + 3)
+        dirty.extend(zip(*lo.T.tolist(), *hi.T.tolist(), strict=True))
+    return dirty
 
 
 def _as_points(points: np.ndarray, name: str) -> np.ndarray:
@@ -128,9 +153,12 @@ class Camera:
         cx, cy = principal_point(cfg)
         self.camera_matrix = np.array([[cfg.fx, 0.0, cx], [0.0, cfg.fy, cy], [0.0, 0.0, 1.0]])
         self._noise_key: tuple[float, int] | None = None
-        # The noise pool as its saturated positive and negative parts (`_add_noise`).
+        # The noise pool as its saturated positive and negative parts (`_noise_parts`).
         self._noise_up = self._noise_down = np.empty(0, np.uint8)
-        self._scratch = np.empty(0, np.uint8)  # the frame drawn before a blur, reused
+        self._scratch = np.empty(0, np.uint8)  # the frame drawn before a blur or noise, reused
+        # The base the scratch frame equals but for the boxes drawn over it (None: stale)
+        self._scratch_base: np.ndarray | None = None
+        self._scratch_dirty: list[tuple[int, int, int, int]] = []
         self._set_extrinsics(cfg)
 
     def _set_extrinsics(self, cfg: CameraConfig) -> None:
@@ -353,9 +381,40 @@ class Camera:
         color: tuple[int, int, int],
         drawn: list[tuple[np.ndarray, int]],
     ) -> None:
-        """Fill fixture boxes given in the frame of `pose`; append their corners to `drawn`."""
+        """Fill fixture boxes given in the frame of `pose`; append their corners to `drawn`.
+
+        Corners in scalar arithmetic (a dozen points: numpy's per-call cost would dominate),
+        the operations of `project` and of `np.rint` (round half to even, as Python's round)
+        in the same order; anything unusual (a corner behind the camera or absurdly far out
+        of the image) goes through the array code below, which handles it."""
         x, y, th = (float(c) for c in np.asarray(pose, dtype=float).tolist())
         c, s = math.cos(th), math.sin(th)
+        corner_floats = _CORNER_FLOATS.get(boxes)
+        if corner_floats is not None:
+            (h00, h01, h02), (h10, h11, h12), (h20, h21, h22) = self.homography.tolist()
+            fixed_boxes = []
+            for box in corner_floats:
+                pts = []
+                for a, lat in box:
+                    wx = x + c * a - s * lat
+                    wy = y + s * a + c * lat
+                    w = wx * h20 + wy * h21 + h22
+                    if not w > 0:
+                        break
+                    u = (wx * h00 + wy * h01 + h02) / w * _SCALE
+                    v = (wx * h10 + wy * h11 + h12) / w * _SCALE
+                    if not (abs(u) < 2.0**30 and abs(v) < 2.0**30):
+                        break
+                    pts.append((round(u), round(v)))
+                else:
+                    fixed_boxes.append(np.array(pts, np.int32))
+                    continue
+                break
+            else:
+                for corners in fixed_boxes:
+                    cv2.fillConvexPoly(img, corners, color, cv2.LINE_AA, _SHIFT)
+                    drawn.append((corners, 0))
+                return
         # every box's four corners in one projection (element-wise: the same bits box by box)
         local = _CORNERS.get(boxes)
         if local is None:
@@ -394,13 +453,12 @@ class Camera:
         if len(pts) < 2 or not np.isfinite(pts).all():
             raise ValueError("centerline_world needs >= 2 points, all in front of the camera")
         base = self._base_with_clamp(np.asarray(clamp_pose), r)
-        if r.blur_sigma > 0:  # drawn on a scratch frame; the blur writes the returned one
-            if self._scratch.shape != self._background.shape:
-                self._scratch = np.empty_like(self._background)
-            img = self._scratch
-            np.copyto(img, base)
-        else:
-            img = base.copy()
+        noisy = self.rng is not None and r.noise_std > 0
+        # With blur or noise the frame is drawn on a kept scratch frame (only what the last
+        # frame drew over the base is restored) and the returned frame is made by the blur or
+        # the noise; otherwise it is drawn on a copy of the base.
+        scratch = r.blur_sigma > 0 or noisy
+        img = self._scratch_on(base) if scratch else base.copy()
         # What was drawn over the base, for the blur: (points in 1/16 px, half-thickness)
         # and pixel boxes [u0, u1) x [v0, v1).
         drawn: list[tuple[np.ndarray, int]] = []
@@ -433,10 +491,35 @@ class Camera:
             c0, c1 = (int(np.ceil(u0)), int(np.ceil(v0))), (int(np.floor(u1)), int(np.floor(v1)))
             cv2.rectangle(img, c0, c1, r.occluder_color, thickness=-1)
             rects.append((c0[0], c0[1], c1[0] + 1, c1[1] + 1))
+        if not scratch:
+            return img
+        dirty = _dirty_boxes(drawn, rects)
+        self._scratch_dirty, self._scratch_base = dirty, base  # what to restore next time
+        noise = self._noise_parts(float(r.noise_std), img.shape) if noisy else None
         if r.blur_sigma > 0:
-            img = self._blur(img, base, drawn, rects, float(r.blur_sigma))
-        if self.rng is not None and r.noise_std > 0:
-            img = self._add_noise(img, float(r.noise_std))
+            return self._blur(img, base, dirty, float(r.blur_sigma), noise)
+        assert noise is not None
+        out = cv2.add(img, noise[0])  # saturating; the new frame
+        return cv2.subtract(out, noise[1], dst=out)
+
+    def _scratch_on(self, base: np.ndarray) -> np.ndarray:
+        """The scratch frame, equal to `base`: copied whole when the base changed, otherwise
+        only the boxes the last frame drew over it are copied back (those boxes hold every
+        pixel OpenCV drew, see `_pixel_box`). Marked stale until the frame's drawing is
+        recorded, so that a frame that fails half-drawn leaves no trace in the next one."""
+        img = self._scratch
+        if img.shape != base.shape:
+            img = self._scratch = np.empty_like(base)
+            self._scratch_base = None
+        if self._scratch_base is not base:
+            np.copyto(img, base)
+        else:
+            h, w = base.shape[:2]
+            for u0, v0, u1, v1 in self._scratch_dirty:
+                u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, w), min(v1, h)
+                if u0 < u1 and v0 < v1:
+                    img[v0:v1, u0:u1] = base[v0:v1, u0:u1]
+        self._scratch_base = None
         return img
 
     def _base_with_clamp(self, clamp_pose: np.ndarray, r: object) -> np.ndarray:
@@ -463,9 +546,9 @@ class Camera:
         self,
         img: np.ndarray,
         base: np.ndarray,
-        drawn: list[tuple[np.ndarray, int]],
-        rects: list[tuple[int, int, int, int]],
+        dirty: list[tuple[int, int, int, int]],
         sigma: float,
+        noise: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
         """`cv2.GaussianBlur(img, (0, 0), sigma)`, bit for bit, computed only near what was drawn
         over `base` (the background, or the background with the clamp).
@@ -476,6 +559,11 @@ class Camera:
         reflection is the full image's). OpenCV's 8-bit Gaussian is fixed-point integer
         arithmetic, so a pixel's value depends only on its neighbourhood, never on the window it
         was computed in (tests/vision/test_camera.py compares with the whole-frame blur).
+
+        `dirty`: the pixel boxes drawn over the base (`_dirty_boxes`). `noise`: the frame's
+        (up, down) noise parts (`_noise_parts`), added on the way: the blurred base plus `up`
+        makes the new frame in one pass (no copy), each re-blurred tile gets its `up`, then
+        `down` is taken off the whole frame; the bits of blurring, then adding the noise.
         """
         # OpenCV's own kernel size for 8-bit images and ksize (0, 0) (cv::createGaussianKernels)
         ksize = int(round(sigma * 3 * 2 + 1)) | 1
@@ -485,19 +573,7 @@ class Camera:
             self._blurred = cv2.GaussianBlur(base, (ksize, ksize), sigma)
             self._blurred_key = key
             self._blurred_base = base
-        out = self._blurred.copy()
-        dirty = list(rects)
-        for fixed, margin in drawn:
-            if len(fixed) <= _CHUNK + 1:
-                dirty.append(_pixel_box(fixed, margin))
-                continue
-            # a long polyline in chunks of _CHUNK segments, so that the boxes hug the curve
-            lo = np.minimum(fixed[:-1], fixed[1:])
-            hi = np.maximum(fixed[:-1], fixed[1:])
-            starts = np.arange(0, len(lo), _CHUNK)
-            lo = (np.minimum.reduceat(lo, starts) >> _SHIFT) - (margin + 2)
-            hi = (np.maximum.reduceat(hi, starts) >> _SHIFT) + (margin + 3)
-            dirty.extend(zip(*lo.T.tolist(), *hi.T.tolist(), strict=True))
+        out = self._blurred.copy() if noise is None else cv2.add(self._blurred, noise[0])
         h, w = self.height, self.width
         rows, cols = -(-h // _TILE), -(-w // _TILE)
         tiles = np.zeros((rows, cols), bool)
@@ -523,11 +599,19 @@ class Camera:
                 x0, x1 = start * _TILE, min(end * _TILE, w)
                 sx0, sx1 = max(x0 - rad, 0), min(x1 + rad, w)
                 part = cv2.GaussianBlur(img[sy0:sy1, sx0:sx1], (ksize, ksize), sigma)
-                out[y0:y1, x0:x1] = part[y0 - sy0 : y1 - sy0, x0 - sx0 : x1 - sx0]
+                part = part[y0 - sy0 : y1 - sy0, x0 - sx0 : x1 - sx0]
+                if noise is None:
+                    out[y0:y1, x0:x1] = part
+                else:
+                    cv2.add(part, noise[0][y0:y1, x0:x1], dst=out[y0:y1, x0:x1])
+        if noise is not None:
+            cv2.subtract(out, noise[1], dst=out)
         return out
 
-    def _add_noise(self, img: np.ndarray, std: float) -> np.ndarray:
-        """Add seeded Gaussian pixel noise of σ `std` (grey levels, every channel), saturating.
+    def _noise_parts(self, std: float, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """This frame's seeded Gaussian pixel noise of σ `std` (grey levels, every channel) for
+        a frame of `shape`, as (up, down) uint8 frames: the noisy frame is
+        saturate(saturate(frame + up) - down), i.e. frame + noise saturated.
 
         Drawing 921,600 normal values per 640x480 frame costs about 3 ms, more than all the rest
         of a frame. So the camera draws a pool of `_NOISE_POOL_FRAMES` frames' worth of rounded
@@ -540,7 +624,7 @@ class Camera:
         themselves differ from the per-frame `cv2.randn` stream of earlier versions.
         """
         draw = int(self.rng.integers(2**31 - 1))  # type: ignore[union-attr]
-        size = img.size
+        size = math.prod(shape)
         if self._noise_key != (std, size):
             cv2.setRNGSeed(draw)
             pool = np.empty((_NOISE_POOL_FRAMES * size, 1), np.int16)
@@ -555,7 +639,5 @@ class Camera:
             self._noise_down = (-np.clip(flat, -255, 0)).astype(np.uint8)
             self._noise_key = (std, size)
         offset = draw % (len(self._noise_up) - size + 1)
-        up = self._noise_up[offset : offset + size].reshape(img.shape)
-        down = self._noise_down[offset : offset + size].reshape(img.shape)
-        cv2.add(img, up, dst=img)  # saturating, in place: img is new
-        return cv2.subtract(img, down, dst=img)
+        up = self._noise_up[offset : offset + size].reshape(shape)
+        return up, self._noise_down[offset : offset + size].reshape(shape)

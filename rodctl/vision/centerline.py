@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from array import array
+from collections.abc import Callable
 from dataclasses import dataclass
 from itertools import chain
 
@@ -63,6 +64,11 @@ _DT = 0.5
 _LOOKAHEAD = 6
 _TRUST_PX = 3.0
 _MAX_TURN = 0.8
+#: Per predicted step i (1-based) of a walk batch: i and the slots of its x, y and normal's x,
+#: y in the batch's list of positions (all x first, then all y, ...).
+_WALK_SLOTS = tuple(
+    (i + 1, i, i + _LOOKAHEAD, i + 2 * _LOOKAHEAD, i + 3 * _LOOKAHEAD) for i in range(_LOOKAHEAD)
+)
 # A cross-section narrower than this fraction of the rod's band is the rod's tip.
 _NARROW = 0.75
 # A run wider than this fraction of the band is another stretch of rod touching it: ambiguous.
@@ -185,12 +191,15 @@ def _resample_planes(p: np.ndarray, n: int, seg: np.ndarray | None = None) -> np
 
 
 def _section_maps(centres: np.ndarray, normals: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(2, K, T) float32 sample positions centre + t * normal, the x and the y plane (the two
-    maps `cv2.remap` takes): computed in float64 and rounded once, the bits of ``(centres[:,
-    None] + t[None, :, None] * normals[:, None]).astype(np.float32)`` moved to (2, K, T), in
-    one multiplication and one addition over contiguous planes."""
-    out = np.empty((2, len(centres), len(t)), np.float32)
-    np.add(centres.T[:, :, None], normals.T[:, :, None] * t, out=out)
+    """(2, T, K) float32 sample positions centre + t * normal for (2, K) planes of centres and
+    normals: the x and the y plane (the two maps `cv2.remap` takes), sample offset by sample
+    offset (a row holds one offset of every cross-section, so numpy's inner loops run over the
+    K cross-sections, not over the few offsets). Computed in float64 and rounded once: the bits
+    of ``(centres.T[:, None] + t[None, :, None] * normals.T[:, None]).astype(np.float32)``
+    moved to (2, T, K)."""
+    prod = np.multiply(normals[:, None, :], t[:, None])
+    out = np.empty(prod.shape, np.float32)
+    np.add(prod, centres[:, None, :], out=out)
     return out
 
 
@@ -261,94 +270,99 @@ def _locate_row(
     return offset, width, _OK
 
 
-#: Per half-width m: (T, 1..T, T..1) as int16 (int64 for very long rows), `_analyse_rows`.
-_ROW_TABLES: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+#: Per half-width m, `_analyse_rows`'s tables as (T, 1) int16 columns (int64 for very long
+#: sections): nearness to the prediction (index m; larger is nearer, >= 1), i + 1, T - i, and
+#: i + 1 above m, T - i below it (0 at m); and (2, 1) [1, 2m], for the crossings' rows.
+_ROW_TABLES: dict[int, tuple[np.ndarray, ...]] = {}
 
 
-def _row_tables(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _row_tables(m: int) -> tuple[np.ndarray, ...]:
     tables = _ROW_TABLES.get(m)
     if tables is None:
         n = 2 * m + 1
         idx = np.arange(n)
         kind = np.int16 if n < 16_000 else np.int64
-        # nearness to the prediction (index m): larger is nearer, >= 1; i + 1; n - i
+        up, down = idx + 1, n - idx
         tables = (
-            (n - np.abs(idx - m)).astype(kind),
-            (idx + 1).astype(kind),
-            (n - idx).astype(kind),
+            (n - np.abs(idx - m)).astype(kind)[:, None],
+            up.astype(kind)[:, None],
+            down.astype(kind)[:, None],
+            np.where(idx < m, up, np.where(idx > m, down, 0)).astype(kind)[:, None],
+            np.array([[1], [2 * m]], kind),
         )
+        for table in tables:
+            table.flags.writeable = False
         if len(_ROW_TABLES) >= 16:
             _ROW_TABLES.clear()
         _ROW_TABLES[m] = tables
     return tables
 
 
-#: np.arange(k) * n, the flat index of each row's first sample, for the last few (k, n).
-_ROW_STARTS: dict[tuple[int, int], np.ndarray] = {}
+#: np.arange(k), the cross-sections' columns, for the last few k.
+_COLUMNS: dict[int, np.ndarray] = {}
 
 
-def _row_starts(k: int, n: int) -> np.ndarray:
-    starts = _ROW_STARTS.get((k, n))
-    if starts is None:
-        if len(_ROW_STARTS) >= 64:
-            _ROW_STARTS.clear()
-        starts = _ROW_STARTS[k, n] = np.arange(k) * n
-        starts.flags.writeable = False
-    return starts
+def _columns(k: int) -> np.ndarray:
+    cols = _COLUMNS.get(k)
+    if cols is None:
+        if len(_COLUMNS) >= 64:
+            _COLUMNS.clear()
+        cols = _COLUMNS[k] = np.arange(k)
+        cols.flags.writeable = False
+    return cols
 
 
 def _analyse_rows(
     s: np.ndarray, m: int, t: np.ndarray, max_width: float, band: float | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The vectorised analysis of `CenterlineExtractor._cross_sections`: (K, 2m + 1) float32
-    coverage rows -> offsets, widths, status (see there), the numbers of `_locate_row` row by
-    row up to float32 rounding.
+    """The vectorised analysis of `CenterlineExtractor._cross_sections`: (2m + 1, K) float32
+    coverage samples (column k is cross-section k, row i its offset t[i]) -> offsets, widths,
+    status (see there), the numbers of `_locate_row` cross-section by cross-section up to
+    float32 rounding.
 
-    For each row: j, the "rod" sample nearest the prediction (the first of a tie); a row
-    without one is lost. left/right: the nearest non-rod samples on either side of j (-1 and
-    2m + 1 when the run reaches the window's end), read from running maxima of the non-rod
-    samples' positions (from the left and from the right) at j.
+    For each cross-section: j, the "rod" sample nearest the prediction (the first of a tie); a
+    section without one is lost. left/right: the nearest non-rod samples on either side of j
+    (-1 and 2m + 1 when the run reaches the window's end), kept as the codes L = left + 1 and
+    R = 2m + 1 - right (0: the run leaves the window on that side). Every numpy pass runs
+    along rows, i.e. over all K sections at once.
     """
-    k, n = s.shape
-    # sentinel non-rod samples at -1 and 2m + 1 around the rows' own
-    pad = np.ones((k, n + 2), bool)
-    notab = pad[:, 1:-1]
-    np.less(s, 0.5, out=notab)
-    # e: per row, where its left crossing (row 0: between samples lc and lc + 1) and its
-    # right crossing (row 1: between rc - 1 and rc) start
-    e = np.empty((2, k), np.intp)
+    n, k = s.shape
+    notab = np.less(s, 0.5)
+    near, up, down, up_down, ends = _row_tables(m)
+    codes = np.empty((2, k), up.dtype)  # L, R
     lost = None
-    if not np.count_nonzero(notab[:, m]):
+    if m > 0 and not np.count_nonzero(notab[m]):
         # every prediction lies on the rod (the rule in the refinement): j = m, and the run's
-        # ends are the first non-rod samples either side of m, left = m - 1 - dl and
-        # right = m + 1 + dr (dl, dr = m: the sentinels, past the window's ends)
-        dl = pad[:, m::-1].argmax(axis=1)
-        dr = pad[:, m + 2 :].argmax(axis=1)
-        left_off, right_off = dl == m, dr == m
-        np.maximum(np.subtract(m - 1, dl, out=e[0]), 0, out=e[0])  # lc
-        np.minimum(np.add(dr, m, out=e[1]), 2 * m - 1, out=e[1])  # rc - 1
+        # ends are the nearest non-rod samples either side of m: L is the largest i + 1 over
+        # non-rod i < m and R the largest n - i over non-rod i > m (0 when there is none)
+        coded = np.multiply(notab, up_down)
+        np.maximum.reduce(coded[:m], axis=0, out=codes[0])
+        np.maximum.reduce(coded[m + 1 :], axis=0, out=codes[1])
     else:
-        near, up, down = _row_tables(m)
-        above = ~notab
-        at_j = _row_starts(k, n) + np.multiply(above, near).argmax(axis=1)
-        lost = notab.ravel()[at_j]
-        left = np.maximum.accumulate(np.multiply(notab, up), axis=1).ravel()[at_j].astype(np.intp)
-        left -= 1
-        right = np.maximum.accumulate(np.multiply(notab, down)[:, ::-1], axis=1)[:, ::-1]
-        right = n - right.ravel()[at_j].astype(np.intp)
+        cols = _columns(k)
+        at_j = np.multiply(~notab, near).argmax(axis=0)  # the first of a tie: the left one
+        lost = notab[at_j, cols]
+        # running maxima of the non-rod samples' i + 1 from the top, and of their n - i from
+        # the bottom (accumulated on the reversed rows: row j is row n - 1 - j there)
+        codes[0] = np.maximum.accumulate(np.multiply(notab, up), axis=0)[at_j, cols]
+        from_end = np.maximum.accumulate(np.multiply(notab, down)[::-1], axis=0)
+        codes[1] = from_end[n - 1 - at_j, cols]
         if np.count_nonzero(lost):  # no rod sample at all: j = 0, whose left is -1 and right 1
-            left[lost] = -1
-            right[lost] = 1
-        left_off, right_off = left < 0, right > 2 * m
-        e[0] = np.minimum(np.maximum(left, 0), 2 * m - 1)
-        e[1] = np.minimum(np.maximum(right, 1), 2 * m) - 1
+            codes[0, lost] = 0
+            codes[1, lost] = n - 1
+    left_off, right_off = codes == 0
+    # e: where the left crossing (row 0: between samples lc and lc + 1) and the right one
+    # (row 1: between rc - 1 and rc) start: lc = max(L, 1) - 1 and rc - 1 = 2m - max(R, 1)
+    # (the window's clipping, which is all a code of 0 needs)
+    e = np.abs(np.subtract(np.maximum(codes, 1), ends, dtype=np.intp))
     # Both 50 % crossings at once, between a = s[e] and b = s[e + 1]: the right edge's
     # (r0 - 0.5) and (r0 - r1) are the left formula's (0.5 - a) and (b - a) negated, exactly.
-    idx = e + _row_starts(k, n)
+    idx = e * k
+    idx += _columns(k)
     flat = s.ravel()
     a = flat.take(idx)
     num = (0.5 - a) * _SIGNS
-    den = (flat[1:].take(idx) - a) * _SIGNS
+    den = (flat[k:].take(idx) - a) * _SIGNS
     t_left, t_right = t.take(e) + num / np.where(den > 1e-6, den, 1.0) * _DT
     width = t_right - t_left
     offset = 0.5 * (t_left + t_right)
@@ -374,10 +388,17 @@ def _analyse_rows(
     status = wide.astype(np.int64)  # _OK (0), or _AMBIGUOUS (1) where wide
     if lost is not None:
         # Too wide and not even under the prediction: something beside the rod, not a crossing.
-        status[wide & notab[:, m]] = _LOST
+        status[wide & notab[m]] = _LOST
         status[lost] = _LOST
     return offset, width, status
 
+
+#: `cv2.transform` matrix of the coverage's channel sum: (p0 + p1) + p2 (+ -0.0, which leaves
+#: every float32, -0.0 included, unchanged). OpenCV computes 1 * p0 + 1 * p1 + 1 * p2 + m3 in
+#: float32 from left to right; the products by 1 are exact, so even a fused multiply-add gives
+#: the bits of numpy's two additions, in one pass instead of two.
+_SUM3 = np.array([[1.0, 1.0, 1.0, -0.0]], np.float32)
+_SUM3.flags.writeable = False
 
 #: cv2.remap refuses maps of SHRT_MAX (32767) columns or more; longer samplings go in rows.
 _REMAP_MAX = 32767
@@ -436,11 +457,14 @@ class CenterlineExtractor:
             [v * w[0], v * w[1], v * w[2] + self._cov_b32], axis=-1
         ).reshape(1, 256, 3)
         self._bg_value = tuple(float(c) for c in r.background_color)
-        self._walk_buffers: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        self._walk_samplers: dict[tuple[int, int], Callable] = {}
+        self._section_buffers: dict[int, tuple[np.ndarray, ...]] = {}
         self._max_steps = int(4 * (camera.width + camera.height) / self._step) + 10
         # `_find_end`'s arc lengths: all, and the second part (after t[0])
         self._end_t = np.arange(0.0, self._step * _LOOKAHEAD + self._band_prior + 2.0, 0.25)
         self._end_t_rest = np.concatenate([self._end_t[:1], self._end_t[_END_FIRST:]])
+        self._end_t_first = self._end_t[:_END_FIRST]
+        self._arc_samplers: dict[tuple[int, int], tuple] = {}
 
     # ------------------------------------------------------------------ colour -> coverage
     def _coverage_map(self) -> tuple[np.ndarray, float]:
@@ -509,34 +533,89 @@ class CenterlineExtractor:
             borderValue=self._bg_value,
         )
         # not clipped to [0, 1]: only 50 % crossings are used, and clipping costs time
-        part = cv2.LUT(rgb, self._coverage_lut).reshape(-1, 3)
-        return ((part[:, 0] + part[:, 1]) + part[:, 2])[:n].reshape(shape)
+        part = cv2.LUT(rgb, self._coverage_lut)
+        return cv2.transform(part, _SUM3).reshape(-1)[:n].reshape(shape)
+
+    def _sample_sections(
+        self, image: np.ndarray, centres: np.ndarray, normals: np.ndarray, t: np.ndarray
+    ) -> np.ndarray:
+        """(T, K) coverage of the cross-sections through (2, K) planes of centres and normals at
+        offsets t: `_sample_maps` of `_section_maps`, bit for bit, in scratch arrays kept per T
+        and grown to the largest K seen (the result is one of them: use it before the next
+        call)."""
+        n, k = len(t), centres.shape[1]
+        size = n * k
+        if size >= _REMAP_MAX:
+            return self._sample_maps(image, _section_maps(centres, normals, t))
+        buffers = self._section_buffers.get(n)
+        if buffers is None or buffers[0].shape[1] < size:
+            cap = size + size // 4  # room for a slightly longer rod in the next frames
+            buffers = self._section_buffers[n] = (
+                np.empty((2, cap)),
+                np.empty((2, 1, cap), np.float32),
+                np.empty((1, cap, 3), np.uint8),
+                np.empty((1, cap, 3), np.float32),
+                np.empty((1, cap), np.float32),
+            )
+        prod_buf, maps_buf, rgb_buf, part_buf, cov_buf = buffers
+        prod = prod_buf[:, :size].reshape(2, n, k)
+        maps = maps_buf[:, :, :size]
+        # centre + normal * t in float64, rounded once into the float32 maps (`_section_maps`)
+        np.multiply(normals[:, None, :], t[:, None], out=prod)
+        np.add(prod, centres[:, None, :], out=maps.reshape(2, n, k))
+        rgb = cv2.remap(
+            image,
+            maps[0],
+            maps[1],
+            cv2.INTER_LINEAR,
+            rgb_buf[:, :size],
+            cv2.BORDER_CONSTANT,
+            self._bg_value,
+        )
+        part = cv2.LUT(rgb, self._coverage_lut, part_buf[:, :size])
+        return cv2.transform(part, _SUM3, cov_buf[:, :size]).reshape(n, k)
 
     def _walk_rows(self, image: np.ndarray, qn: list[float], t: np.ndarray) -> tuple[array, bytes]:
         """The walk's `_LOOKAHEAD` cross-sections in one call: ``qn`` holds the predicted
         points' x, then their y, then the normals' x, then their y; returns the coverage samples
         (row after row) as an `array.array` (indexing gives Python floats, as `tolist` would)
         and ``bytes`` of sample >= 0.5. The numbers of `_sample_maps` of `_section_maps`."""
-        a = np.array(qn).reshape(4, -1, 1)
-        k, n = a.shape[1], len(t)
-        buffers = self._walk_buffers.get((k, n))
-        if buffers is None:
-            # scratch arrays for this row count and length (the results are copied out)
-            buffers = self._walk_buffers[k, n] = (
-                np.empty((2, 1, k * n), np.float32),
-                np.empty((1, k * n, 3), np.uint8),
-                np.empty((1, k * n, 3), np.float32),
-                np.empty(k * n, np.float32),
-            )
-        maps, rgb, part, cov = buffers
-        np.add(a[:2], a[2:] * t, out=maps.reshape(2, k, n))
-        rgb = cv2.remap(
-            image, maps[0], maps[1], cv2.INTER_LINEAR, rgb, cv2.BORDER_CONSTANT, self._bg_value
-        )
-        p = cv2.LUT(rgb, self._coverage_lut, part).reshape(-1, 3)
-        np.add(p[:, 0], p[:, 1], out=cov)
-        np.add(cov, p[:, 2], out=cov)
-        return array("f", cov.tobytes()), (cov >= 0.5).tobytes()
+        return self._walk_sampler(len(qn) // 4, t)(image, qn)
+
+    def _walk_sampler(self, k: int, t: np.ndarray) -> Callable[[np.ndarray, list[float]], tuple]:
+        """`_walk_rows` for k cross-sections of offsets t, as a function of (image, qn) that
+        works in scratch arrays made once per (k, len(t)) (the results are copied out), with
+        every view and constant it needs bound beforehand."""
+        n = len(t)
+        sampler = self._walk_samplers.get((k, n))
+        if sampler is not None:
+            return sampler
+        qn_buf = np.empty(4 * k)
+        a = qn_buf.reshape(4, k, 1)
+        centres, normals = a[:2], a[2:]
+        prod = np.empty((2, k, n))
+        maps = np.empty((2, 1, k * n), np.float32)
+        maps_kn = maps.reshape(2, k, n)
+        map_x, map_y = maps[0], maps[1]
+        rgb = np.empty((1, k * n, 3), np.uint8)
+        part = np.empty((1, k * n, 3), np.float32)
+        cov = np.empty((1, k * n), np.float32)
+        lut, bg = self._coverage_lut, self._bg_value
+        remap, linear, constant = cv2.remap, cv2.INTER_LINEAR, cv2.BORDER_CONSTANT
+        to_coverage, channel_sum, multiply, add = cv2.LUT, cv2.transform, np.multiply, np.add
+
+        def sample(image: np.ndarray, qn: list[float]) -> tuple[array, bytes]:
+            qn_buf[:] = qn
+            # centre + normal * t in float64, rounded once into the float32 maps
+            add(centres, multiply(normals, t, out=prod), out=maps_kn)
+            remap(image, map_x, map_y, linear, rgb, constant, bg)
+            channel_sum(to_coverage(rgb, lut, part), _SUM3, cov)
+            return array("f", cov.tobytes()), (cov >= 0.5).tobytes()
+
+        if len(self._walk_samplers) >= 16:
+            self._walk_samplers.clear()
+        self._walk_samplers[k, n] = sample
+        return sample
 
     # ------------------------------------------------------------------ cross-sections
     def _cross_sections(
@@ -563,12 +642,25 @@ class CenterlineExtractor:
             offsets (K,) along the normal from centre to the band's midpoint, widths (K,) of the
             band between its 50 % edges, status (K,) one of _OK, _AMBIGUOUS, _LOST.
         """
+        return self._sections_planes(image, centres.T, normals.T, half, max_width, band)
+
+    def _sections_planes(
+        self,
+        image: np.ndarray,
+        centres: np.ndarray,
+        normals: np.ndarray,
+        half: float,
+        max_width: float,
+        band: float | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`_cross_sections` of (2, K) planes of centres and normals (x row, y row)."""
         m = int(round(half / _DT))
         t = _offsets(m)
-        k = len(centres)
-        s = self._sample_maps(image, _section_maps(centres, normals, t))
+        k = centres.shape[1]
+        s = self._sample_sections(image, centres, normals, t)
         if k <= _SCALAR_ROWS:
             n = 2 * m + 1
+            s = np.ascontiguousarray(s.T)  # one cross-section per row
             flat, rod = s.ravel().tolist(), (s >= 0.5).tobytes()
             rows_out = [_locate_row(flat, m, band, max_width, rod, i * n) for i in range(k)]
             off_w_st = np.array(rows_out, dtype=np.float64).reshape(k, 3)
@@ -598,12 +690,25 @@ class CenterlineExtractor:
         m = self._m_track
         n = 2 * m + 1
         t = _offsets(m)
+        sample = self._walk_sampler(_LOOKAHEAD, t)
+        # per row: its index, its samples [b, e) with the prediction at c, its normal's slots
+        rows = [
+            (i, i * n, i * n + m, (i + 1) * n, i + 2 * _LOOKAHEAD, i + 3 * _LOOKAHEAD)
+            for i in range(_LOOKAHEAD)
+        ]
         px, py = float(p[0]), float(p[1])
         heading = math.atan2(float(d[1]), float(d[0]))
         out: list[tuple[float, float]] = []
         widths: list[float] = []
         w_max, h_max = self.camera.width - 1, self.camera.height - 1
-        cos, sin = math.cos, math.sin
+        cos, sin, hypot, atan2, remainder = (
+            math.cos,
+            math.sin,
+            math.hypot,
+            math.atan2,
+            math.remainder,
+        )
+        two_pi = 2 * math.pi
         for _ in range(self._max_steps):
             recent = widths[-8:]
             band = sorted(recent)[len(recent) // 2] if recent else self._band_prior
@@ -613,38 +718,36 @@ class CenterlineExtractor:
                 band + _MERGE_PX,
                 0.5 * band,
             )
-            xs, ys, nxs, nys = [], [], [], []
+            # qn: the predicted points' x, their y, the normals' x, their y (`_walk_rows`)
+            qn = [0.0] * (4 * _LOOKAHEAD)
             qx, qy = px, py
-            for i in range(1, _LOOKAHEAD + 1):
+            half_turn = 0.5 * turn
+            for i, ix, iy, inx, iny in _WALK_SLOTS:
                 a = heading + turn * i
                 qx += h * cos(a)
                 qy += h * sin(a)
-                xs.append(qx)
-                ys.append(qy)
-                a_t = a + 0.5 * turn
-                nxs.append(-sin(a_t))
-                nys.append(cos(a_t))
-            vals, rod = self._walk_rows(image, xs + ys + nxs + nys, t)
+                qn[ix] = qx
+                qn[iy] = qy
+                a += half_turn
+                qn[inx] = -sin(a)
+                qn[iny] = cos(a)
+            vals, rod = sample(image, qn)
             accepted: list[tuple[float, float]] = []
             any_ok = False
-            for i in range(_LOOKAHEAD):
-                b = i * n
-                c = b + m
+            for i, b, c, e, inx, iny in rows:
                 if (
                     rod[c]
                     and (left := rod.rfind(0, b, c)) >= 0
-                    and (right := rod.find(0, c + 1, b + n)) >= 0
+                    and (right := rod.find(0, c + 1, e)) >= 0
                 ):
                     # The usual row, a run under the prediction bounded on both sides:
                     # `_locate_row`'s arithmetic for it, inline (the same operations).
-                    s0, s1 = vals[left], vals[left + 1]
-                    t_left = (left - c) * _DT + (0.5 - s0) / (
-                        s1 - s0 if s1 - s0 > 1e-6 else 1.0
-                    ) * _DT
-                    r0, r1 = vals[right - 1], vals[right]
-                    t_right = (right - 1 - c) * _DT + (r0 - 0.5) / (
-                        r0 - r1 if r0 - r1 > 1e-6 else 1.0
-                    ) * _DT
+                    s0 = vals[left]
+                    ds = vals[left + 1] - s0
+                    t_left = (left - c) * _DT + (0.5 - s0) / (ds if ds > 1e-6 else 1.0) * _DT
+                    r0 = vals[right - 1]
+                    dr = r0 - vals[right]
+                    t_right = (right - 1 - c) * _DT + (r0 - 0.5) / (dr if dr > 1e-6 else 1.0) * _DT
                     wid = t_right - t_left
                     off = 0.5 * (t_left + t_right)
                     if wid > merge_w:
@@ -660,7 +763,7 @@ class CenterlineExtractor:
                     st = _LOST
                 if st == _LOST or (i > 0 and (st == _AMBIGUOUS or abs(off) > _TRUST_PX)):
                     break  # beyond here the prediction is not trusted: re-predict
-                qx, qy = xs[i], ys[i]
+                qx, qy = qn[i], qn[i + _LOOKAHEAD]
                 if not (0.0 <= qx <= w_max and 0.0 <= qy <= h_max):
                     return (
                         out,
@@ -670,8 +773,8 @@ class CenterlineExtractor:
                         ("the rod leaves the image"),
                     )
                 if st == _OK:
-                    qx += off * nxs[i]
-                    qy += off * nys[i]
+                    qx += off * qn[inx]
+                    qy += off * qn[iny]
                     widths.append(wid)
                     any_ok = True
                 accepted.append((qx, qy))
@@ -684,13 +787,13 @@ class CenterlineExtractor:
             else:
                 ax, ay = px, py
             lx, ly = accepted[-1]
-            if math.hypot(lx - ax, ly - ay) < 1e-6:
+            if hypot(lx - ax, ly - ay) < 1e-6:
                 break
-            new_heading = math.atan2(ly - ay, lx - ax)
+            new_heading = atan2(ly - ay, lx - ax)
             if any_ok:
                 # turn per step = mean change of chord heading over the batch (it telescopes);
                 # where the rod was ambiguous (a crossing), the predicted turn is kept.
-                change = math.remainder(new_heading - heading, 2 * math.pi)
+                change = remainder(new_heading - heading, two_pi)
                 turn = min(max(change / len(accepted), -_MAX_TURN), _MAX_TURN)
             heading = new_heading
             out.extend(accepted)
@@ -705,26 +808,50 @@ class CenterlineExtractor:
             )
         return out, np.array([math.cos(heading), math.sin(heading)]), turn, widths, ""
 
-    @staticmethod
-    def _arc_xy(p: np.ndarray, h_base: float, k: float, t: np.ndarray) -> tuple:
-        """x (K,), y (K,), cos and sin of the heading (K,) at arc lengths t ahead of p on the
-        predicted constant-curvature arc (tangent at p: heading `h_base`; curvature k)."""
-        heading = h_base + k * t
-        cos_h, sin_h = _cos_sin(heading)
-        if abs(k) < 1e-9:
-            return p[0] + t * cos_h[0], p[1] + t * sin_h[0], cos_h, sin_h
-        h0 = heading[0] - k * t[0]
-        return p[0] + (sin_h - math.sin(h0)) / k, p[1] + (math.cos(h0) - cos_h) / k, cos_h, sin_h
+    def _arc_sampler(self, n: int, slot: int) -> tuple[Callable[[np.ndarray], np.ndarray], tuple]:
+        """A sampler of n points whose positions are written into its float32 maps (x, y):
+        returns (sample(image) -> the (n,) float32 coverage in a scratch array, (map x, map y));
+        the numbers of `_sample_maps`. One per (n, slot): the two parts of `_find_end` keep
+        their samples apart."""
+        found = self._arc_samplers.get((n, slot))
+        if found is not None:
+            return found
+        maps = np.empty((2, 1, n), np.float32)
+        map_x, map_y = maps[0], maps[1]
+        rgb = np.empty((1, n, 3), np.uint8)
+        part = np.empty((1, n, 3), np.float32)
+        cov = np.empty((1, n), np.float32)
+        lut, bg = self._coverage_lut, self._bg_value
+
+        def sample(image: np.ndarray) -> np.ndarray:
+            cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, rgb, cv2.BORDER_CONSTANT, bg)
+            return cv2.transform(cv2.LUT(rgb, lut, part), _SUM3, cov)[0]
+
+        if len(self._arc_samplers) >= 16:
+            self._arc_samplers.clear()
+        found = self._arc_samplers[n, slot] = (sample, (maps[0, 0], maps[1, 0]))
+        return found
 
     def _sample_arc(
         self, image: np.ndarray, p: np.ndarray, h_base: float, k: float, t: np.ndarray, skip: int
     ) -> tuple[np.ndarray, float, float]:
-        """Coverage along the arc of `_arc_xy` at t[skip:], and the arc's direction at t[0]."""
-        x, y, cos_h, sin_h = self._arc_xy(p, h_base, k, t)
-        maps = np.empty((2, len(t) - skip), np.float32)
-        maps[0] = x[skip:]
-        maps[1] = y[skip:]
-        return self._sample_maps(image, maps), float(cos_h[0]), float(sin_h[0])
+        """Coverage along the predicted constant-curvature arc from p (tangent at p: heading
+        `h_base`; curvature k) at arc lengths t[skip:], and the arc's direction at t[0]. The
+        positions are computed in float64 and rounded once into the sampler's maps."""
+        heading = np.multiply(t, k)
+        heading += h_base
+        cos_h, sin_h = _cos_sin(heading)
+        sample, (map_x, map_y) = self._arc_sampler(len(t) - skip, skip)
+        px, py = p[0], p[1]
+        if abs(k) < 1e-9:
+            np.add(np.multiply(t[skip:], cos_h[0]), px, out=map_x)  # px + t cos(h0)
+            np.add(np.multiply(t[skip:], sin_h[0]), py, out=map_y)
+        else:
+            h0 = heading[0] - k * t[0]
+            # px + (sin h - sin h0) / k, py + (cos h0 - cos h) / k
+            np.add(np.divide(np.subtract(sin_h[skip:], math.sin(h0)), k), px, out=map_x)
+            np.add(np.divide(np.subtract(math.cos(h0), cos_h[skip:]), k), py, out=map_y)
+        return sample(image), float(cos_h[0]), float(sin_h[0])
 
     def _find_end(
         self, image: np.ndarray, p: np.ndarray, d: np.ndarray, turn: float, cap: float
@@ -740,15 +867,14 @@ class CenterlineExtractor:
         # Sampled in two parts, the second only when the first has no crossing (the crossing
         # is usually within a band or two of p): every point's position and sample depend on
         # its own t and on t[0] only, so the first crossing is the same as in one call.
-        s, c0, s0 = self._sample_arc(image, p, h_base, k, t[:_END_FIRST], 0)
-        drop = np.flatnonzero(s < 0.5)
-        if len(drop) == 0 and len(t) > _END_FIRST:
+        s, c0, s0 = self._sample_arc(image, p, h_base, k, self._end_t_first, 0)
+        i = np.less(s, 0.5).tobytes().find(1)  # the first sample below 50 %, -1 if none
+        if i < 0 and len(t) > _END_FIRST:
             rest = self._sample_arc(image, p, h_base, k, self._end_t_rest, 1)[0]
             s = np.concatenate([s, rest])
-            drop = np.flatnonzero(s < 0.5)
-        if len(drop) == 0 or drop[0] == 0:
+            i = np.less(s, 0.5).tobytes().find(1)
+        if i <= 0:
             return p.copy(), np.array([c0, s0])
-        i = drop[0]
         t_cross = t[i - 1] + (s[i - 1] - 0.5) / max(s[i - 1] - s[i], 1e-6) * 0.25
         # the point of the same arc at t_cross - cap, in scalar arithmetic (the same operations)
         t_end = t_cross - cap
@@ -808,15 +934,14 @@ class CenterlineExtractor:
                 f"image is {img.shape[1]}x{img.shape[0]}, camera is "
                 f"{self.camera.width}x{self.camera.height}"
             )
-        fail = np.full((self.points, 2), np.nan)
         grip_px = grip_dir = None
         if gripper_pose is not None:
             grip_px, grip_dir = self.camera.project_pose_direction(np.asarray(gripper_pose))
         line, widths, gaps, why = self._trace(img, grip_px, grip_dir)
         if line is None:
-            return Extraction(fail, False, why)
+            return Extraction(self._failed(), False, why)
         # Refine every point across the band, on a resampled curve (one vectorised call).
-        return self._finish(img, line, widths, gaps, fail)
+        return self._finish(img, line, widths, gaps)
 
     def _trace(
         self, img: np.ndarray, grip_px: np.ndarray | None, grip_dir: np.ndarray | None
@@ -903,18 +1028,19 @@ class CenterlineExtractor:
         line: np.ndarray,
         widths: list[float],
         gaps: list[float],
-        fail: np.ndarray,
     ) -> Extraction:
         """Refine and resample the traced line to N points, then judge it: bridged gaps and a
         traced length unlike the rod's make the frame not ok."""
         line = self._refine(img, line, _median(widths) if widths else self._band_prior)
         out = self._resample_out(line, self.points)
         if not np.isfinite(out).all():
-            return Extraction(fail, False, "the traced rod leaves the plane's visible side")
+            return Extraction(
+                self._failed(), False, "the traced rod leaves the plane's visible side"
+            )
         if gaps:
             note = f"occluded: bridged {len(gaps)} gap(s), {sum(gaps):.0f} px in all"
             if self.cfg.extract.on_gap == "fail":
-                return Extraction(fail, False, note)
+                return Extraction(self._failed(), False, note)
             return Extraction(out, False, note, bridged=True)
         if self.rod_length is not None:
             length = _length(self.camera.unproject(out))
@@ -927,6 +1053,10 @@ class CenterlineExtractor:
                     f"by {100 * rel:+.0f} %: occluded or confused",
                 )
         return Extraction(out, True)
+
+    def _failed(self) -> np.ndarray:
+        """The points of a failed extraction: (N, 2) NaN, a new array each time."""
+        return np.full((self.points, 2), np.nan)
 
     @staticmethod
     def _trim_after(path: list[_Pixel], end: np.ndarray, d: np.ndarray) -> list[_Pixel]:
@@ -959,8 +1089,8 @@ class CenterlineExtractor:
             d /= np.maximum(np.hypot(d[0], d[1]), 1e-12)
             normals = d[::-1] * sign
             inner = p[:, 1:-1]
-            off, _, st = self._cross_sections(
-                image, inner.T, normals.T, self._half_refine, _WIDE * band, band
+            off, _, st = self._sections_planes(
+                image, inner, normals, self._half_refine, _WIDE * band, band
             )
             ok = (st == _OK) & (np.abs(off) < 2.0)
             # inner[ok] += off[ok] * normals[ok], without the copies

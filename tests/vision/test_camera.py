@@ -170,3 +170,37 @@ def test_checker_backgrounds_are_shared_only_between_equal_scenes() -> None:
     b.set_pose(tilt_deg=30.0)  # a bump: a new view of the board
     assert not np.array_equal(a._background, b._background)
     assert np.array_equal(b._background, b._draw_background())
+
+
+@pytest.mark.parametrize(
+    "render",
+    [
+        {"blur_sigma": 0.8, "random_occlusions": 2},
+        {"noise_std": 3.0},
+        {"background": "checker", "noise_std": 3.0, "blur_sigma": 1.2},
+    ],
+)
+def test_a_frame_does_not_depend_on_the_frames_before(render: dict) -> None:
+    """With blur or noise the camera draws on a kept scratch frame and restores only what the
+    last frame drew: a frame must be the same after any other frame (here: another shape, a
+    moved clamp, a new blur and noise) as after a frame of its own shape. Both cameras draw
+    from equal generators, so the noise and random occluders line up frame by frame."""
+    cfg = CameraConfig(render=render)
+    line, grip = rod_shape("s_shape")
+    others = [
+        (rod_shape("hook"), np.zeros(3)),
+        (rod_shape("straight", length=1.5, clamp_pose=(-0.5, 0.1, 0.3)), np.zeros(3)),
+        (rod_shape("arc", clamp_pose=(0.02, -0.01, 0.0)), np.array([0.02, -0.01, 0.0])),
+    ]
+    a, b = Camera(cfg, np.random.default_rng(4)), Camera(cfg, np.random.default_rng(4))
+    for (other, other_grip), clamp in others:
+        for cam in (a, b):
+            cam.render(line, grip, np.zeros(3))
+        a.render(other, other_grip, clamp)
+        b.render(line, grip, np.zeros(3))
+        assert np.array_equal(a.render(line, grip, np.zeros(3)), b.render(line, grip, np.zeros(3)))
+    for cam in (a, b):
+        cam.set_noise(2.0, 0.6)
+    a.render(others[0][0][0], others[0][0][1], np.zeros(3))
+    b.render(line, grip, np.zeros(3))
+    assert np.array_equal(a.render(line, grip, np.zeros(3)), b.render(line, grip, np.zeros(3)))
