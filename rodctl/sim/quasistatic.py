@@ -566,7 +566,8 @@ class QuasiStaticChain:
                 c = c0 + (clamp - c0) * f
             start = self.theta  # never modified in place: every update makes a new array
             guesses: list[tuple[np.ndarray, np.ndarray]] = [(start, self.lam)]
-            if self.gripped and self._maybe_straight and float(np.ptp(start)) < 1e-9:
+            straight = self.gripped and self._maybe_straight and float(np.ptp(start)) < 1e-9
+            if straight:
                 # A straight chain: the end-position constraint is degenerate along the rod
                 # (its Jacobian has rank 1), so Newton cannot start there; start from a smooth
                 # curve through both end poses instead.
@@ -577,7 +578,7 @@ class QuasiStaticChain:
                 predicted = self._predict(g)
                 if predicted is not None:
                     guesses.insert(0, predicted)
-            newton, starts = self._patience(quick, moving, done, frac, f)
+            newton, starts = self._patience(quick and not straight, moving, done, frac, f)
             for guess, lam0 in guesses[:starts]:
                 theta, lam, conv, hess = newton(guess, lam0, g, c)
                 good = (
@@ -642,7 +643,10 @@ class QuasiStaticChain:
         (~10 iterations with ~15 line-search evaluations each, ~1.5 ms); a try that succeeds
         there takes 1-4 full Newton steps. Giving up early changes no snap or equilibrium: a
         try given up that would have succeeded is only halved and tried again from the same
-        stable state, and the fold is declared by the full tries only."""
+        stable state, and the fold is declared by the full tries only. Not from a straight
+        chain (the Hermite guess, `_solve_to`): there a smaller sub-step is the harder one (the
+        end-position constraint is nearer degenerate), so every try runs in full, as before;
+        giving up early there left a heavy stiff rod unable to reach its home pose."""
         final = not moving or frac <= MIN_FRACTION or (f == 1.0 and done + MIN_FRACTION >= 1.0)
         return (self._newton, 2) if final or not quick else (self._quick_newton, 1)
 
