@@ -162,14 +162,22 @@ def _length(points: np.ndarray) -> float:
 _OFFSETS: dict[int, np.ndarray] = {}
 
 
+def _read_only(
+    cache: dict[int, np.ndarray], key: int, limit: int, make: Callable[[], np.ndarray]
+) -> np.ndarray:
+    """`cache[key]`, made by `make()` (read-only) the first time; the cache is emptied when it
+    holds `limit` entries."""
+    value = cache.get(key)
+    if value is None:
+        if len(cache) >= limit:
+            cache.clear()
+        value = cache[key] = make()
+        value.flags.writeable = False
+    return value
+
+
 def _offsets(m: int) -> np.ndarray:
-    t = _OFFSETS.get(m)
-    if t is None:
-        if len(_OFFSETS) >= 16:
-            _OFFSETS.clear()
-        t = _OFFSETS[m] = np.arange(-m, m + 1) * _DT
-        t.flags.writeable = False
-    return t
+    return _read_only(_OFFSETS, m, 16, lambda: np.arange(-m, m + 1) * _DT)
 
 
 def _resample_planes(p: np.ndarray, n: int, seg: np.ndarray | None = None) -> np.ndarray:
@@ -303,13 +311,7 @@ _COLUMNS: dict[int, np.ndarray] = {}
 
 
 def _columns(k: int) -> np.ndarray:
-    cols = _COLUMNS.get(k)
-    if cols is None:
-        if len(_COLUMNS) >= 64:
-            _COLUMNS.clear()
-        cols = _COLUMNS[k] = np.arange(k)
-        cols.flags.writeable = False
-    return cols
+    return _read_only(_COLUMNS, k, 64, lambda: np.arange(k))
 
 
 def _analyse_rows(
