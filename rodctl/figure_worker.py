@@ -24,6 +24,8 @@ input (with no record sent: "no figures", the helper exits). The reply: `{file n
 from __future__ import annotations
 
 import dataclasses
+import os
+import sys
 import threading
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -146,9 +148,7 @@ def save_figures(pngs: Mapping[str, bytes], out_dir: str | Path) -> list[Path]:
 def helper_main() -> None:
     """The helper: import, receive the run, draw, reply (see the module docstring).
 
-    The run is read on a thread as it comes. Warming matplotlib up and drawing the figures once
-    empty save time only while the helper waits: each is skipped once the input has ended (a
-    helper that got its imports done after the episode goes straight to the drawing)."""
+    The run is read on a thread as it comes; the figures are made (not drawn) meanwhile."""
     out = helper_process.begin("figures")
     received: list[Any] = []
     ended = threading.Event()
@@ -157,9 +157,10 @@ def helper_main() -> None:
         received.extend(helper_process.messages())
         ended.set()
 
-    threading.Thread(target=read, name="rodctl-figures-read", daemon=True).start()
+    reader = threading.Thread(target=read, name="rodctl-figures-read", daemon=True)
+    reader.start()
     try:
-        pngs = _draw(received, ended)
+        pngs = _draw(received, ended, reader)
     except BaseException:  # noqa: BLE001 - the traceback to stderr, exit 1 (a reading thread
         helper_process.fail()  # would make the interpreter's shut-down abort)
     if pngs is None:
@@ -167,20 +168,95 @@ def helper_main() -> None:
     helper_process.reply(out, pngs, "figures")
 
 
-def _draw(received: list[Any], ended: threading.Event) -> dict[str, bytes] | None:
+def _draw(
+    received: list[Any], ended: threading.Event, reader: threading.Thread
+) -> dict[str, bytes] | None:
     """The figures of the run `received` once `ended` is set (None: no run came)."""
     # The slow part (matplotlib), while the parent runs the episode; the command never imports it.
     from rodctl import plots  # noqa: PLC0415
 
     figures = plots.RunFigures()
-    if not ended.is_set():
-        plots.warm_up()
-    figures.draw_empty(stop=ended.is_set)
     timeline.mark("figures", "ready")
     ended.wait()
+    reader.join()  # it has returned: this process has one thread again (`_render`'s fork)
     timeline.mark("figures", "input ended")
     header = next((value for kind, value in received if kind == "header"), None)
     records = [value for kind, value in received if kind == "record"]
     if header is None or not records:
         return None
-    return figures.render(header, records)
+    return _render(figures, header, records)
+
+
+#: The figure drawn by a forked child of the figure process while it draws the others
+#: (`_render`): the slowest of the three (~half of the drawing).
+FORKED = "commands.png"
+
+
+def _cores() -> int:
+    """The CPUs this process may run on (the machine's, not how busy they are)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def _render(figures: Any, header: RunHeader, records: list[StepRecord]) -> dict[str, bytes]:
+    """The PNGs of the run (`plots.RunFigures.render`), on two cores where there are two: the
+    drawing is the end of `rodctl simulate`, after the episode, when the command and the Rerun
+    process wait and their cores are idle, so a forked child draws `FORKED` while this process
+    draws the others (the same bytes: each figure is its own). A child that fails costs time
+    only: its figure is then drawn here. One core (or no fork): all three here, in turn."""
+    if _cores() < 2 or not hasattr(os, "fork"):
+        return figures.render(header, records)
+    try:
+        child = _fork_figure(figures, header, records)
+    except OSError:
+        return figures.render(header, records)
+    from rodctl.plots import RUN_FIGURES  # noqa: PLC0415 - imported already (`_draw`)
+
+    pngs = {n: figures.render_one(n, header, records) for n in RUN_FIGURES if n != FORKED}
+    forked = _child_png(*child)
+    timeline.mark("figures", "forked figure received")
+    if forked is None:
+        forked = figures.render_one(FORKED, header, records)
+    return {n: forked if n == FORKED else pngs[n] for n in RUN_FIGURES}
+
+
+def _fork_figure(figures: Any, header: RunHeader, records: list[StepRecord]) -> tuple[int, int]:
+    """Fork a child that writes `FORKED`'s PNG bytes to a pipe and exits; (pid, read end)."""
+    r, w = os.pipe()
+    sys.stderr.flush()
+    parent = os.getpid()
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child (its coverage is not collected)
+        code = 1
+        try:
+            os.close(r)
+            helper_process.die_with_parent(parent)
+            data = figures.render_one(FORKED, header, records)
+            view = memoryview(data)
+            while view:
+                view = view[os.write(w, view) :]
+            code = 0
+        except BaseException:  # noqa: BLE001 - the parent draws it instead
+            pass
+        finally:
+            os._exit(code)
+    os.close(w)
+    return pid, r
+
+
+def _child_png(pid: int, fd: int) -> bytes | None:
+    """The child's PNG bytes, None if it failed (reaped either way)."""
+    chunks = []
+    try:
+        while data := os.read(fd, 1 << 16):
+            chunks.append(data)
+    except OSError:
+        chunks = []
+    finally:
+        os.close(fd)
+    _, status = os.waitpid(pid, 0)
+    if os.waitstatus_to_exitcode(status) != 0 or not chunks:
+        return None
+    return b"".join(chunks)

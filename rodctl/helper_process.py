@@ -558,6 +558,12 @@ def _die_with_parent(parent: int) -> None:
         os._exit(0)
 
 
+def die_with_parent(parent: int) -> None:
+    """Be killed when the process `parent` dies (Linux), and exit now if it already has: for a
+    child a helper forks itself (PR_SET_PDEATHSIG is not inherited across a fork)."""
+    _die_with_parent(parent)
+
+
 def begin(role: str) -> IO[bytes]:
     """A helper's first call: die with the parent, keep stdout for the reply (anything printed
     goes to stderr); the reply stream, for `reply`."""

@@ -21,7 +21,7 @@ shapes, PNG zlib level 1 (`benchmarks/bench_plots.py` prints the time).
 from __future__ import annotations
 
 import io
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -233,21 +233,6 @@ def _log_safe(y: np.ndarray) -> np.ndarray:
     return np.where(y > 0, y, np.nan)
 
 
-def warm_up() -> None:
-    """Draw a tiny throw-away figure with what the run's figures use (lines, markers, a log
-    axis, a shaded span, a legend, text): the first drawing of a process loads fonts and fills
-    caches, which makes the run's first `render_figures` ~0.15 s slower. The figure process
-    does this while it waits for the run."""
-    fig = _figure(2.0, 2.0)
-    ax = fig.subplots()
-    ax.plot([1, 2, 3], [1.0, 10.0, 100.0], marker="o", label="warm-up")
-    _ticks(ax, log_y=np.array([1.0, 100.0]))
-    shade_probing(ax, [(1, 2)])
-    ax.legend(fontsize=FONT - 1)
-    _title(ax, "Δr_θ (rad)", FONT + 1)
-    _png(fig)
-
-
 def write_figures(
     header: RunHeader, records: Sequence[StepRecord], out_dir: str | Path
 ) -> list[Path]:
@@ -272,11 +257,10 @@ def render_figures(header: RunHeader, records: Sequence[StepRecord]) -> dict[str
 
 class RunFigures:
     """The three figures of one run, begun before the run is known: `RunFigures()` makes the
-    figures and their axes, `draw_empty` draws them once, empty (that creates the tick artists
-    and fills matplotlib's caches: ~0.2 s of CPU, ~0.07 s less to draw later), `render` draws the
-    run into them. Drawn empty or not, the same bytes (checked against the drawing before this
-    class on one-arm, dual-arm, probing and scripted runs). The figure process begins them while
-    it waits for the records. For one use: `render` once.
+    figures and their axes, `render` (or `render_one` per figure) draws the run into them. The
+    figure process makes them while it waits for the records. For one use: `render` once.
+    (Drawing them empty first, and a warm-up figure, cost ~0.2 s of CPU during the episode for
+    ~0.06 s less drawing: taken out, 2026-12-02, docs/engines.md.)
     """
 
     def __init__(self) -> None:
@@ -288,25 +272,23 @@ class RunFigures:
         self.commands = _figure(6.4, 5.8)
         self.commands_grid = self.commands.subplots(3, 1, sharex=True, squeeze=False)
 
-    def draw_empty(self, stop: Callable[[], bool] = lambda: False) -> None:
-        """Draw each figure once, empty, unless `stop()` says the run is there to draw."""
-        for fig in (self.shapes, self.t1, self.commands):
-            if stop():
-                return
-            fig.canvas.draw()
-
     def render(self, header: RunHeader, records: Sequence[StepRecord]) -> dict[str, bytes]:
         """The PNG bytes by file name (`render_figures`)."""
-        if True:  # one block per figure group; no rc_context (it re-validates every rcParam: slow)
+        return {name: self.render_one(name, header, records) for name in RUN_FIGURES}
+
+    def render_one(self, name: str, header: RunHeader, records: Sequence[StepRecord]) -> bytes:
+        """One figure's PNG bytes (`name` of `RUN_FIGURES`): the same bytes whichever figures
+        were drawn before it, in this process or not (the figure process draws them in two)."""
+        # No rc_context (it re-validates every rcParam: slow).
+        if name == "shapes.png":
             fig, ax = self.shapes, self.shapes_ax
             draw_shapes(ax, header, records)
             _title(ax, _headline("Rod centerline every three frames", header.method, 5.6), FONT + 1)
-            pngs = {"shapes.png": _png(fig)}
-
-            steps, t1, px, u = _series(records)
-            spans = _probe_spans(records)
+            return _png(fig)
+        if name == "t1.png":
+            steps, t1, _px, _u = _series(records)
             fig, ax = self.t1, self.t1_ax
-            shade_probing(ax, spans)
+            shade_probing(ax, _probe_spans(records))
             ax.plot(steps, _log_safe(t1), color="tab:blue", marker="o", ms=3, lw=1.4, label="T1")
             ax.set_xlabel("step")
             ax.set_ylabel("T1 = ||s* − s|| (feature units)")
@@ -314,16 +296,16 @@ class RunFigures:
             ax.grid(True, alpha=0.3)
             ax.legend(fontsize=FONT - 1)
             _title(ax, _headline("Deformation error T1", header.method, 6.4), FONT + 1)
-            pngs["t1.png"] = _png(fig)
-
+            return _png(fig)
+        if name == "commands.png":
             begun = (
                 None if _second_end(records) is not None else (self.commands, self.commands_grid)
             )
             commands = _commands(
                 {header.method: records}, speed_limits(header), speed_limits(header, "x0"), begun
             )
-            pngs["commands.png"] = _png(commands)
-        return pngs
+            return _png(commands)
+        raise ValueError(f"no run figure {name!r} (one of {', '.join(RUN_FIGURES)})")
 
 
 def _commands(

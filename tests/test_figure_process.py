@@ -199,3 +199,37 @@ def test_the_summary_is_shown_before_the_figures_are_waited_for(tmp_path):
     (run_dir,) = out.iterdir()
     assert json.loads((run_dir / "meta.json").read_text())["status"] == "completed"
     assert {p.name for p in (run_dir / "figures").iterdir()} == FIGURES
+
+
+class _ChildFails:
+    """RunFigures whose `FORKED` figure raises in any process but this one (a forked child)."""
+
+    def __init__(self) -> None:
+        self.figures = plots.RunFigures()
+        self.pid = os.getpid()
+
+    def render_one(self, name, header, records):
+        if name == figure_worker.FORKED and os.getpid() != self.pid:
+            raise RuntimeError("injected failure in the forked child")
+        return self.figures.render_one(name, header, records)
+
+
+def test_figures_drawn_on_two_cores_are_the_bytes_of_one_and_a_failed_child_costs_time_only(
+    monkeypatch,
+):
+    """The figure process draws `FORKED` in a forked child where it has two cores: the same
+    bytes as drawing all three in one process, in the same order; a child that fails has its
+    figure drawn by the figure process instead; on one core nothing is forked."""
+    from rodctl.logs.synthetic import SyntheticRun  # noqa: PLC0415
+
+    run = SyntheticRun(seed=3, image_every=0)
+    header, records = run.header, run.records(12)
+    expected = plots.render_figures(header, records)
+    monkeypatch.setattr(figure_worker, "_cores", lambda: 2)
+    got = figure_worker._render(plots.RunFigures(), header, records)
+    assert list(got) == list(expected) and got == expected
+    assert figure_worker._render(_ChildFails(), header, records) == expected
+
+    monkeypatch.setattr(figure_worker, "_cores", lambda: 1)
+    monkeypatch.setattr(figure_worker, "_fork_figure", None)  # called: a TypeError
+    assert figure_worker._render(plots.RunFigures(), header, records) == expected
