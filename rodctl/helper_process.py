@@ -546,8 +546,10 @@ class Helpers:
 # --- helper side ------------------------------------------------------------------------------
 
 
-def _die_with_parent(parent: int) -> None:
-    """Be killed when the parent dies (Linux), and exit now if it already has."""
+def die_with_parent(parent: int) -> None:
+    """Be killed when the process `parent` dies (Linux), and exit now if it already has: a
+    helper at its start, and a child a helper forks itself (PR_SET_PDEATHSIG is not inherited
+    across a fork)."""
     if sys.platform.startswith("linux"):
         try:
             PR_SET_PDEATHSIG = 1
@@ -558,18 +560,12 @@ def _die_with_parent(parent: int) -> None:
         os._exit(0)
 
 
-def die_with_parent(parent: int) -> None:
-    """Be killed when the process `parent` dies (Linux), and exit now if it already has: for a
-    child a helper forks itself (PR_SET_PDEATHSIG is not inherited across a fork)."""
-    _die_with_parent(parent)
-
-
 def begin(role: str) -> IO[bytes]:
     """A helper's first call: die with the parent, keep stdout for the reply (anything printed
     goes to stderr); the reply stream, for `reply`."""
     out = sys.stdout.buffer
     sys.stdout = sys.stderr  # anything printed while working must not corrupt the reply
-    _die_with_parent(_PARENT if _PARENT is not None else int(sys.argv[2]))
+    die_with_parent(_PARENT if _PARENT is not None else int(sys.argv[2]))
     timeline.mark(role, "started")
     return out
 
