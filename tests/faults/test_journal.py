@@ -121,21 +121,22 @@ def test_compare_resume_is_one_journal_a_second_resume_is_refused_and_rows_are_n
 
 @pytest.mark.slow
 def test_sweep_resume_after_an_interrupt_leaves_one_row_per_key(tmp_path):
-    # Two targets: after the first row three episodes remain, so the signal lands in one of
-    # them even when the machine is loaded (with one target the second could finish first).
+    # Eight targets: after the first row fifteen episodes remain, so the signal (the watcher
+    # polls every 50 ms) lands in one of them; with two targets the three left (easy targets,
+    # a few steps each, cheaper since the speed passes) could all finish first (seen in CI).
     smoke = str(REPO / "configs/sweep-smoke.yaml")
     send_self_after(tmp_path, after_rows=1, sig=signal.SIGINT)
     with pytest.raises(RunInterrupted) as info:
-        run_sweep(smoke, ["targets.count=2"], str(tmp_path), progress=False, workers=1)
+        run_sweep(smoke, ["targets.count=8"], str(tmp_path), progress=False, workers=1)
     folder = info.value.folder
     clear_stop()
     cut = [r for r in journal(folder) if r["outcome"] == "interrupted"]
     run_sweep(
-        smoke, ["targets.count=2"], str(tmp_path), progress=False, workers=1, resume=str(folder)
+        smoke, ["targets.count=8"], str(tmp_path), progress=False, workers=1, resume=str(folder)
     )
     assert cut, "the signal should have cut the running episode"
     _once_per_key(folder)
-    assert len(journal(folder)) == 4  # two points on two targets
+    assert len(journal(folder)) == 16  # two points on eight targets
 
 
 def test_every_reader_takes_the_last_final_row_of_a_key(tmp_path):
