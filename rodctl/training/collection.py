@@ -287,7 +287,8 @@ class _Walk:
         if self.dual:  # the extractor starts at the x0 end, wherever it is now
             self.clamp = sim.clamp_pose
             self.extractor = self._extractor_type(self.cfg.camera, self.camera, self.clamp)
-        ext = self.extractor.extract(self.camera.render(sim.centerline(), pose, self.clamp), pose)
+        frame = self.camera.render(sim.centerline(), pose, self.clamp, transient=True)
+        ext = self.extractor.extract(frame, pose)
         if not ext.ok:
             note = ext.note or "no note"
             self.notes[note] = self.notes.get(note, 0) + 1

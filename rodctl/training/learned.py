@@ -102,11 +102,12 @@ class _Walk:
         if self.dual:
             grip, at = sim.gripper_pose, sim.clamp_pose
             extractor = CenterlineExtractor(self.cfg.camera, camera, at)
-            ext = extractor.extract(camera.render(sim.centerline(), grip, at), grip)
+            ext = extractor.extract(camera.render(sim.centerline(), grip, at, transient=True), grip)
             pose = sim.end_poses
         else:
             pose = np.asarray(sim.gripper_pose, dtype=float)
-            ext = self.extractor.extract(camera.render(sim.centerline(), pose, self.clamp), pose)
+            frame = camera.render(sim.centerline(), pose, self.clamp, transient=True)
+            ext = self.extractor.extract(frame, pose)
         if ext.ok:
             self.frames.append(np.asarray(ext.points, dtype=np.float32))
             self.poses.append(pose)

@@ -204,3 +204,28 @@ def test_a_frame_does_not_depend_on_the_frames_before(render: dict) -> None:
     a.render(others[0][0][0], others[0][0][1], np.zeros(3))
     b.render(line, grip, np.zeros(3))
     assert np.array_equal(a.render(line, grip, np.zeros(3)), b.render(line, grip, np.zeros(3)))
+
+
+@pytest.mark.parametrize(
+    "render",
+    [{}, {"background": "checker", "occlusions": [(-5, -5, 40, 30)]}, {"noise_std": 3.0}],
+)
+def test_a_transient_frame_is_the_frame(render: dict) -> None:
+    """A transient frame (the scratch frame itself, for a walk that extracts it at once) has
+    the pixels of a kept one, whatever was drawn before it: other shapes, a moved clamp, a rod
+    that leaves the image, kept frames in between."""
+    cfg = CameraConfig(render=render)
+    shapes = [
+        (rod_shape("s_shape"), np.zeros(3)),
+        (rod_shape("hook"), np.zeros(3)),
+        (rod_shape("straight", length=1.5, clamp_pose=(-0.5, 0.1, 0.3)), np.zeros(3)),
+        (rod_shape("arc", clamp_pose=(0.02, -0.01, 0.0)), np.array([0.02, -0.01, 0.0])),
+        (rod_shape("s_shape"), np.zeros(3)),
+    ]
+    a, b = Camera(cfg, np.random.default_rng(5)), Camera(cfg, np.random.default_rng(5))
+    for i, ((line, grip), clamp) in enumerate(shapes * 2):
+        kept = b.render(line, grip, clamp)
+        if i == 6:  # a kept frame between transient ones
+            assert np.array_equal(a.render(line, grip, clamp), kept)
+            continue
+        assert np.array_equal(a.render(line, grip, clamp, transient=True), kept)
