@@ -24,14 +24,13 @@ directly.
 from __future__ import annotations
 
 import argparse
-import gzip
-import json
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any
 
 import yaml
+from suite_tables import load_statistics
 
 from rodctl.bench.compare import load_compare_config, method_config
 from rodctl.bench.suite import scenario_configs
@@ -94,16 +93,6 @@ def run(config: Path, workers: int, out: Path) -> Path:
     return Path(proc.stdout.strip().splitlines()[-1])
 
 
-def _stats(folder: Path) -> dict[str, Any]:
-    for name in ("statistics.json", "statistics.json.gz"):
-        path = folder / name
-        if path.is_file():
-            opener = gzip.open if name.endswith(".gz") else open
-            with opener(path, "rt") as f:
-                return json.load(f)
-    sys.exit(f"{folder}: no statistics.json")
-
-
 def _cell(t: dict[str, Any] | None) -> str:
     if not t or not t.get("n") or t.get("p_adjusted") is None:
         return "—"
@@ -142,13 +131,13 @@ def main() -> None:
     configs = {name: paper_config(name) for name in SCENARIOS}
     columns: dict[str, dict[str, Any]] = {}
     if args.reference:
-        columns["encoder seed 0 (reference)"] = _stats(args.reference)
+        columns["encoder seed 0 (reference)"] = load_statistics(args.reference)
     for seed in args.encoder_seeds:
         print(f"encoder seed {seed}: training the three quick encoders", flush=True)
         encoders = {n: train(configs[n], seed, out / f"encoders-{n}") for n in SCENARIOS}
         folder = run(suite_for(encoders, seed, out), args.workers, out)
         print(f"  suite: {folder}", flush=True)
-        columns[f"encoder seed {seed}"] = _stats(folder)
+        columns[f"encoder seed {seed}"] = load_statistics(folder)
     print("steps to converge, method − paper: mean [BCa 95 %]; R significant and replicated")
     print("on every target seed, S significant only (each run corrected over its own tests)")
     print("\n".join(table(columns)))

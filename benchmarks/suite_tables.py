@@ -34,6 +34,16 @@ def _load_json(path: Path) -> dict[str, Any]:
         return json.load(f)
 
 
+def statistics_path(folder: Path) -> Path:
+    """A suite folder's statistics.json, or a results page's statistics.json.gz."""
+    path = folder / "statistics.json"
+    return path if path.is_file() else folder / "statistics.json.gz"
+
+
+def load_statistics(folder: Path) -> dict[str, Any]:
+    return _load_json(statistics_path(folder))
+
+
 def _rows(folder: Path) -> list[dict[str, str]]:
     path = folder / "results.csv"
     if not path.is_file():
@@ -187,9 +197,7 @@ def main() -> None:
     ap.add_argument("--before", type=Path, help="an earlier run's statistics.json(.gz)")
     ap.add_argument("--export", type=Path, help="write episodes.csv.gz and statistics.json.gz here")
     args = ap.parse_args()
-    stats_path = args.folder / "statistics.json"
-    if not stats_path.is_file():
-        stats_path = args.folder / "statistics.json.gz"
+    stats_path = statistics_path(args.folder)
     stats = _load_json(stats_path)
     rows = _rows(args.folder)
     print("\n".join(steps_table(stats, rows)))
