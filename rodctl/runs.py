@@ -210,6 +210,11 @@ def _out_error(parent: Path, what: str, exc: OSError) -> Exception:
     return UserError(message) if exc.errno in _BAD_PATH else RunFailed(message)
 
 
+#: What a run folder holds before anything ran: `RunDir.create`'s files and the encoder
+#: checkpoint copied in at the start (`rodctl.portable`).
+_START_FILES = frozenset({"config.yaml", "meta.json", "encoder.npz", "encoder.pt"})
+
+
 class NamedConfig(Protocol):
     """A config a run directory is made for (an experiment, compare, sweep or suite config: a
     pydantic model with these fields)."""
@@ -292,11 +297,13 @@ class RunDir:
         write_json_atomic(self.path / "meta.json", self.meta, reserve=META_RESERVE)
 
     def discard_if_empty(self) -> bool:
-        """Remove the run directory if it holds only what `create` wrote: bad input found after
-        it was made (an unreachable target, a file that is not a dataset) leaves nothing, as
-        bad input found before does. True when it was removed."""
+        """Remove the run directory if it holds only what `create` wrote, and the encoder
+        checkpoint a run copies in before its first step (`rodctl.portable`: encoder.npz or
+        encoder.pt): bad input found after it was made (an unreachable target, a rod that does
+        not settle, a file that is not a dataset) leaves nothing, as bad input found before
+        does. True when it was removed."""
         try:
-            if {p.name for p in self.path.iterdir()} <= {"config.yaml", "meta.json"}:
+            if {p.name for p in self.path.iterdir()} <= _START_FILES:
                 shutil.rmtree(self.path)
                 return True
         except OSError:

@@ -93,3 +93,22 @@ def test_simulate_json_prints_one_parseable_object(tmp_path):
 
     data = json.loads(res.stdout)
     assert data["steps"] == 3 and data["run_dir"].startswith(str(tmp_path))
+
+
+def test_bad_input_after_the_checkpoint_copy_leaves_no_run_folder(tmp_path):
+    """The default config copies its encoder into the run folder before the target is made;
+    an unreachable target found then is still bad input: exit 2 and no folder left."""
+    res = CliRunner().invoke(
+        app,
+        [
+            "simulate",
+            str(REPO / "configs/default.yaml"),
+            "--set",
+            "run.target.pose=[5,5,0]",
+            "--out",
+            str(tmp_path),
+        ],
+    )
+    assert res.exit_code == 2, res.output
+    assert "out of reach" in res.output
+    assert list(tmp_path.iterdir()) == []
