@@ -95,6 +95,24 @@ def test_simulate_json_prints_one_parseable_object(tmp_path):
     assert data["steps"] == 3 and data["run_dir"].startswith(str(tmp_path))
 
 
+def test_ray_missing_is_bad_input_and_leaves_no_run_folder(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # as on an install without the extra
+    res = CliRunner().invoke(
+        app,
+        [
+            "compare",
+            str(REPO / "configs/compare-smoke.yaml"),
+            "--executor",
+            "ray",
+            "--out",
+            str(tmp_path),
+        ],
+    )
+    assert res.exit_code == 2, res.output
+    assert "rodctl[ray]" in res.output
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_bad_input_after_the_checkpoint_copy_leaves_no_run_folder(tmp_path):
     """The default config copies its encoder into the run folder before the target is made;
     an unreachable target found then is still bad input: exit 2 and no folder left."""

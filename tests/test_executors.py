@@ -135,9 +135,8 @@ def test_unknown_executor_and_address_without_ray_are_user_errors():
 
 def test_missing_ray_is_a_user_error_naming_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
-    ex = make_executor("ray", 1)
     with pytest.raises(UserError, match=r"rodctl\[ray\]"):
-        ex.start()
+        make_executor("ray", 1)  # when the command line is read, before any run folder
 
 
 # --- Ray --------------------------------------------------------------------------------------

@@ -1,8 +1,9 @@
 """Ray: the same tasks on a Ray started for the run (loopback only) or on an existing cluster.
 
-Optional: `pip install 'rodctl[ray]'`; Ray is imported only when this executor starts. Without
-`address`, a private local Ray is started with `num_cpus=workers`, no dashboard, a small object
-store, every service bound to 127.0.0.1, no usage reporting, and it is shut down with the run.
+Optional: `pip install 'rodctl[ray]'`; Ray is imported only when this executor starts (found
+missing when it is made, before a run folder exists). Without `address`, a private local Ray
+is started with `num_cpus=workers`, no dashboard, a small object store, every service bound to
+127.0.0.1, no usage reporting, and it is shut down with the run.
 With `address` (`--address HOST:PORT`, or `auto`), the run connects to that cluster as a
 driver and only disconnects at the end; the cluster's nodes need rodctl (and any plug-in)
 installed.
@@ -16,6 +17,7 @@ task; Ray delivers it to a running task as a SIGINT in its worker, which the tas
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 import signal
@@ -63,6 +65,9 @@ def run_task(fn: Callable[[Any], Any], task: Any) -> Any:
         return fn(task)
 
 
+_MISSING = "--executor ray needs Ray, which is an optional extra: pip install 'rodctl[ray]'"
+
+
 def _import_ray(local: bool) -> Any:
     if local:
         # Ray otherwise advertises the machine's network address even for a one-node Ray;
@@ -73,9 +78,7 @@ def _import_ray(local: bool) -> Any:
     try:
         import ray
     except ImportError:
-        raise UserError(
-            "--executor ray needs Ray, which is an optional extra: pip install 'rodctl[ray]'"
-        ) from None
+        raise UserError(_MISSING) from None
     if local:
         # Ray read the variable above when it was first imported; imported earlier (a notebook,
         # a test process) it did not see it, so set the constant it became (ray==2.60.0).
@@ -93,6 +96,10 @@ class RayExecutor(Executor):
     def __init__(
         self, workers: int, address: str | None = None, shutdown_timeout: float = 10.0
     ) -> None:
+        # Found missing here, when the command line is read, not at start(): by then the run's
+        # folder exists, and bad input must leave none.
+        if importlib.util.find_spec("ray") is None:
+            raise UserError(_MISSING)
         super().__init__(workers, shutdown_timeout)
         self.address = address
         self.ray: Any = None
