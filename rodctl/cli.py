@@ -17,7 +17,14 @@ from typing import Annotated, Any, TypeVar
 import typer
 
 from rodctl.config import ExperimentConfig, dump_config, load_config
-from rodctl.errors import RunFailed, UserError, describe_os_error
+from rodctl.errors import (
+    RunFailed,
+    UserError,
+    describe_os_error,
+    make_out_folder,
+    out_error,
+    out_path,
+)
 from rodctl.executors.base import sigterm_as_interrupt
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -888,17 +895,16 @@ _ForceOpt = Annotated[
 
 def _estimate_folder(src: Any, recording: bool, out: str | None, force: bool) -> tuple[Any, list]:
     """The results folder and the earlier estimate's files in it (refused without --force)."""
-    from pathlib import Path
 
     from rodctl import estimate as est
 
-    if out:
-        dest = Path(out)
+    if out is not None:
+        dest = out_path(out)
     elif recording:
         dest = src.with_name(src.stem + "-estimate")
     else:
         dest = (src if src.is_dir() else src.parent) / "estimate"
-    if not out and not force:
+    if out is None and not force:
         dest = est.free_folder(dest)  # a second estimate: estimate-2/, never over the first
     earlier = [p.name for p in est.result_files(dest) if p.exists()]
     if earlier and not force:
@@ -935,16 +941,15 @@ def _write_estimate(result: Any, dest: Any, earlier: list, plots: bool) -> None:
     """Write results.csv, steps.csv (and the plots) into `dest`; print the table and notes."""
     from rodctl import estimate as est
 
+    make_out_folder(dest)
     try:
         for stale in est.result_files(dest) if earlier else ():
             stale.unlink(missing_ok=True)  # --force: no plot of the earlier estimate left beside
         est.write_results(result, dest)
         if plots:
             est.write_plots(result, dest)
-    except OSError as exc:
-        raise UserError(
-            f"--out {dest}: cannot write the results: {describe_os_error(exc)}"
-        ) from None
+    except OSError as exc:  # a full or read-only disk: exit 1 (docs/reliability.md)
+        raise out_error("--out", dest, "cannot write the results", exc) from None
     typer.echo(est.format_table(result), err=True)
     for r in result.runs:
         if r.outcome not in ("completed",) and r.note:

@@ -26,7 +26,7 @@ import yaml
 
 from rodctl.config.loading import safe_load
 from rodctl.config.logging import LoggingConfig
-from rodctl.errors import RunFailed, UserError
+from rodctl.errors import RunFailed, UserError, make_out_folder
 from rodctl.figure_worker import FiguresFailed, FigureWorker, save_figures
 from rodctl.logs.codec import ReadRun
 from rodctl.records import FIELD_UNITS as RECORD_UNITS
@@ -144,8 +144,7 @@ def rebuild(
         run = read_run(src, recover=recover)
         if worker is not None and run.records:
             worker.submit(run.header, run.records)  # drawn while run.rrd is written
-        out = Path(out_dir) if out_dir is not None else src.parent
-        out.mkdir(parents=True, exist_ok=True)
+        out = make_out_folder(out_dir) if out_dir is not None else src.parent
         result = Rebuilt(run=run, rrd=None)
         if rerun:
             from rodctl.logs.rerun import RerunSink

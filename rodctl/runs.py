@@ -7,7 +7,6 @@ atomically (write to a temporary file, then rename) so a crash never leaves it h
 
 from __future__ import annotations
 
-import errno
 import json
 import math
 import os
@@ -25,7 +24,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from rodctl.config import dump_config
-from rodctl.errors import RunFailed, UserError, describe_os_error
+from rodctl.errors import RunFailed, UserError, describe_os_error, make_out_folder, out_error
 from rodctl.registry import component_provenance, plugin_provenance, stage_provenance
 from rodctl.runlock import unlock_run_folder
 
@@ -197,19 +196,6 @@ _BULKY = ("numeric_env", "versions", "argv", "plugins", "stages")
 META_RESERVE = 16_384
 
 
-#: OS errors that mean the `--out` path the user gave is wrong (a file in the way, a name too
-#: long), not that the system refused: exit 2. Every other (full disk, no inodes, read-only,
-#: permission, I/O) means the run could not go on: exit 1.
-_BAD_PATH = (errno.ENOTDIR, errno.EEXIST, errno.ENAMETOOLONG, errno.ELOOP, errno.EINVAL)
-
-
-def _out_error(parent: Path, what: str, exc: OSError) -> Exception:
-    """The one-line error of an `--out` that cannot hold a run: `UserError` for a wrong path,
-    `RunFailed` for a full, read-only or forbidden disk (the rule in docs/reliability.md)."""
-    message = f"--out {parent}: {what}: {describe_os_error(exc)}"
-    return UserError(message) if exc.errno in _BAD_PATH else RunFailed(message)
-
-
 #: What a run folder holds before anything ran: `RunDir.create`'s files and the encoder
 #: checkpoint copied in at the start (`rodctl.portable`).
 _START_FILES = frozenset({"config.yaml", "meta.json", "encoder.npz", "encoder.pt"})
@@ -246,11 +232,7 @@ class RunDir:
 
         `cfg` is any config with a `name` and a `seed` (an experiment or a compare config).
         """
-        parent = Path(parent)
-        try:
-            parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise _out_error(parent, "cannot create the output folder", exc) from None
+        parent = make_out_folder(parent)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         base = f"{stamp}_{cfg.name}"
         for n in range(1, 10_000):
@@ -261,7 +243,7 @@ class RunDir:
             except FileExistsError:
                 continue
             except OSError as exc:
-                raise _out_error(parent, "cannot create a run directory", exc) from None
+                raise out_error("--out", parent, "cannot create a run directory", exc) from None
         else:  # pragma: no cover - 10k runs in one second
             raise UserError(f"{parent}: too many runs named {base!r}")
         run = cls(path=path)

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from rodctl.errors import RunFailed, UserError
+from rodctl.errors import RunFailed, UserError, make_out_folder, out_error
 from rodctl.recordings.synthetic import PointsRecording
 
 #: Scale of the nominal top-down view of a recording in metres (pixels per metre).
@@ -350,9 +350,8 @@ def _write_frames_run(
 
 def _new_run_dir(out: str | Path, stem: str) -> Path:
     """A new, empty `<time>_<stem>` folder under `out` (`-2`, `-3`, ... when taken)."""
-    parent = Path(out)
+    parent = make_out_folder(out)
     try:
-        parent.mkdir(parents=True, exist_ok=True)
         run_dir = parent / f"{time.strftime('%Y%m%d-%H%M%S')}_{stem}"
         for n in range(2, 10_000):
             if not run_dir.exists():
@@ -360,7 +359,7 @@ def _new_run_dir(out: str | Path, stem: str) -> Path:
             run_dir = parent / f"{time.strftime('%Y%m%d-%H%M%S')}_{stem}-{n}"
         run_dir.mkdir()
     except OSError as exc:
-        raise UserError(f"--out {parent}: cannot create the run folder: {exc}") from None
+        raise out_error("--out", parent, "cannot create the run folder", exc) from None
     return run_dir
 
 

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from rodctl.errors import UserError
+from rodctl.errors import UserError, make_out_folder, out_error, out_path
 
 STORAGES = ("sqlite3", "mcap")
 TOPIC_IMAGE = "/camera/image_raw"
@@ -159,6 +159,21 @@ def _export_connections(writer: Any, ts: Any, two: bool) -> dict[str, Any]:
     return conns
 
 
+def _check_bag_folder(out: Path) -> None:
+    """Make the bag folder's parents and check that the folder can be made.
+
+    The writer makes the bag folder itself (and says nothing of why it could not): make and
+    remove it once here, so that a wrong path is exit 2 and a refusing disk exit 1, as for
+    every other command's output folder.
+    """
+    make_out_folder(out.parent, "--ros2")
+    try:
+        out.mkdir()
+        out.rmdir()
+    except OSError as exc:
+        raise out_error("--ros2", out, "cannot create the bag folder", exc) from None
+
+
 def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") -> dict[str, int]:
     """Write the run at `run_path` as the ROS 2 bag folder `bag`; return messages per topic.
 
@@ -174,9 +189,9 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
 
     if storage not in STORAGES:
         raise UserError(f"--storage {storage}: choose one of {', '.join(STORAGES)}")
-    out = Path(bag)
+    out = out_path(bag, "--ros2")
     if out.exists():
-        raise UserError(f"{out}: exists already; a bag is written to a new folder")
+        raise UserError(f"--ros2 {out}: exists already; a bag is written to a new folder")
     run = read_run(run_path, images=True)
     ts = get_typestore(Stores.ROS2_HUMBLE)
     T = ts.types
@@ -185,6 +200,7 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     counts = {TOPIC_IMAGE: 0, TOPIC_INFO: 0, TOPIC_POSE: 0, TOPIC_CENTERLINE: 0}
 
+    _check_bag_folder(out)
     try:
         writer = Writer(out, version=8, storage_plugin=plugin)
     except WriterError as exc:

@@ -152,3 +152,47 @@ def test_bad_input_found_after_the_run_folder_was_made_leaves_nothing(tmp_path):
     assert res.exit_code == 2 and "run.target.pose" in res.output, res.output
     for out in (tmp_path / "a", tmp_path / "b"):
         assert not out.exists() or not any(out.iterdir()), list(out.iterdir())
+
+
+# --------------------------------------------------------------------------- every --out, one rule
+@pytest.fixture(scope="module")
+def a_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("runs")
+    res = _simulate_out(out)
+    assert res.exit_code == 0, res.output
+    return Path(res.output.strip().splitlines()[-1])
+
+
+def _write_somewhere(run: Path, out: str, tmp: Path) -> list[tuple[str, object]]:
+    """Every command that writes a folder, told to write it at `out`."""
+    from rodctl.recordings.points import write_points_csv
+    from rodctl.recordings.synthetic import dual_arm_recording
+
+    points = write_points_csv(dual_arm_recording(5, seed=1, points=4), tmp / "points.csv")
+    return [
+        ("simulate", _simulate_out(out)),
+        ("replay", _run("replay", run, "-q", "--no-figures", "-o", out)),
+        ("estimate", _run("estimate", run, "--init", "3", "--no-plots", "--out", out)),
+        ("import", _run("import", points, "--out", out)),
+        ("export", _run("export", run, "--ros2", out)),
+    ]
+
+
+@pytest.mark.parametrize(
+    "where, says",
+    [
+        ("file", "a-file is a file, not a folder"),  # a file in the way
+        ("under-file", "a-file is a file, not a folder"),
+        ("", "empty; give a folder's path"),  # Path("") would silently be the current folder
+    ],
+)
+def test_every_command_refuses_an_unusable_output_path_alike(a_run, tmp_path, where, says):
+    a_file = tmp_path / "a-file"
+    a_file.write_text("")
+    out = {"file": str(a_file), "under-file": str(a_file / "sub"), "": ""}[where]
+    for command, res in _write_somewhere(a_run, out, tmp_path):
+        assert res.exit_code == 2, (command, res.output)
+        lines = res.output.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: --"), (command, res.output)
+        assert says in lines[0] and str(out) in lines[0], (command, res.output)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file", "points.csv"]
