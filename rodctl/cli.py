@@ -1251,9 +1251,10 @@ def import_recording(
     """
     from pathlib import Path
 
-    from rodctl.recordings.importer import import_image_folder, import_points
+    from rodctl.recordings.importer import import_image_folder, import_points, run_name
     from rodctl.recordings.video import VIDEO_SUFFIXES
 
+    run_name(name, path)  # a bad --name is refused before any work
     calib = _import_calibration(calibration, extrinsic)
     frames_args = functools.partial(
         _frames_args, path, camera, clamp_pose, hsv_low, hsv_high, tolerance, name, calib

@@ -493,6 +493,25 @@ def test_a_bad_calibration_exits_2_naming_the_key(tmp_path, text, needle):
     assert needle in res.output and "c.yaml" in res.output, res.output
 
 
+@pytest.mark.parametrize("name", ["../evil", "a/b", ".hidden", "x" * 65, "bad name"])
+def test_a_bad_import_name_is_refused_before_any_folder(tmp_path, name):
+    path = write_points_csv(dual_arm_recording(10, seed=3, points=4), tmp_path / "rec.csv")
+    out = tmp_path / "runs"
+    res = CliRunner().invoke(app, ["import", str(path), "-o", str(out), "--name", name])
+    assert res.exit_code == 2, res.output
+    assert "--name" in res.output and "letters, digits" in res.output, res.output
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv"]
+
+
+def test_the_default_import_name_is_the_file_stem_made_safe(tmp_path):
+    path = write_points_csv(dual_arm_recording(10, seed=3, points=4), tmp_path / "my rec (1).csv")
+    res = CliRunner().invoke(app, ["import", str(path), "-o", str(tmp_path / "runs")])
+    assert res.exit_code == 0, res.output
+    run = _last_line(res)
+    assert run.parent == tmp_path / "runs" and run.name.endswith("_import-my-rec-1"), run
+    assert yaml.safe_load((run / "config.yaml").read_text())["name"] == "import-my-rec-1"
+
+
 # --- estimate plots; an encoder trained on a recording --------------------------------------
 
 

@@ -7,6 +7,7 @@ validates on assignment, so a config mutated after loading cannot drift out of r
 from __future__ import annotations
 
 import math
+import re
 from typing import TYPE_CHECKING, Annotated, Any, Union, get_args
 
 from pydantic import (
@@ -29,6 +30,18 @@ if TYPE_CHECKING:
 
 else:
     StageConfig = BaseModel
+
+
+#: A run, comparison, sweep or scenario name: it becomes part of a folder's name, so letters,
+#: digits, `.`, `_` and `-` only, starting with a letter or digit (no `/`, no `..` escape).
+RUN_NAME = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
+#: The longest such name.
+RUN_NAME_MAX = 64
+
+
+def is_run_name(text: str) -> bool:
+    """Whether `text` is a usable run name (`RUN_NAME`, at most `RUN_NAME_MAX` characters)."""
+    return len(text) <= RUN_NAME_MAX and re.fullmatch(RUN_NAME, text) is not None
 
 
 class StrictModel(BaseModel):

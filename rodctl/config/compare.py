@@ -15,7 +15,7 @@ from typing import Any
 
 from pydantic import ConfigDict, Field, PositiveInt, field_validator, model_validator
 
-from rodctl.config.base import Pose, StrictModel
+from rodctl.config.base import RUN_NAME, RUN_NAME_MAX, Pose, StrictModel, is_run_name
 from rodctl.config.experiment import (
     ControllerConfig,
     EstimatorConfig,
@@ -24,8 +24,6 @@ from rodctl.config.experiment import (
 )
 from rodctl.config.run import EndPoses
 from rodctl.registry import depends_on_stages
-
-_NAME = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
 
 
 @depends_on_stages
@@ -169,12 +167,15 @@ class CompareConfig(StrictModel):
     model_config = ConfigDict(defer_build=True)
 
     name: str = Field(
-        "compare", pattern=_NAME, max_length=64, description="Used in the output folder's name."
+        "compare",
+        pattern=RUN_NAME,
+        max_length=RUN_NAME_MAX,
+        description="Used in the output folder's name.",
     )
     scenario: str = Field(
         "nominal",
-        pattern=_NAME,
-        max_length=64,
+        pattern=RUN_NAME,
+        max_length=RUN_NAME_MAX,
         description="The scenario this comparison is (the `scenario` column of results.csv).",
     )
     scenarios: dict[str, ScenarioConfig] | None = Field(
@@ -229,18 +230,16 @@ class CompareConfig(StrictModel):
     @field_validator("methods")
     @classmethod
     def _method_names(cls, value: dict[str, MethodConfig]) -> dict[str, MethodConfig]:
-        import re
 
-        bad = [k for k in value if not re.match(_NAME, k) or len(k) > 64]
+        bad = [k for k in value if not is_run_name(k)]
         if bad:
             raise ValueError(f"method names must be letters, digits, . _ - ; got {bad}")
         return value
 
     @model_validator(mode="after")
     def _suite_names(self) -> CompareConfig:
-        import re
 
-        bad = [k for k in self.scenarios or {} if not re.match(_NAME, k) or len(k) > 64]
+        bad = [k for k in self.scenarios or {} if not is_run_name(k)]
         if bad:
             raise ValueError(f"scenario names must be letters, digits, . _ - ; got {bad}")
         if self.seeds is not None:

@@ -7,7 +7,15 @@ from typing import Annotated, Any
 
 from pydantic import ConfigDict, Field, model_validator
 
-from rodctl.config.base import StageConfig, StageSlot, StrictModel, default_stage_types, stage_field
+from rodctl.config.base import (
+    RUN_NAME,
+    RUN_NAME_MAX,
+    StageConfig,
+    StageSlot,
+    StrictModel,
+    default_stage_types,
+    stage_field,
+)
 from rodctl.config.camera import CameraConfig
 from rodctl.config.events import validate_events
 from rodctl.config.logging import LoggingConfig
@@ -35,8 +43,8 @@ class ExperimentConfig(StrictModel):
 
     name: str = Field(
         "default",
-        pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]*$",
-        max_length=64,
+        pattern=RUN_NAME,
+        max_length=RUN_NAME_MAX,
         description="Run name, used in the run directory name (letters, digits, . _ -).",
     )
     seed: int = Field(

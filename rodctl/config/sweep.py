@@ -15,12 +15,11 @@ from typing import Annotated, Any, Literal
 
 from pydantic import ConfigDict, Field, PositiveInt, field_validator, model_validator
 
-from rodctl.config.base import StrictModel
+from rodctl.config.base import RUN_NAME, RUN_NAME_MAX, StrictModel, is_run_name
 from rodctl.config.compare import MAX_SEED, MAX_TARGETS, CompareTargetsConfig, MethodConfig
 from rodctl.config.experiment import ExperimentConfig
 from rodctl.registry import depends_on_stages
 
-_NAME = r"^[A-Za-z0-9][A-Za-z0-9._-]*$"
 _KEY = r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*$"
 
 #: Ranking metrics of a (point, method) group, and whether larger is better.
@@ -113,7 +112,10 @@ class SweepConfig(StrictModel):
     model_config = ConfigDict(defer_build=True)
 
     name: str = Field(
-        "sweep", pattern=_NAME, max_length=64, description="Used in the output folder's name."
+        "sweep",
+        pattern=RUN_NAME,
+        max_length=RUN_NAME_MAX,
+        description="Used in the output folder's name.",
     )
     seed: int = Field(0, ge=0, le=MAX_SEED, description="Seeds the random search's draws.")
     base: ExperimentConfig = Field(
@@ -186,7 +188,7 @@ class SweepConfig(StrictModel):
         if value is not None:
             if not value:
                 raise ValueError("`methods` is empty; leave it out to sweep the base's stages")
-            bad = [k for k in value if not re.match(_NAME, k) or len(k) > 64]
+            bad = [k for k in value if not is_run_name(k)]
             if bad:
                 raise ValueError(f"method names must be letters, digits, . _ - ; got {bad}")
         return value

@@ -18,6 +18,7 @@ run.mcap), so `replay` rebuilds run.rrd and the figures from it, Foxglove opens 
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from rodctl.config.base import RUN_NAME_MAX, is_run_name
 from rodctl.errors import RunFailed, UserError, make_out_folder, out_error
 from rodctl.recordings.synthetic import PointsRecording
 
@@ -348,6 +350,20 @@ def _write_frames_run(
     return run_dir, notes
 
 
+def run_name(name: str | None, src: str | Path) -> str:
+    """The imported run's name: `name` checked (exit 2 naming `--name`), or `import-<stem>`
+    with the file stem's characters that cannot be in a folder's name replaced by `-`."""
+    if name is None:
+        stem = re.sub(r"[^A-Za-z0-9._-]+", "-", Path(src).stem).strip("-.") or "recording"
+        return f"import-{stem}"[:RUN_NAME_MAX]
+    if not is_run_name(name):
+        raise UserError(
+            f"--name {name!r}: a run name is letters, digits, '.', '_' and '-', starting with a "
+            f"letter or digit, at most {RUN_NAME_MAX} characters (it becomes the folder's name)"
+        )
+    return name
+
+
 def _new_run_dir(out: str | Path, stem: str) -> Path:
     """A new, empty `<time>_<stem>` folder under `out` (`-2`, `-3`, ... when taken)."""
     parent = make_out_folder(out)
@@ -493,7 +509,7 @@ def write_run(
 
     world, px, size, view = views if views is not None else _views(rec)
     T = rec.points.shape[0]
-    stem = name or f"import-{src.stem}"
+    stem = run_name(name, src)
     run_dir = _new_run_dir(out, stem)
     config_yaml = yaml.safe_dump(_run_config(rec, src, stem, source, view), sort_keys=False)
     (run_dir / "config.yaml").write_text(config_yaml, encoding="utf-8")
