@@ -963,6 +963,14 @@ def _assemble(
     )
 
 
+def run_id_of(path: Path) -> str:
+    """The run id a log file stands for (it is not in the log, `codec.header_to_json`): the
+    run folder's name for a `run.mcap`, else the file's own stem (a log copied out of its
+    folder is not its new folder's run)."""
+    path = path.resolve()
+    return path.parent.name if path.name == "run.mcap" else path.stem
+
+
 def _read_header(path: Path, raw: list[_Raw], meta: dict[str, dict[str, str]]) -> RunHeader:
     """The run header of /run/header, its embedded config checked as config files are."""
     header_msgs = [d for topic, _, _, d in raw if topic == codec.TOPIC_HEADER]
@@ -974,7 +982,7 @@ def _read_header(path: Path, raw: list[_Raw], meta: dict[str, dict[str, str]]) -
         )
     try:
         header = codec.header_from_json(
-            _json(path, codec.TOPIC_HEADER, header_msgs[0]), run_id=path.resolve().parent.name
+            _json(path, codec.TOPIC_HEADER, header_msgs[0]), run_id=run_id_of(path)
         )
     except codec.FormatVersionError as exc:
         raise UserError(f"{path}: {exc}") from None

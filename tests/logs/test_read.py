@@ -44,6 +44,16 @@ def test_records_and_header_read_back_bit_for_bit(mcap_file, synthetic):
     assert run.summary["final_T1"] == records[-1].T1 and run.summary["note"] == "synthetic"
 
 
+def test_a_log_out_of_its_run_folder_is_named_by_its_own_stem(mcap_file, tmp_path):
+    """A `run.mcap` copied elsewhere under another name is not the run of its new folder."""
+    copy = tmp_path / "lab-copy.mcap"
+    copy.write_bytes(mcap_file.read_bytes())
+    assert read_mcap(copy).header.run_id == "lab-copy"
+    cut = tmp_path / "cut.mcap"  # a killed run's file, read with --recover: the same rule
+    cut.write_bytes(mcap_file.read_bytes()[: mcap_file.stat().st_size // 2])
+    assert read_mcap(cut, recover=True).header.run_id == "cut"
+
+
 def test_compare_records_sees_one_ulp(synthetic):
     _, records = synthetic
     other = [SyntheticRun(seed=3, image_every=5).records(30)][0]
