@@ -1245,10 +1245,8 @@ def import_recording(
 
     Reads the points format (per-frame tracked points plus one or two end-effector poses), a
     ROS 2 bag (tracked points or camera frames, with PoseStamped or tf poses; topics by flags
-    or --topics YAML), an image folder or a video with a CSV of poses; docs/recordings.md
-    specifies each. Prints the run directory last; exit 2 on a bad file, 1 when cut short
-    (the frames converted so far are kept).
-    """
+    or --topics YAML), an image folder or a video with a CSV of poses (docs/recordings.md).
+    Prints the run directory last; exit 2 on a bad file or --name, 1 when cut short."""
     from pathlib import Path
 
     from rodctl.recordings.importer import import_image_folder, import_points, run_name

@@ -211,6 +211,31 @@ def test_mutated_configs_never_traceback(path, value, raw):
         assert isinstance(result.exception, SystemExit), repr(result.exception)
 
 
+@pytest.mark.parametrize(
+    ("override", "line"),
+    [
+        ("run.target.pose=[0.3,0.1]", "run.target.pose: expected a list of 3 or 6 values, got 2"),
+        ("run.target.pose=[0,0,0,0]", "run.target.pose: expected a list of 3 or 6 values, got 4"),
+        ("controller.weights=[0.5,0.5]", "controller.weights: expected a list of 7 values, got 2"),
+        ("run.target.pose=[0,0,x]", "run.target.pose.2: Input should be a valid number"),
+        ("rod.length=true", "rod.length: expected a number, not a boolean (got True)"),
+        ("seed=true", "seed: expected a number, not a boolean (got True)"),
+        # YAML 1.1 reads 2e2 (no dot) as text: say what to write instead.
+        (
+            "run.max_steps=2e2",
+            "run.max_steps: expected a whole number, got the text '2e2': write 200",
+        ),
+    ],
+)
+def test_an_invalid_value_is_named_once_by_its_dotted_key(override, line):
+    """A list of the wrong length is one line (not one per absent item and per union branch);
+    a boolean for a number names the field, not its section."""
+    with pytest.raises(ConfigError) as err:
+        load_config(REPO / "configs/default.yaml", [override])
+    lines = str(err.value).splitlines()[1:]
+    assert len(lines) == 1 and lines[0].strip().startswith(line), lines
+
+
 @pytest.mark.parametrize("value", ["interrupted", "error", "converge"])
 def test_run_expect_takes_only_an_outcome_a_config_can_reach(value):
     """`run.expect` is one of the episode's outcomes, but not an interruption or an error."""

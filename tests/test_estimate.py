@@ -95,7 +95,10 @@ def test_a_two_end_points_recording_reads_back_and_estimates(tmp_path):
             "frame 1: t",
         ),
         ("t,x0,y0,x1,y1,e0_x,e0_y,e0_theta,zz\n", "column 'zz'"),
-        ("t,x0,y0,x1,y1,e0_x,e0_y,e0_theta\n0,0,0,1,0,0,0,0\n1,0,a,1,0,0,0,0\n", "not a number"),
+        (
+            "t,x0,y0,x1,y1,e0_x,e0_y,e0_theta\n0,0,0,1,0,0,0,0\n1,0,a,1,0,0,0,0\n",
+            "line 3 (frame 1), column y0: 'a' is not a number",
+        ),
     ],
 )
 def test_a_bad_points_file_exits_2_naming_the_column_or_frame(tmp_path, text, needle):

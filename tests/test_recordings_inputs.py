@@ -215,6 +215,8 @@ def test_a_topic_mapping_yaml_chooses_the_topics_and_flags_replace_its_keys(tmp_
         ("points: /p\nposes: [/a, /b, /c]\n", "poses:"),
         ("points: /p\ntf:\n  frames: []\n", "tf.frames:"),
         ("points: /p\nimage: /cam\n", "not both"),
+        ("", "the file is empty (no topic mapping keys)"),
+        ("- /p\n", "expected a mapping of topic mapping keys"),
     ],
 )
 def test_a_bad_topic_mapping_exits_2_naming_the_key(tmp_path, text, needle):
@@ -224,6 +226,7 @@ def test_a_bad_topic_mapping_exits_2_naming_the_key(tmp_path, text, needle):
     res = CliRunner().invoke(app, ["import", str(tmp_path / "bag"), "--topics", str(m)])
     assert res.exit_code == 2, res.output
     assert needle in res.output and "topics.yaml" in res.output, res.output
+    assert "config" not in res.output, res.output  # a mapping, not an experiment config
 
 
 def test_point_clouds_decode_by_their_layout_big_endian_padded_rows(tmp_path):

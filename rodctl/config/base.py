@@ -17,6 +17,7 @@ from pydantic import (
     GetCoreSchemaHandler,
     model_validator,
 )
+from pydantic_core import PydanticCustomError
 
 if TYPE_CHECKING:
 
@@ -31,6 +32,9 @@ if TYPE_CHECKING:
 else:
     StageConfig = BaseModel
 
+
+#: The error type of a YAML boolean given for a number (its context names the field).
+BOOL_FOR_NUMBER = "bool_for_number"
 
 #: A run, comparison, sweep or scenario name: it becomes part of a folder's name, so letters,
 #: digits, `.`, `_` and `-` only, starting with a letter or digit (no `/`, no `..` escape).
@@ -55,11 +59,17 @@ class StrictModel(BaseModel):
     @model_validator(mode="before")
     @classmethod
     def _no_booleans_for_numbers(cls, data: Any) -> Any:
+        # A model validator (a field one may not touch a union's `type`); the error's type and
+        # context let `format_validation_error` name the field itself (`rod.length`).
         if isinstance(data, dict):
             for name, value in data.items():
                 field = cls.model_fields.get(name) if isinstance(name, str) else None
                 if field is not None and _holds_bool(value) and not _accepts_bool(field.annotation):
-                    raise ValueError(f"{name}: expected a number, not the boolean {value!r}")
+                    raise PydanticCustomError(
+                        BOOL_FOR_NUMBER,
+                        "{field}: expected a number, not a boolean",
+                        {"field": name, "given": value},
+                    )
         return data
 
 

@@ -6,6 +6,7 @@ what was expected; the CLI prints it and exits with code 2, never a traceback.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -13,6 +14,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from rodctl.config.base import BOOL_FOR_NUMBER
 from rodctl.config.experiment import ExperimentConfig
 from rodctl.errors import UserError
 from rodctl.registry import STAGES, load_plugins
@@ -150,8 +152,9 @@ def parse_yaml(text: str, what: str) -> Any:
         raise ConfigError(f"{what}: YAML syntax error{where}: {problem}") from None
 
 
-def read_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a YAML mapping from `path` with `safe_load` (the strict loader).
+def read_yaml(path: str | Path, what: str = "config") -> dict[str, Any]:
+    """Read a YAML mapping from `path` with `safe_load` (the strict loader); `what` the file
+    holds names it in the messages (a config, a topic mapping, a calibration...).
 
     Raises:
         ConfigError: the file is missing, unreadable, larger than `MAX_YAML_BYTES`, not YAML
@@ -161,13 +164,11 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     data = parse_yaml(read_yaml_text(path, str(path)), str(path))
     if data is None:
         # Most likely a file emptied by mistake; `{}` says "the defaults" on purpose.
-        raise ConfigError(
-            f"{path}: the file is empty (no config keys); to run every default on purpose, "
-            "write `{}` in it"
-        )
+        hint = "; to run every default on purpose, write `{}` in it" if what == "config" else ""
+        raise ConfigError(f"{path}: the file is empty (no {what} keys){hint}")
     if not isinstance(data, dict):
         raise ConfigError(
-            f"{path}: expected a mapping of config keys at the top level, got {type(data).__name__}"
+            f"{path}: expected a mapping of {what} keys at the top level, got {type(data).__name__}"
         )
     return data
 
@@ -272,27 +273,124 @@ def _dotted(loc: tuple[Any, ...], data: Any) -> str:
     return ".".join(out) or "(top level)"
 
 
-def format_validation_error(exc: ValidationError, data: Any, source: str) -> str:
-    """One short paragraph naming each offending field, what was expected and what was given."""
-    lines = [f"{source}: invalid config"]
-    errors = exc.errors(include_url=False)
-    for err in errors[:8]:
+def _list_at(loc: tuple[Any, ...], data: Any) -> tuple[str, Any]:
+    """The dotted path of the input entries along `loc` (union tags dropped) and the value
+    there."""
+    out: list[str] = []
+    node = data
+    for part in loc:
+        if isinstance(node, dict) and part in node:
+            out.append(str(part))
+            node = node[part]
+        elif isinstance(node, list | tuple) and isinstance(part, int) and 0 <= part < len(node):
+            out.append(str(part))
+            node = node[part]
+    return ".".join(out) or "(top level)", node
+
+
+def _tuple_length(err: Any, data: Any) -> tuple[str, tuple, int, int] | None:
+    """(list's path, the schema branch, length it wanted at least, length given) when `err`
+    says a fixed-length list is too short (an item `missing`) or too long, else None."""
+    loc = tuple(err["loc"])
+    if err["type"] == "missing" and loc and isinstance(loc[-1], int):
+        path, given = _list_at(loc[:-1], data)
+        if isinstance(given, list | tuple) and loc[-1] >= len(given):
+            return path, loc[:-1], loc[-1] + 1, len(given)
+    if err["type"] == "too_long" and "max_length" in err.get("ctx", {}):
+        path, _ = _list_at(loc, data)
+        return path, loc, err["ctx"]["max_length"], err["ctx"]["actual_length"]
+    return None
+
+
+def _error_lines(errors: list[Any], data: Any) -> list[str]:
+    """One line per offending field. A list of the wrong length says so once ("expected 3 or 6
+    values, got 2") instead of one `missing` per absent item and per union branch."""
+    lines: list[str] = []
+    lengths: dict[str, tuple[dict[tuple, int], int]] = {}
+    for err in errors:
+        length = _tuple_length(err, data)
+        if length is not None:
+            path, branch, want, got = length
+            if path not in lengths:
+                lengths[path] = ({}, got)
+                lines.append(path)  # placeholder, filled below
+            wants = lengths[path][0]
+            wants[branch] = max(wants.get(branch, 0), want)
+            continue
         path = _dotted(tuple(err["loc"]), data)
         msg = err["msg"]
+        if err["type"] == BOOL_FOR_NUMBER:  # raised by a model: the field is in the context
+            prefix = "" if path == "(top level)" else f"{path}."
+            lines.append(f"{prefix}{err['ctx']['field']}: expected a number, not a boolean "
+                         f"(got {err['ctx']['given']!r})")  # fmt: skip
+            continue
         if msg.startswith("Value error, "):
             msg = msg[len("Value error, ") :]
         if err["type"] == "extra_forbidden":
             msg = "unknown key (check the spelling; `rodctl config schema` lists every key)"
         elif err["type"] == "missing":
             msg = "required key is missing"
+        elif err["type"] == "int_parsing" and _float_text(err.get("input")) is not None:
+            msg = _whole_number_hint(err["input"])
         else:
             given = err.get("input")
             if not isinstance(given, dict | list) and err["type"] != "union_tag_invalid":
                 msg = f"{msg} (got {given!r})"
-        lines.append(f"  {path}: {msg}")
-    if len(errors) > 8:
-        lines.append(f"  ... and {len(errors) - 8} more")
-    return "\n".join(lines)
+        lines.append(f"{path}: {msg}")
+    fits = _lengths_that_fit(errors, data, lengths)
+    for i, line in enumerate(lines):
+        if line in lengths:
+            wants, got = lengths[line]
+            if line in fits:  # another branch takes this many values: its errors are the news
+                lines[i] = ""
+                continue
+            counts = " or ".join(str(n) for n in sorted(set(wants.values())))
+            lines[i] = f"{line}: expected a list of {counts} values, got {got}"
+    return [line for line in dict.fromkeys(lines) if line]
+
+
+def _float_text(value: Any) -> float | None:
+    """The number a text reads as (YAML 1.1 reads `1e9`, without a dot, as text), else None."""
+    if not isinstance(value, str):
+        return None
+    try:
+        number = float(value)
+    except ValueError:
+        return None
+    return number if math.isfinite(number) else None
+
+
+def _whole_number_hint(text: str) -> str:
+    """What to write for a whole number given as `1e9`-style text."""
+    number = _float_text(text)
+    assert number is not None
+    if number.is_integer() and abs(number) < 1e18:
+        return f"expected a whole number, got the text {text!r}: write {int(number)}"
+    return f"expected a whole number, got {text!r}"
+
+
+def _lengths_that_fit(errors: list[Any], data: Any, lengths: dict[str, Any]) -> set[str]:
+    """The lists of `lengths` whose length another union branch accepts: an error inside the
+    list from a branch that did not complain of its length."""
+    fits = set()
+    for err in errors:
+        loc = tuple(err["loc"])
+        if _tuple_length(err, data) is not None:
+            continue
+        for path, (branches, _) in lengths.items():
+            inside = any(_list_at(loc[:k], data)[0] == path for k in range(1, len(loc)))
+            if inside and not any(loc[: len(b)] == b for b in branches):
+                fits.add(path)
+    return fits
+
+
+def format_validation_error(exc: ValidationError, data: Any, source: str) -> str:
+    """One short paragraph naming each offending field, what was expected and what was given."""
+    lines = _error_lines(exc.errors(include_url=False), data)
+    head = [f"{source}: invalid config", *(f"  {line}" for line in lines[:8])]
+    if len(lines) > 8:
+        head.append(f"  ... and {len(lines) - 8} more")
+    return "\n".join(head)
 
 
 def validate_config(data: dict[str, Any], source: str, model: type[BaseModel] = ExperimentConfig):

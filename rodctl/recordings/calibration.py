@@ -213,7 +213,7 @@ def load_calibration(path: str | Path) -> Calibration:
             rotation, fewer than 4 marked points; exit 2 naming the key.
     """
     p = Path(path)
-    data = read_yaml(p)
+    data = read_yaml(p, "calibration")
     try:
         f = CalibrationFile.model_validate(data)
     except ValidationError as exc:

@@ -106,7 +106,7 @@ def load_mapping(path: str | Path) -> TopicMapping:
             type, too many end effectors; the message names the file and the key (exit 2).
     """
     p = Path(path)
-    data = read_yaml(p)
+    data = read_yaml(p, "topic mapping")
     try:
         return TopicMapping.model_validate(data)
     except ValidationError as exc:

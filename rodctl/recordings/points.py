@@ -65,10 +65,16 @@ def _check(path: Path, rec: PointsRecording) -> PointsRecording:
 def _read_csv(path: Path) -> PointsRecording:
     units, header, rows = _csv_rows(path)
     points, ends = _csv_columns(path, header)
-    try:
-        data = np.array([[float(v) for v in row] for row in rows], dtype=float)
-    except ValueError as exc:
-        raise UserError(f"{path}: a value is not a number ({exc})") from None
+    data = np.empty((len(rows), len(header)), dtype=float)
+    for frame, (line_no, row) in enumerate(rows):
+        for col, value in enumerate(row):
+            try:
+                data[frame, col] = float(value)
+            except ValueError:
+                raise UserError(
+                    f"{path}: line {line_no} (frame {frame}), column {header[col]}: "
+                    f"{value.strip()!r} is not a number"
+                ) from None
     if data.size == 0:
         raise UserError(f"{path}: no frames after the header")
     t = data[:, header.index("t")]
@@ -89,11 +95,12 @@ def _read_csv(path: Path) -> PointsRecording:
     return PointsRecording(t=t, points=pts, poses=poses, units=units)
 
 
-def _csv_rows(path: Path) -> tuple[str, list[str], list[list[str]]]:
+def _csv_rows(path: Path) -> tuple[str, list[str], list[tuple[int, list[str]]]]:
     """(units (a `# units: px` comment, else m), the header's column names, the data rows as
-    text) of a points CSV; blank lines and other comments are skipped."""
+    (line number, values as text)) of a points CSV; blank lines and other comments are
+    skipped."""
     units = "m"
-    rows: list[list[str]] = []
+    rows: list[tuple[int, list[str]]] = []
     header: list[str] | None = None
     try:
         with path.open(newline="", encoding="utf-8") as fh:
@@ -112,7 +119,7 @@ def _csv_rows(path: Path) -> tuple[str, list[str], list[list[str]]]:
                     raise UserError(
                         f"{path}: line {line_no}: {len(row)} values for {len(header)} columns"
                     )
-                rows.append(row)
+                rows.append((line_no, row))
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(f"{path}: cannot read: {exc}") from None
     if header is None:

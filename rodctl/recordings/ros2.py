@@ -687,7 +687,7 @@ def camera_config(path: str | Path) -> Any:
     from rodctl.config.loading import format_validation_error, read_yaml
 
     p = Path(path)
-    data = read_yaml(p)  # the config loader's limits and messages (exit 2 naming the file)
+    data = read_yaml(p, "camera")  # the config loader's limits and messages (exit 2, the file)
     if "camera" in data or not set(data) & set(CameraConfig.model_fields):
         section = data.get("camera") or {}  # an experiment config: its camera, or the default
     else:
