@@ -48,10 +48,15 @@ def out_path(path: str | Path, option: str = "--out") -> Path:
         raise UserError(f"{option}: empty; give a folder's path (`.` is the current folder)")
     folder = Path(path)
     for place in (folder, *folder.parents):
-        if place.exists():
-            if not place.is_dir():
-                raise UserError(f"{option} {folder}: {place} is a file, not a folder")
-            break
+        try:
+            if not place.exists():
+                continue
+            is_dir = place.is_dir()
+        except OSError as exc:  # a name too long (Python 3.11's exists() raises it), EACCES
+            raise out_error(option, folder, "cannot use the output folder", exc) from None
+        if not is_dir:
+            raise UserError(f"{option} {folder}: {place} is a file, not a folder")
+        break
     return folder
 
 

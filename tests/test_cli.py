@@ -95,18 +95,12 @@ def test_simulate_json_prints_one_parseable_object(tmp_path):
     assert data["steps"] == 3 and data["run_dir"].startswith(str(tmp_path))
 
 
-def test_ray_missing_is_bad_input_and_leaves_no_run_folder(tmp_path, monkeypatch):
+@pytest.mark.parametrize("config", ["compare-smoke.yaml", "benchmarks/suite-smoke.yaml"])
+def test_ray_missing_is_bad_input_and_leaves_no_run_folder(tmp_path, monkeypatch, config):
     monkeypatch.setitem(sys.modules, "ray", None)  # as on an install without the extra
     res = CliRunner().invoke(
         app,
-        [
-            "compare",
-            str(REPO / "configs/compare-smoke.yaml"),
-            "--executor",
-            "ray",
-            "--out",
-            str(tmp_path),
-        ],
+        ["compare", str(REPO / "configs" / config), "--executor", "ray", "--out", str(tmp_path)],
     )
     assert res.exit_code == 2, res.output
     assert "rodctl[ray]" in res.output

@@ -220,6 +220,14 @@ def test_mutated_configs_never_traceback(path, value, raw):
         ("run.target.pose=[0,0,x]", "run.target.pose.2: Input should be a valid number"),
         ("rod.length=true", "rod.length: expected a number, not a boolean (got True)"),
         ("seed=true", "seed: expected a number, not a boolean (got True)"),
+        ("controller.weights=[true,0,0,0,0,0,0]", "controller.weights: expected a number, not"),
+        ("run.target.pose=3", "run.target.pose: Input should be a valid tuple (got 3)"),
+        # list[Pose] | list[DualPose]: the member whose length fits speaks, not the other too.
+        ("controller.waypoints=[[0.4,0.1,0.5],[0.3,0.1,x]]", "controller.waypoints.1.2: Input"),
+        (
+            "controller.waypoints=[[0.4,0.1,0.5],[0.3,0.1]]",
+            "controller.waypoints.1: expected a list of 3 values, got 2",
+        ),  # fmt: skip
         # YAML 1.1 reads 2e2 (no dot) as text: say what to write instead.
         (
             "run.max_steps=2e2",
@@ -230,8 +238,10 @@ def test_mutated_configs_never_traceback(path, value, raw):
 def test_an_invalid_value_is_named_once_by_its_dotted_key(override, line):
     """A list of the wrong length is one line (not one per absent item and per union branch);
     a boolean for a number names the field, not its section."""
+    scripted = override.startswith("controller.waypoints")
     with pytest.raises(ConfigError) as err:
-        load_config(REPO / "configs/default.yaml", [override])
+        load_config(REPO / ("configs/scripted.yaml" if scripted else "configs/default.yaml"),
+                    [override])  # fmt: skip
     lines = str(err.value).splitlines()[1:]
     assert len(lines) == 1 and lines[0].strip().startswith(line), lines
 

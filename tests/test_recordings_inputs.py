@@ -216,6 +216,8 @@ def test_a_topic_mapping_yaml_chooses_the_topics_and_flags_replace_its_keys(tmp_
         ("points: /p\ntf:\n  frames: []\n", "tf.frames:"),
         ("points: /p\nimage: /cam\n", "not both"),
         ("", "the file is empty (no topic mapping keys)"),
+        # a list with only a maximum length keeps "at most" (not "expected a list of 2")
+        ("points: /p\ntf:\n  frames: [a, b, c]\n", "tf.frames: List should have at most 2"),
         ("- /p\n", "expected a mapping of topic mapping keys"),
     ],
 )

@@ -167,6 +167,9 @@ def run_suite(
     cfg = load_compare_config(config_path, overrides)
     source = config_source(config_path, overrides)
     scenarios = scenario_configs(cfg, Path(config_path).resolve().parent, source)
+    # Made (not started) before the suite's folder: a bad --executor, --workers or a Ray not
+    # installed is refused leaving nothing behind.
+    made = make_pool(executor, workers, cfg.workers, address)
     run = _reopen(resume) if resume is not None else _create(out, cfg)
     folders: dict[str, str] = dict(run.meta.get("scenarios", {}))
     before = float(run.meta.get("wall_s", 0.0))  # earlier invocations' share (--resume)
@@ -182,7 +185,7 @@ def run_suite(
         # One pool for every scenario: a new one per scenario cost each of its workers the
         # imports again (spawn) and the caches warmed again, and a Ray its start (17-19 s).
         pending = [n for n in scenarios if not _completed(Path(folders.get(n) or "-"))]
-        pool = make_pool(executor, workers, cfg.workers, address) if pending else None
+        pool = made if pending else None
         # The handlers around the pool's start too, as `run_study` has them: a SIGTERM while a
         # pool (a Ray: 17-19 s) starts ends the suite as interrupted, not by the default action.
         with stop_handlers(), pool or contextlib.nullcontext(), stop_handlers():

@@ -290,63 +290,130 @@ def _list_at(loc: tuple[Any, ...], data: Any) -> tuple[str, Any]:
 
 def _tuple_length(err: Any, data: Any) -> tuple[str, tuple, int, int] | None:
     """(list's path, the schema branch, length it wanted at least, length given) when `err`
-    says a fixed-length list is too short (an item `missing`) or too long, else None."""
+    says a fixed-length list (a tuple) is too short (an item `missing`) or too long, else
+    None. A list with only a maximum length keeps pydantic's "at most" message."""
     loc = tuple(err["loc"])
     if err["type"] == "missing" and loc and isinstance(loc[-1], int):
         path, given = _list_at(loc[:-1], data)
         if isinstance(given, list | tuple) and loc[-1] >= len(given):
             return path, loc[:-1], loc[-1] + 1, len(given)
-    if err["type"] == "too_long" and "max_length" in err.get("ctx", {}):
+    ctx = err.get("ctx") or {}
+    if err["type"] == "too_long" and ctx.get("field_type") == "Tuple":
         path, _ = _list_at(loc, data)
-        return path, loc, err["ctx"]["max_length"], err["ctx"]["actual_length"]
+        return path, loc, ctx["max_length"], ctx["actual_length"]
     return None
+
+
+def _union_branches(err: Any, data: Any) -> list[tuple[tuple, Any]]:
+    """[(the location of a union, the member's tag)] along the error's location, outermost
+    first: the entries that are neither a key nor an index of the input (pydantic's names of
+    union members; a discriminated union's tag too, whose union then has one member)."""
+    loc = tuple(err["loc"])
+    node, found = data, []
+    for i, part in enumerate(loc):
+        if isinstance(node, dict) and part in node:
+            node = node[part]
+        elif isinstance(node, list | tuple) and isinstance(part, int) and 0 <= part < len(node):
+            node = node[part]
+        elif not isinstance(part, str):
+            break
+        elif i < len(loc) - 1 or isinstance(node, list | tuple) or err["type"] not in _KEY_ERRORS:
+            found.append((loc[:i], part))  # (the last entry of a key error is the key)
+    return found
+
+
+#: Errors whose location ends with a key of the input's mapping, not a union member's tag.
+_KEY_ERRORS = ("missing", "extra_forbidden")
+
+
+def _closest_branches(errors: list[Any], data: Any) -> list[Any]:
+    """The errors of the union members nearest the input, where a list's length is at stake.
+
+    A plain union (`Pose | DualPose`, `list[Pose] | list[DualPose]`) reports every member's
+    errors; when some members complain of a list's length, keep the members that do not (the
+    input has the length they take: their errors are the news), else those whose errors name
+    the fewest places (so `[[x, y, t], [x, y]]` is told that item 1 is short, not also that
+    item 0 is not a 6-value pose); the lengths of those kept are merged by `_error_lines`."""
+    members: dict[tuple, dict[Any, list[Any]]] = {}
+    for err in errors:
+        for union, tag in _union_branches(err, data):
+            members.setdefault(union, {}).setdefault(tag, []).append(err)
+    dropped: set[int] = set()
+    for branches in members.values():
+        if len(branches) < 2:
+            continue
+        rank = {tag: _branch_rank(errs, data) for tag, errs in branches.items()}
+        if not any(short for short, _ in rank.values()):
+            continue  # no list length at stake: every member's errors, as pydantic gives them
+        best = min(rank.values())
+        for tag, errs in branches.items():
+            if rank[tag] != best:
+                dropped.update(id(e) for e in errs)
+    return [e for e in errors if id(e) not in dropped]
+
+
+def _branch_rank(errs: list[Any], data: Any) -> tuple[bool, int]:
+    """(whether a union member complains of a list's length, how many places it names)."""
+    places = set()
+    short = False
+    for err in errs:
+        length = _tuple_length(err, data)
+        short = short or length is not None
+        places.add(length[0] if length is not None else _dotted(tuple(err["loc"]), data))
+    return short, len(places)
 
 
 def _error_lines(errors: list[Any], data: Any) -> list[str]:
     """One line per offending field. A list of the wrong length says so once ("expected 3 or 6
-    values, got 2") instead of one `missing` per absent item and per union branch."""
+    values, got 2") instead of one `missing` per absent item and per union member."""
     lines: list[str] = []
-    lengths: dict[str, tuple[dict[tuple, int], int]] = {}
-    for err in errors:
+    lengths: dict[str, tuple[set[int], int]] = {}
+    wanted: dict[tuple[str, tuple], int] = {}
+    for err in _closest_branches(errors, data):
         length = _tuple_length(err, data)
         if length is not None:
             path, branch, want, got = length
             if path not in lengths:
-                lengths[path] = ({}, got)
+                lengths[path] = (set(), got)
                 lines.append(path)  # placeholder, filled below
-            wants = lengths[path][0]
-            wants[branch] = max(wants.get(branch, 0), want)
+            wanted[path, branch] = max(wanted.get((path, branch), 0), want)
             continue
-        path = _dotted(tuple(err["loc"]), data)
-        msg = err["msg"]
-        if err["type"] == BOOL_FOR_NUMBER:  # raised by a model: the field is in the context
-            prefix = "" if path == "(top level)" else f"{path}."
-            lines.append(f"{prefix}{err['ctx']['field']}: expected a number, not a boolean "
-                         f"(got {err['ctx']['given']!r})")  # fmt: skip
-            continue
-        if msg.startswith("Value error, "):
-            msg = msg[len("Value error, ") :]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key (check the spelling; `rodctl config schema` lists every key)"
-        elif err["type"] == "missing":
-            msg = "required key is missing"
-        elif err["type"] == "int_parsing" and _float_text(err.get("input")) is not None:
-            msg = _whole_number_hint(err["input"])
-        else:
-            given = err.get("input")
-            if not isinstance(given, dict | list) and err["type"] != "union_tag_invalid":
-                msg = f"{msg} (got {given!r})"
-        lines.append(f"{path}: {msg}")
-    fits = _lengths_that_fit(errors, data, lengths)
+        lines.append(_error_line(err, data))
+    for (path, _), want in wanted.items():
+        lengths[path][0].add(want)
     for i, line in enumerate(lines):
         if line in lengths:
             wants, got = lengths[line]
-            if line in fits:  # another branch takes this many values: its errors are the news
-                lines[i] = ""
-                continue
-            counts = " or ".join(str(n) for n in sorted(set(wants.values())))
+            counts = " or ".join(str(n) for n in sorted(wants))
             lines[i] = f"{line}: expected a list of {counts} values, got {got}"
-    return [line for line in dict.fromkeys(lines) if line]
+    return list(dict.fromkeys(lines))
+
+
+def _error_line(err: Any, data: Any) -> str:
+    """`path: what is wrong (got ...)` for one pydantic error."""
+    msg = err["msg"]
+    if err["type"] == BOOL_FOR_NUMBER:  # raised by a model: the field is in the context
+        where, _ = _list_at(tuple(err["loc"]), data)
+        prefix = "" if where == "(top level)" else f"{where}."
+        field, given = err["ctx"]["field"], err["ctx"]["given"]
+        return f"{prefix}{field}: expected a number, not a boolean (got {given!r})"
+    loc = tuple(err["loc"])
+    ends_in_tag = any(len(union) == len(loc) - 1 for union, _ in _union_branches(err, data))
+    # A union member's tag is not a key to write: `pose: Input should be a valid tuple`, once.
+    path = _list_at(loc, data)[0] if ends_in_tag else _dotted(loc, data)
+    if msg.startswith("Value error, "):
+        msg = msg[len("Value error, ") :]
+    if err["type"] == "extra_forbidden":
+        msg = "unknown key (check the spelling; `rodctl config schema` lists every key)"
+    elif err["type"] == "missing":
+        msg = "required key is missing"
+    elif err["type"] == "int_parsing" and _float_text(err.get("input")) is not None:
+        msg = _whole_number_hint(err["input"])
+    else:
+        given = err.get("input")
+        if not isinstance(given, dict | list) and err["type"] != "union_tag_invalid":
+            msg = f"{msg} (got {given!r})"
+    return f"{path}: {msg}"
 
 
 def _float_text(value: Any) -> float | None:
@@ -367,21 +434,6 @@ def _whole_number_hint(text: str) -> str:
     if number.is_integer() and abs(number) < 1e18:
         return f"expected a whole number, got the text {text!r}: write {int(number)}"
     return f"expected a whole number, got {text!r}"
-
-
-def _lengths_that_fit(errors: list[Any], data: Any, lengths: dict[str, Any]) -> set[str]:
-    """The lists of `lengths` whose length another union branch accepts: an error inside the
-    list from a branch that did not complain of its length."""
-    fits = set()
-    for err in errors:
-        loc = tuple(err["loc"])
-        if _tuple_length(err, data) is not None:
-            continue
-        for path, (branches, _) in lengths.items():
-            inside = any(_list_at(loc[:k], data)[0] == path for k in range(1, len(loc)))
-            if inside and not any(loc[: len(b)] == b for b in branches):
-                fits.add(path)
-    return fits
 
 
 def format_validation_error(exc: ValidationError, data: Any, source: str) -> str:

@@ -430,7 +430,7 @@ def header_to_json(h: RunHeader) -> dict[str, Any]:
 
 
 def header_from_json(d: dict[str, Any], run_id: str) -> RunHeader:
-    """Inverse of `header_to_json`; `run_id` is the name of the run's folder.
+    """Inverse of `header_to_json`; `run_id` is the name of the run's folder (`run_id_of`).
 
     Raises:
         FormatVersionError: the header is of another format version.

@@ -967,7 +967,7 @@ def run_id_of(path: Path) -> str:
     """The run id a log file stands for (it is not in the log, `codec.header_to_json`): the
     run folder's name for a `run.mcap`, else the file's own stem (a log copied out of its
     folder is not its new folder's run)."""
-    path = path.resolve()
+    path = path.absolute()  # not resolved: a run.mcap linked into a blob store is its folder's
     return path.parent.name if path.name == "run.mcap" else path.stem
 
 

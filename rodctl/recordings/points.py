@@ -104,7 +104,9 @@ def _csv_rows(path: Path) -> tuple[str, list[str], list[tuple[int, list[str]]]]:
     header: list[str] | None = None
     try:
         with path.open(newline="", encoding="utf-8") as fh:
-            for line_no, row in enumerate(csv.reader(fh), start=1):
+            reader = csv.reader(fh)
+            for row in reader:
+                line_no = reader.line_num  # the record's last line (a quoted field may span)
                 if not row or not "".join(row).strip():
                     continue
                 if row[0].lstrip().startswith("#"):

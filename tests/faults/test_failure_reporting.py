@@ -184,15 +184,22 @@ def _write_somewhere(run: Path, out: str, tmp: Path) -> list[tuple[str, object]]
         ("file", "a-file is a file, not a folder"),  # a file in the way
         ("under-file", "a-file is a file, not a folder"),
         ("", "empty; give a folder's path"),  # Path("") would silently be the current folder
+        ("too-long", "File name too long"),  # an OSError of the check itself (Python 3.11)
     ],
 )
 def test_every_command_refuses_an_unusable_output_path_alike(a_run, tmp_path, where, says):
     a_file = tmp_path / "a-file"
     a_file.write_text("")
-    out = {"file": str(a_file), "under-file": str(a_file / "sub"), "": ""}[where]
+    out = {
+        "file": str(a_file),
+        "under-file": str(a_file / "sub"),
+        "": "",
+        "too-long": str(tmp_path / ("x" * 300) / "sub"),
+    }[where]
     for command, res in _write_somewhere(a_run, out, tmp_path):
         assert res.exit_code == 2, (command, res.output)
         lines = res.output.strip().splitlines()
+        option = "--ros2" if command == "export" else "--out"
         assert len(lines) == 1 and lines[0].startswith("error: --"), (command, res.output)
-        assert says in lines[0] and str(out) in lines[0], (command, res.output)
+        assert says in lines[0] and f"{option} {out}".strip() in lines[0], (command, res.output)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file", "points.csv"]
