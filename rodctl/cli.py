@@ -798,8 +798,9 @@ def compare(
         )
     if "parameters" in data:
         raise UserError(f"{config}: this is a sweep config; run it with `rodctl sweep {config}`")
-    # A config with `scenarios` is a benchmark suite: every scenario is a compare of its own.
-    runner = run_suite if "scenarios" in data else run_compare
+    # A config with `scenarios` is a benchmark suite: every scenario is a compare of its own (a
+    # compare folder's resolved config.yaml says `scenarios: null`: a plain compare).
+    runner = run_suite if data.get("scenarios") is not None else run_compare
     _finish_batch(
         runner, config, set_=set_, out=out, quiet=quiet, workers=workers,
         executor=executor, address=address, resume=resume,

@@ -196,9 +196,10 @@ _BULKY = ("numeric_env", "versions", "argv", "plugins", "stages")
 META_RESERVE = 16_384
 
 
-#: What a run folder holds before anything ran: `RunDir.create`'s files and the encoder
-#: checkpoint copied in at the start (`rodctl.portable`).
-_START_FILES = frozenset({"config.yaml", "meta.json", "encoder.npz", "encoder.pt"})
+#: What a run folder holds before anything ran: `RunDir.create`'s files, the encoder
+#: checkpoint copied in at the start (`rodctl.portable`) and a batch run's journal lock
+#: (`rodctl.runlock`).
+_START_FILES = frozenset({"config.yaml", "meta.json", "encoder.npz", "encoder.pt", "journal.lock"})
 
 
 class NamedConfig(Protocol):

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import csv
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from paths import REPO
@@ -105,6 +107,38 @@ def test_ray_missing_is_bad_input_and_leaves_no_run_folder(tmp_path, monkeypatch
     assert res.exit_code == 2, res.output
     assert "rodctl[ray]" in res.output
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_unreachable_compare_target_leaves_no_run_folder(tmp_path):
+    """Found once the folder (with its journal lock) existed: exit 2 and nothing left."""
+    res = CliRunner().invoke(
+        app,
+        ["compare", str(REPO / "configs/compare-smoke.yaml"), "-q", "--out", str(tmp_path),
+         "--set", "targets.poses=[[5,5,0]]"],
+    )  # fmt: skip
+    assert res.exit_code == 2, res.output
+    assert "is unusable" in res.output and list(tmp_path.iterdir()) == [], res.output
+
+
+def test_a_compare_folders_config_reruns_as_that_compare(tmp_path):
+    """Its resolved config.yaml says `scenarios: null`: a compare again, not an empty suite."""
+    first = CliRunner().invoke(
+        app,
+        ["compare", str(REPO / "configs/compare-smoke.yaml"), "-q", "--out", str(tmp_path / "a")],
+    )
+    assert first.exit_code == 0, first.output
+    folder = Path(first.output.strip().splitlines()[-1])
+    again = CliRunner().invoke(
+        app, ["compare", str(folder / "config.yaml"), "-q", "--out", str(tmp_path / "b")]
+    )
+    assert again.exit_code == 0, again.output
+    rerun = Path(again.output.strip().splitlines()[-1])
+
+    def rows(run: Path) -> list[dict]:  # every column but the wall time
+        with (run / "results.csv").open() as fh:
+            return [{k: v for k, v in r.items() if k != "wall_time_s"} for r in csv.DictReader(fh)]
+
+    assert len(rows(folder)) > 0 and rows(rerun) == rows(folder), "not the same compare"
 
 
 def test_bad_input_after_the_checkpoint_copy_leaves_no_run_folder(tmp_path):

@@ -114,6 +114,7 @@ def run_study(
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
     failure: str | None = None
+    bad_input = False
     try:
         # Handlers before the executor starts (a signal during start-up counts) and again
         # after it: ray.init replaces SIGTERM's handler.
@@ -134,12 +135,16 @@ def run_study(
         status, reason = "interrupted", str(exc) or "SIGINT"
         raise RunInterrupted(run.path, reason, len(rows), total) from None
     except Exception as exc:
-        failure = failure_reason(exc, run.path)
+        failure, bad_input = failure_reason(exc, run.path), isinstance(exc, UserError)
         if isinstance(exc, OSError):  # a full or read-only disk: one line, exit 1
             raise RunFailed(failure) from None
         raise
     finally:
         _finish(run, log, status, reason, failure, len(rows), total)
+        if bad_input and resume is None and not rows:
+            # Bad input found once the folder existed (an unreachable target): nothing ran,
+            # so nothing is left, as for bad input found before (docs/reliability.md).
+            run.discard_if_empty()
 
 
 def _in_task_order(
