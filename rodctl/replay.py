@@ -15,6 +15,7 @@ step and field that differ beyond the tolerance, or a step count, flag or text t
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterator, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field, fields
@@ -147,17 +148,7 @@ def rebuild(
         out = make_out_folder(out_dir) if out_dir is not None else src.parent
         result = Rebuilt(run=run, rrd=None)
         if rerun:
-            from rodctl.logs.rerun import RerunSink
-
-            result.rrd = out / "run.rrd"
-            sink = RerunSink(result.rrd, _logging_config(run.header.config_yaml))
-            status = run.status or "interrupted"
-            try:
-                sink.open(run.header)
-                for rec in run.records:
-                    sink.write(rec)
-            finally:
-                sink.close(summary_object(run.summary), status)
+            result.rrd = _write_rrd(run, out / "run.rrd")
         if worker is not None:
             if run.records:
                 try:
@@ -168,6 +159,27 @@ def rebuild(
             else:
                 result.notes.append("figures skipped: no complete step in the log")
     return result
+
+
+def _write_rrd(run: ReadRun, final: Path) -> Path:
+    """Write the run's Rerun recording to `final` through a temporary file renamed at the end:
+    a replay cut short (Ctrl-C, a full disk) leaves the run.rrd that was there as it was."""
+    from rodctl.logs.rerun import RerunSink
+
+    tmp = final.with_name(f".{final.name}.rebuilding")
+    sink = RerunSink(tmp, _logging_config(run.header.config_yaml))
+    try:
+        try:
+            sink.open(run.header)
+            for rec in run.records:
+                sink.write(rec)
+        finally:
+            sink.close(summary_object(run.summary), run.status or "interrupted")
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    os.replace(tmp, final)
+    return final
 
 
 def _fmt(v: Any) -> str:

@@ -43,6 +43,25 @@ def test_rebuild_from_a_file_into_another_folder(run_dir, tmp_path):
     assert out.figures == [] and not (run_dir / "run.rrd").exists()
 
 
+def test_a_replay_cut_short_leaves_the_runs_rrd_as_it_was(run_dir, monkeypatch):
+    """Ctrl-C while run.rrd is rewritten: the old file is kept whole, no partial file left."""
+    (run_dir / "run.rrd").write_bytes(b"the run's own recording")
+    calls = []
+
+    def interrupted(self, rec):
+        calls.append(rec.step)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(RerunSink, "write", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        rebuild(run_dir, figures=False)
+    assert (run_dir / "run.rrd").read_bytes() == b"the run's own recording"
+    assert sorted(p.name for p in run_dir.iterdir()) == ["run.mcap", "run.rrd"]
+    monkeypatch.undo()
+    assert rebuild(run_dir, figures=False).rrd.stat().st_size > 1000  # and whole when not cut
+
+
 def test_summary_table(run_dir, synthetic):
     _, records = synthetic
     run = read_run(run_dir)
