@@ -54,6 +54,19 @@ class _StrictLoader(yaml.SafeLoader):
         _check_expanded_size(node)
         return super().construct_document(node)
 
+    def construct_yaml_int(self, node: Any) -> Any:
+        # YAML 1.1 reads 010 as octal 8 and 12:30 as base 60 (750): numbers silently not the
+        # ones written (YAML 1.2 dropped both). Refused, saying what it would have been.
+        text = str(node.value).replace("_", "").lstrip("+-")
+        if ":" in text or (len(text) > 1 and text[0] == "0" and text[1:].isdigit()):
+            mark = node.start_mark
+            raise yaml.YAMLError(
+                f"{node.value!r} (line {mark.line + 1}, column {mark.column + 1}) is "
+                f"{super().construct_yaml_int(node)} in YAML 1.1 (a leading 0 is octal, a ':' "
+                "base 60); write the number without them, or quote it for a text"
+            )
+        return super().construct_yaml_int(node)
+
     def construct_mapping(self, node: Any, deep: bool = False) -> Any:
         seen: dict[Any, Any] = {}
         for key_node, _ in node.value:
@@ -66,6 +79,9 @@ class _StrictLoader(yaml.SafeLoader):
                 )
             seen[key] = key_node.start_mark
         return super().construct_mapping(node, deep=deep)
+
+
+_StrictLoader.add_constructor("tag:yaml.org,2002:int", _StrictLoader.construct_yaml_int)
 
 
 def _check_expanded_size(root: Any) -> None:
