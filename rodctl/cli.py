@@ -562,6 +562,11 @@ def _training_recording(cfg: ExperimentConfig, dataset: str | None) -> tuple[Exp
 
         recording = run_dataset(dataset)
         cfg = with_points(cfg, recording.centerlines.shape[1])
+    elif dataset is not None and Path(dataset).is_dir():
+        raise UserError(
+            f"--dataset {dataset}: a folder that is not a run folder (no run.mcap); give a run "
+            "folder or a dataset .npz"
+        )
     elif dataset is not None and not Path(dataset).is_file():
         raise UserError(f"--dataset {dataset}: no such file")
     return cfg, recording

@@ -531,6 +531,15 @@ def test_estimate_writes_plots_and_a_table(tmp_path):
     assert "ratio_to_zero_motion" in res.stderr and "broyden" in res.stderr
 
 
+def test_a_dataset_folder_that_is_not_a_run_is_named_so(tmp_path):
+    (tmp_path / "empty").mkdir()
+    res = CliRunner().invoke(
+        app, ["train-encoder", "configs/default.yaml", "--dataset", str(tmp_path / "empty")]
+    )
+    assert res.exit_code == 2, res.output
+    assert "a folder that is not a run folder (no run.mcap)" in res.output, res.output
+
+
 def test_an_encoder_trained_on_an_imported_recording_estimates(tmp_path):
     pytest.importorskip("torch")
     rec = write_points_csv(dual_arm_recording(60, seed=4, points=8), tmp_path / "rec.csv")

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import json
 import math
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -493,9 +494,16 @@ class EncoderCheckpoint:
             else:
                 data = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as exc:  # noqa: BLE001 - torch/numpy raise many types on a corrupt file
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+            # The libraries' own texts advise loading the file unsafely (allow_pickle,
+            # weights_only=False): never passed on for a file that may not be trusted.
+            kind = "a NumPy .npz archive" if path.suffix == ".npz" else "a torch checkpoint"
+            what = (
+                f"not {kind}"
+                if not zipfile.is_zipfile(path)
+                else "an archive without an encoder's plain arrays and tensors"
+            )
             raise UserError(
-                f"{path}: not a readable encoder checkpoint ({type(exc).__name__}: {first[:200]}); "
+                f"{path}: not a readable encoder checkpoint ({what}; {type(exc).__name__}); "
                 "re-create it with `rodctl train-encoder`"
             ) from None
         return cls.from_dict(data, source=str(path))

@@ -103,14 +103,18 @@ def test_checkpoint_round_trip_with_weights_only(
     [b"", b"not a checkpoint at all", b"PK\x03\x04" + bytes(range(200))],
     ids=["empty", "text", "broken-zip"],
 )
-def test_corrupt_file_is_a_user_error_naming_it(tmp_path, content, tiny_cfg):
-    path = tmp_path / "broken.pt"
+@pytest.mark.parametrize("suffix", [".pt", ".npz"])
+def test_corrupt_file_is_a_user_error_naming_it(tmp_path, content, tiny_cfg, suffix):
+    path = tmp_path / f"broken{suffix}"
     path.write_bytes(content)
     cfg = tiny_cfg.model_copy(deep=True)
     cfg.feature.checkpoint = str(path)
-    with pytest.raises(UserError, match="broken.pt") as err:
+    with pytest.raises(UserError, match=f"broken\\{suffix}") as err:
         make_feature_map(cfg.feature, points=100, experiment=cfg)
     assert "checkpoint" in str(err.value)
+    # numpy's and torch's own texts advise loading the file unsafely: never passed on
+    for advice in ("allow_pickle", "weights_only", "pickle.load", "trust"):
+        assert advice not in str(err.value), str(err.value)
 
 
 def test_truncated_checkpoint_is_a_user_error(tmp_path, tiny_checkpoint):
