@@ -185,12 +185,19 @@ def pairs_from_run(
     ds, dr, at = _fold(s, u, ok)
     phases = [recs[k].phase for k in at]
     n0 = sum(1 for ph in phases if ph == "probe")
-    if init is not None or n0 == 0:  # an imported recording (no probing): the first pairs
+    probed = init is None and n0 > 0
+    if not probed:  # --init, or an imported recording (no probing): the first pairs
         n0 = 10 * u.shape[1] if init is None else int(init)
     if n0 < u.shape[1] or n0 >= len(at):
+        if not probed:  # what to pass, as for a points file
+            raise UserError(
+                _init_refusal(
+                    n0, u.shape[1], len(at), given=init is not None, source=run.path, run=True
+                )
+            )
         raise UserError(
-            f"{run.path}: J_0 from {n0} pairs needs at least q = {u.shape[1]} of them and "
-            f"control steps after them; the run has {len(at)} pairs (--init sets the number)"
+            f"{run.path}: J_0 from its {n0} probing pairs needs control steps after them; the "
+            f"run has {len(at)} pairs (--init N fits J_0 from the first N instead)"
         )
     logged = None
     if (
@@ -274,11 +281,18 @@ def pairs_from_recording(
     )
 
 
-def _init_refusal(n0: int, q: int, pairs: int, *, given: bool, source: str | None) -> str:
-    """Why a recording's J_0 cannot be fitted from `n0` of its `pairs`, and what to do."""
+def _init_refusal(
+    n0: int, q: int, pairs: int, *, given: bool, source: str | None, run: bool = False
+) -> str:
+    """Why a recording's (or an imported `run`'s) J_0 cannot be fitted from `n0` of its
+    `pairs`, and what to do."""
     where = f"{source}: " if source else ""
     what = f"--init {n0}" if given else f"--init (not given) defaults to 10 q = {n0} pairs"
-    have = f"the recording has {pairs + 1} frames, i.e. {pairs} pairs (Delta s, Delta r)"
+    have = (
+        f"the run has {pairs} pairs (Delta s, Delta r)"
+        if run
+        else f"the recording has {pairs + 1} frames, i.e. {pairs} pairs (Delta s, Delta r)"
+    )
     if n0 < q:
         need = f"J_0 needs at least q = {q} pairs"
     else:

@@ -531,6 +531,17 @@ def test_estimate_writes_plots_and_a_table(tmp_path):
     assert "ratio_to_zero_motion" in res.stderr and "broyden" in res.stderr
 
 
+def test_a_short_imported_run_is_told_what_init_to_pass(tmp_path):
+    """The run folder says what the points file says: the default, and the --init range."""
+    path = write_points_csv(dual_arm_recording(20, seed=3, points=4), tmp_path / "rec.csv")
+    res = CliRunner().invoke(app, ["import", str(path), "-o", str(tmp_path / "runs")])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(app, ["estimate", str(_last_line(res)), "--no-plots"])
+    assert res.exit_code == 2, res.output
+    assert "--init (not given) defaults to 10 q = 60 pairs" in res.output, res.output
+    assert "the run has 20 pairs" in res.output and "6 <= N < 20" in res.output, res.output
+
+
 def test_a_dataset_folder_that_is_not_a_run_is_named_so(tmp_path):
     (tmp_path / "empty").mkdir()
     res = CliRunner().invoke(
