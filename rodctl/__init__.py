@@ -43,5 +43,6 @@ def _register_env() -> None:
 # `rodctl simulate`: its helper processes forked first, before gymnasium (rodctl/_entry.py).
 from rodctl import _entry  # noqa: E402
 
+_entry.quiet_start()
 _entry.start_helpers()
 _register_env()

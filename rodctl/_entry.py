@@ -96,6 +96,22 @@ def _logging_block(config: str | None) -> dict[str, bool]:
     return found
 
 
+def quiet_start() -> None:
+    """For the `rodctl` command only: a Ctrl-C while rodctl is still being imported (the first
+    ~0.2 s: the helpers' fork, gymnasium) ends it with one line and exit 1 instead of an
+    import traceback. `rodctl.cli.main` puts Python's own handler back once the import is done;
+    a library use (a notebook) keeps Python's handler throughout."""
+    if command_args() is None:
+        return
+    import signal  # noqa: PLC0415
+
+    def starting(signum: int, frame: object) -> None:
+        sys.stderr.write("error: interrupted by SIGINT while rodctl was starting\n")
+        raise SystemExit(1)
+
+    signal.signal(signal.SIGINT, starting)
+
+
 def start_helpers() -> None:
     """Fork the helpers a `rodctl simulate` command line needs (module docstring); nothing for
     any other process or command."""

@@ -1304,6 +1304,9 @@ def export_run(
 
 def main() -> None:
     """Console-script entry point."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # after `_entry.quiet_start`
     app(prog_name="rodctl")
 
 

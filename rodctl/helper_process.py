@@ -427,6 +427,7 @@ def _forked_child(module: str, parent: int, pipes: list[tuple[int, int]]) -> NoR
     code = 1
     try:
         os.setpgid(0, 0)  # its own group: the terminal's Ctrl-C reaches only the command
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # not `_entry.quiet_start`'s
         (in_r, _), (_, out_w), (_, err_w) = pipes
         for fd, target in ((in_r, 0), (out_w, 1), (err_w, 2)):
             os.dup2(fd, target)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterator, Sequence
-from contextlib import nullcontext
+from contextlib import nullcontext, suppress
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
@@ -175,11 +175,23 @@ def _write_rrd(run: ReadRun, final: Path) -> Path:
                 sink.write(rec)
         finally:
             sink.close(summary_object(run.summary), run.status or "interrupted")
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+    except BaseException as exc:
+        with suppress(OSError):  # a read-only disk refuses even this (EROFS)
+            tmp.unlink(missing_ok=True)
+        if isinstance(exc, RunFailed | OSError):  # named as the file the user knows
+            raise _renamed(exc, tmp, final) from None
         raise
     os.replace(tmp, final)
     return final
+
+
+def _renamed(exc: RunFailed | OSError, tmp: Path, final: Path) -> RunFailed | OSError:
+    """`exc` with the temporary file's path replaced by `final`'s."""
+    if isinstance(exc, OSError):
+        if exc.filename is not None:  # the path, or a text with it (Rerun's errors)
+            exc.filename = str(exc.filename).replace(str(tmp), str(final))
+        return exc
+    return RunFailed(str(exc).replace(str(tmp), str(final)))
 
 
 def _fmt(v: Any) -> str:

@@ -124,3 +124,33 @@ def test_a_helper_that_stops_reading_is_given_up_after_a_bounded_wait(tmp_path, 
         assert helper.failure is not None and "deaf process stopped reading" in helper.failure
         with pytest.raises(HelperFailed, match="stopped reading its input"):
             helper.result(timeout=5)
+
+
+_INTERRUPTED_WHILE_IMPORTING = """
+import os, signal, sys
+sys.argv = ["rodctl", "config", "show"]  # the rodctl command, as its console script sets it
+import rodctl  # installs the start-up handler
+os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C before the CLI took over
+print("not reached")
+"""
+
+
+def test_a_ctrl_c_while_rodctl_starts_is_one_line_not_a_traceback():
+    res = subprocess.run(
+        [sys.executable, "-c", _INTERRUPTED_WHILE_IMPORTING],
+        capture_output=True, text=True, timeout=120, cwd=REPO,
+    )  # fmt: skip
+    assert res.returncode == 1, res.stderr
+    assert res.stderr == "error: interrupted by SIGINT while rodctl was starting\n", res.stderr
+    assert res.stdout == ""
+
+
+def test_a_library_import_keeps_pythons_ctrl_c():
+    code = (
+        "import signal, rodctl; "
+        "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO
+    )
+    assert res.stdout.strip() == "True", res.stdout + res.stderr
