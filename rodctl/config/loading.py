@@ -272,35 +272,32 @@ def _dotted(loc: tuple[Any, ...], data: Any) -> str:
     (the union tag, e.g. ``controller.mfac.weights``); follow the input data and keep only the
     entries that are really there, plus the last one (a missing key is, by definition, absent).
     """
-    out: list[str] = []
-    node = data
-    for i, part in enumerate(loc):
-        last = i == len(loc) - 1
-        if isinstance(node, dict) and part in node:
-            out.append(str(part))
-            node = node[part]
-        elif isinstance(node, list | tuple) and isinstance(part, int) and 0 <= part < len(node):
-            out.append(str(part))
-            node = node[part]
-        elif last and not isinstance(part, int) and not str(part).startswith("function-"):
-            out.append(str(part))
-        elif last and isinstance(part, int):
-            out.append(str(part))
+    out, _, last_there = _input_entries(loc, data)
+    if loc and not last_there and not str(loc[-1]).startswith("function-"):
+        out.append(str(loc[-1]))
     return ".".join(out) or "(top level)"
+
+
+def _input_entries(loc: tuple[Any, ...], data: Any) -> tuple[list[str], Any, bool]:
+    """The entries of `loc` that are keys or indices of the input (union tags dropped), the
+    value they lead to, and whether the last entry of `loc` was one of them."""
+    out: list[str] = []
+    node, there = data, False
+    for part in loc:
+        there = False
+        if isinstance(node, dict) and part in node:
+            node, there = node[part], True
+        elif isinstance(node, list | tuple) and isinstance(part, int) and 0 <= part < len(node):
+            node, there = node[part], True
+        if there:
+            out.append(str(part))
+    return out, node, there
 
 
 def _list_at(loc: tuple[Any, ...], data: Any) -> tuple[str, Any]:
     """The dotted path of the input entries along `loc` (union tags dropped) and the value
     there."""
-    out: list[str] = []
-    node = data
-    for part in loc:
-        if isinstance(node, dict) and part in node:
-            out.append(str(part))
-            node = node[part]
-        elif isinstance(node, list | tuple) and isinstance(part, int) and 0 <= part < len(node):
-            out.append(str(part))
-            node = node[part]
+    out, node, _ = _input_entries(loc, data)
     return ".".join(out) or "(top level)", node
 
 
