@@ -63,7 +63,7 @@ from gymnasium import spaces
 
 from rodctl.config import ExperimentConfig, load_config, validate_config
 from rodctl.config.rod import RodConfig
-from rodctl.errors import UserError
+from rodctl.errors import UserError, pose_text
 from rodctl.geometry import resample_polyline
 from rodctl.runs import rng
 from rodctl.sim import RodSim
@@ -788,7 +788,7 @@ class ShapeServoEnv(gym.Env):
             if clipped:
                 raise UserError(
                     f"run.target.pose {list(given)} is outside the workspace or out of reach "
-                    f"(nearest allowed pose: {[round(float(v), 4) for v in pose]})"
+                    f"(nearest allowed pose: {pose_text(pose)})"
                 )
             candidates: Any = [pose]
         else:

@@ -1,6 +1,7 @@
 """Errors the user can fix. The CLI prints their message and exits with code 2, no traceback."""
 
 import errno
+from collections.abc import Iterable
 from pathlib import Path
 
 
@@ -11,6 +12,12 @@ class UserError(Exception):
 class RunFailed(Exception):
     """A run that could not go on for a reason outside its input: a full disk, a read-only or
     vanished folder. The CLI prints the message and exits with code 1, no traceback."""
+
+
+def pose_text(pose: Iterable[float]) -> str:
+    """A pose (or any vector) in a message as a user writes it in YAML, to 4 decimals:
+    `[0.4233, 0.2469, 0.0]`, not numpy's `np.float64(...)` reprs."""
+    return str([round(float(v), 4) for v in pose])
 
 
 def describe_os_error(exc: OSError) -> str:

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from rodctl import fixedla as fla
-from rodctl.errors import UserError
+from rodctl.errors import UserError, pose_text
 
 #: One normalised unit of target offset per axis, as a fraction of the rod length for x and y
 #: and in radians for theta: offset 1.0 is a 0.3 L translation or a 60 degree turn.
@@ -70,7 +70,7 @@ def sample_target_pose(
             return pose
     raise UserError(
         f"run.target: no reachable gripper pose at offset [{min_offset}, {max_offset}] from the "
-        f"home pose {list(np.round(home, 4))} in {max_tries} tries; widen rod.workspace or lower "
+        f"home pose {pose_text(home)} in {max_tries} tries; widen rod.workspace or lower "
         "run.target.max_offset"
     )
 

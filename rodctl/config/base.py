@@ -59,8 +59,9 @@ class StrictModel(BaseModel):
     @model_validator(mode="before")
     @classmethod
     def _no_booleans_for_numbers(cls, data: Any) -> Any:
-        # A model validator (a field one may not touch a union's `type`); the error's type and
-        # context let `format_validation_error` name the field itself (`rod.length`).
+        # A model validator: a field validator on every field would reach a union's `type`,
+        # which pydantic refuses. The error's type and context let `format_validation_error`
+        # name the field itself (`rod.length`), not its section.
         if isinstance(data, dict):
             for name, value in data.items():
                 field = cls.model_fields.get(name) if isinstance(name, str) else None

@@ -404,13 +404,12 @@ def _error_lines(errors: list[Any], data: Any) -> list[str]:
 
 def _error_line(err: Any, data: Any) -> str:
     """`path: what is wrong (got ...)` for one pydantic error."""
-    msg = err["msg"]
+    msg, loc = err["msg"], tuple(err["loc"])
     if err["type"] == BOOL_FOR_NUMBER:  # raised by a model: the field is in the context
-        where, _ = _list_at(tuple(err["loc"]), data)
+        where, _ = _list_at(loc, data)
         prefix = "" if where == "(top level)" else f"{where}."
         field, given = err["ctx"]["field"], err["ctx"]["given"]
         return f"{prefix}{field}: expected a number, not a boolean (got {given!r})"
-    loc = tuple(err["loc"])
     ends_in_tag = any(len(union) == len(loc) - 1 for union, _ in _union_branches(err, data))
     # A union member's tag is not a key to write: `pose: Input should be a valid tuple`, once.
     path = _list_at(loc, data)[0] if ends_in_tag else _dotted(loc, data)
@@ -420,8 +419,8 @@ def _error_line(err: Any, data: Any) -> str:
         msg = "unknown key (check the spelling; `rodctl config schema` lists every key)"
     elif err["type"] == "missing":
         msg = "required key is missing"
-    elif err["type"] == "int_parsing" and _float_text(err.get("input")) is not None:
-        msg = _whole_number_hint(err["input"])
+    elif err["type"] == "int_parsing" and (hint := _whole_number_hint(err.get("input"))):
+        msg = hint
     else:
         given = err.get("input")
         if not isinstance(given, dict | list) and err["type"] != "union_tag_invalid":
@@ -429,24 +428,18 @@ def _error_line(err: Any, data: Any) -> str:
     return f"{path}: {msg}"
 
 
-def _float_text(value: Any) -> float | None:
-    """The number a text reads as (YAML 1.1 reads `1e9`, without a dot, as text), else None."""
-    if not isinstance(value, str):
-        return None
+def _whole_number_hint(value: Any) -> str | None:
+    """What to write for a whole number given as text that reads as one (YAML 1.1 reads
+    `1e9`, without a dot, as text), else None."""
     try:
-        number = float(value)
+        number = float(value) if isinstance(value, str) else math.nan
     except ValueError:
         return None
-    return number if math.isfinite(number) else None
-
-
-def _whole_number_hint(text: str) -> str:
-    """What to write for a whole number given as `1e9`-style text."""
-    number = _float_text(text)
-    assert number is not None
+    if not math.isfinite(number):
+        return None
     if number.is_integer() and abs(number) < 1e18:
-        return f"expected a whole number, got the text {text!r}: write {int(number)}"
-    return f"expected a whole number, got {text!r}"
+        return f"expected a whole number, got the text {value!r}: write {int(number)}"
+    return f"expected a whole number, got {value!r}"
 
 
 def format_validation_error(exc: ValidationError, data: Any, source: str) -> str:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rodctl.config.rod import STANDARD_GRAVITY, RodConfig
-from rodctl.errors import UserError
+from rodctl.errors import UserError, pose_text
 from rodctl.geometry import resample_polyline
 from rodctl.sim.chain import RodChain, first_mode_rate, stable_dt_limit
 
@@ -167,14 +167,14 @@ class RodSim:
         if cfg.home_pose is None:
             if self.clip_pose(home)[1]:
                 raise UserError(
-                    f"rod: the default home pose {_pose_text(home)} is outside "
+                    f"rod: the default home pose {pose_text(home)} is outside "
                     "rod.workspace for this clamp_pose; set rod.home_pose"
                 )
         self._home = home
         result = self.move_to(home)
         if result.diverged or not result.settled:
             raise UserError(
-                f"rod: the simulated rod did not settle at the home pose {_pose_text(home)} ("
+                f"rod: the simulated rod did not settle at the home pose {pose_text(home)} ("
                 + ("it diverged" if result.diverged else "still moving when the budget ran out")
                 + "); check rod.dt, rod.iterations, rod.segments"
             )
@@ -923,8 +923,3 @@ class RodSim:
         chain.steps = old.steps  # one clock across rebuilds (sim_time)
         self.chain = chain
         self._held = held
-
-
-def _pose_text(pose: np.ndarray) -> str:
-    """A pose as a user writes it in YAML (`[0.4, 0.0, 0.0]`, not numpy's reprs)."""
-    return "[" + ", ".join(f"{float(v):.4g}" for v in pose) + "]"
