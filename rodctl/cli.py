@@ -259,6 +259,7 @@ def _derived_values(cfg: ExperimentConfig) -> dict[str, Any]:
 
 
 @config_app.command("schema")
+@user_errors
 def config_schema(
     compare: Annotated[
         bool, typer.Option("--compare", help="The schema of `rodctl compare` configs instead.")
@@ -271,6 +272,8 @@ def config_schema(
     from rodctl.config.compare import CompareConfig
     from rodctl.config.sweep import SweepConfig
 
+    if compare and sweep:
+        raise UserError("--compare and --sweep: give one of them (a config is one or the other)")
     model = SweepConfig if sweep else CompareConfig if compare else ExperimentConfig
     typer.echo(json.dumps(model.model_json_schema(), indent=2))
 
@@ -301,7 +304,12 @@ LiveOpt = Annotated[
     ),
 ]
 LivePortOpt = Annotated[
-    int, typer.Option("--live-port", help="Port of the --live server (0: any free one).")
+    int | None,
+    typer.Option(
+        "--live-port",
+        help="Port of the --live server (0: any free one). [default: 8765]",
+        show_default=False,
+    ),
 ]
 LiveRerunOpt = Annotated[
     str | None,
@@ -323,7 +331,7 @@ def simulate(
     quiet: QuietOpt = False,
     as_json: JsonOpt = False,
     live: LiveOpt = False,
-    live_port: LivePortOpt = 8765,
+    live_port: LivePortOpt = None,
     live_rerun: LiveRerunOpt = None,
 ) -> None:
     """Run one shape-servoing experiment; print the run directory as the last line.
@@ -341,6 +349,7 @@ def simulate(
     from rodctl.logs.sinks import start_helpers
 
     timeline.mark("main", "cli")
+    live_port = _live_port(live, live_port)
     _experiment_config_only(config)
     cfg = load_config(config, set_ or [])
     # The figure and Rerun processes first: they import while this process imports the run's.
@@ -399,6 +408,17 @@ def _simulate(
         )
 
 
+def _live_port(live: bool, port: int | None) -> int:
+    """`--live-port` (8765 when not given): only with --live, and a TCP port (0: any free)."""
+    if port is None:
+        return 8765
+    if not live:
+        raise UserError("--live-port is the port of the --live view: give --live too")
+    if not 0 <= port <= 65535:
+        raise UserError(f"--live-port {port}: a port is 0 to 65535 (0: any free one)")
+    return port
+
+
 def _experiment_config_only(config: str) -> None:
     """`simulate` runs an experiment config; a compare or sweep config is a `UserError` naming
     the command that runs it."""
@@ -454,12 +474,13 @@ OpenOpt = Annotated[
     bool, typer.Option("--open", help="Open the rebuilt run.rrd in the Rerun viewer.")
 ]
 ToleranceOpt = Annotated[
-    float,
+    float | None,
     typer.Option(
         "--tolerance",
         min=0.0,
         help="With --verify, accept numbers that differ by at most TOL * max(1, |value|) "
-        "(a rerun on another CPU or BLAS kernel). 0 = bit for bit.",
+        "(a rerun on another CPU or BLAS kernel). 0 = bit for bit. [default: 0]",
+        show_default=False,
         metavar="TOL",
     ),
 ]
@@ -477,7 +498,7 @@ def replay(
     out: ReplayOutOpt = None,
     figures: FiguresOpt = True,
     open_viewer: OpenOpt = False,
-    tolerance: ToleranceOpt = 0.0,
+    tolerance: ToleranceOpt = None,
     quiet: ReplayQuietOpt = False,
 ) -> None:
     """Rebuild run.rrd and the figures from a run's MCAP alone and print its summary.
@@ -495,6 +516,8 @@ def replay(
     from rodctl.replay import format_summary, rebuild
     from rodctl.replay import verify as verify_run
 
+    if tolerance is not None and not verify:
+        raise UserError("--tolerance is how closely --verify's rerun must match: give --verify too")
     result = rebuild(path, out, recover=recover, figures=figures)
     if not quiet:
         typer.echo(format_summary(result.run), err=True)
@@ -507,7 +530,7 @@ def replay(
         for diff in config_file_differences(result.run):
             typer.echo(f"verify: config.yaml differs from the log: {diff}", err=True)
             code = 1
-        verdict = verify_run(result.run, tolerance=tolerance)
+        verdict = verify_run(result.run, tolerance=tolerance or 0.0)
         for line in verdict.report():
             typer.echo(line, err=True)
         code = max(code, verdict.exit_code)
@@ -1303,11 +1326,34 @@ def export_run(
 
 
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point. Click's own usage errors (an unknown option, a missing
+    argument, a value of the wrong type) are one `error:` line naming what is wrong, then the
+    usage line, exit 2, as rodctl's own bad-input errors are (not Typer's boxed panel); a
+    Ctrl-C before a command's own handler takes over says so (exit 130)."""
     import signal
 
     signal.signal(signal.SIGINT, signal.default_int_handler)  # after `_entry.quiet_start`
-    app(prog_name="rodctl")
+    try:
+        code = app(prog_name="rodctl", standalone_mode=False)
+    except typer.TyperException as exc:  # typer's click's usage errors derive from it
+        if type(exc).__name__ != "NoArgsIsHelpError":  # `rodctl` alone: typer printed help
+            _usage_error(exc)
+        code = exc.exit_code
+    except typer.Abort:
+        typer.echo("error: aborted", err=True)
+        code = 1
+    if code == 130:  # Typer's answer to a KeyboardInterrupt no command handled
+        typer.echo("error: interrupted by SIGINT", err=True)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+def _usage_error(exc: Any) -> None:
+    """A click usage error as rodctl words its errors: `error: …`, then the usage line."""
+    typer.echo(f"error: {exc.format_message()}", err=True)
+    ctx = getattr(exc, "ctx", None)
+    if ctx is not None:
+        typer.echo(ctx.get_usage(), err=True)
+        typer.echo(f"Try '{ctx.command_path} --help' for help.", err=True)
 
 
 if __name__ == "__main__":  # pragma: no cover

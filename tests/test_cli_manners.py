@@ -4,6 +4,9 @@ error, an aligned `rodctl plugins`, and `config show` naming a file that exists.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 from paths import REPO
 from typer.testing import CliRunner
@@ -73,3 +76,41 @@ def test_sweep_given_another_kind_of_config_says_which_command_runs_it():
     assert res.exit_code == 2 and "experiment config" in res.output and "simulate" in res.output
     res = runner.invoke(app, ["sweep", "configs/compare-smoke.yaml"])
     assert res.exit_code == 2 and "rodctl compare" in res.output
+
+
+def test_a_usage_error_is_one_error_line_then_the_usage_not_a_panel():
+    """click's own errors (an unknown option, a missing argument, a value of the wrong type)
+    are worded as rodctl's: `error: …` first, then the usage line; exit 2 (`cli.main`)."""
+    for args, said in (
+        (["simulate", DEFAULT, "--bogus"], "error: No such option: --bogus"),
+        (["simulate"], "error: Missing argument 'config'"),
+        (["replay", "x", "--tolerance", "abc"], "error: Invalid value for '--tolerance'"),
+        (["no-such-command"], "error: No such command 'no-such-command'"),
+    ):
+        proc = subprocess.run(
+            [sys.executable, "-m", "rodctl", *args], capture_output=True, text=True, timeout=120
+        )
+        assert proc.returncode == 2, (args, proc.stderr)
+        lines = proc.stderr.splitlines()
+        assert lines[0].startswith(said), (args, proc.stderr)
+        assert lines[1].startswith("Usage: rodctl"), (args, proc.stderr)
+        assert "╭" not in proc.stderr and "Traceback" not in proc.stderr, args
+    bare = subprocess.run([sys.executable, "-m", "rodctl"], capture_output=True, text=True)
+    assert bare.returncode == 2 and "Commands" in bare.stdout and "error" not in bare.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["config", "schema", "--compare", "--sweep"], "--compare and --sweep: give one"),
+        (["simulate", DEFAULT, "--live-port", "9000"], "--live-port is the port of the --live"),
+        (["simulate", DEFAULT, "--live", "--live-port", "99999"], "a port is 0 to 65535"),
+        (["replay", DEFAULT, "--tolerance", "1e-9"], "--tolerance is how closely --verify"),
+    ],
+    ids=["schema-both", "port-without-live", "port-out-of-range", "tolerance-without-verify"],
+)
+def test_an_option_that_would_be_silently_ignored_is_refused(args, said, tmp_path):
+    res = runner.invoke(app, [*args, *(["-o", str(tmp_path)] if args[0] == "simulate" else [])])
+    assert res.exit_code == 2, res.output
+    assert res.output.startswith("error: ") and said in res.output, res.output
+    assert not any(tmp_path.iterdir())  # refused before any run folder
