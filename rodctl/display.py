@@ -25,7 +25,7 @@ from rich.progress import (
 from rich.table import Table
 from rich.text import Text
 
-from rodctl.records import RunSummary, StepRecord
+from rodctl.records import RunSummary, StepRecord, summary_text
 
 stderr = Console(stderr=True)
 
@@ -191,11 +191,7 @@ def summary_table(summary: RunSummary, title: str = "run summary") -> Table:
     table.add_column("key", style="bold")
     table.add_column("value")
     for key, value in summary.to_json().items():
-        if isinstance(value, float):
-            value = f"{value:.6g}"
-        elif isinstance(value, dict):
-            value = ", ".join(f"{k}={v}" for k, v in value.items())
-        table.add_row(key, str(value))
+        table.add_row(key, summary_text(value))
     return table
 
 

@@ -183,6 +183,19 @@ FIELD_UNITS: dict[str, Unit] = {
 }
 
 
+def summary_text(value: Any) -> str:
+    """One summary value as the tables of `simulate` and `replay` show it: a float to 6
+    significant digits, None (a run that never converged has no steps_to_converge) as —, a
+    mapping as `key=value, …`."""
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if value is None:
+        return "—"
+    if isinstance(value, dict):
+        return ", ".join(f"{k}={summary_text(v)}" for k, v in value.items())
+    return str(value)
+
+
 @dataclass
 class RunSummary:
     """The run's outcome; written as summary.json (keys in docs/outputs.md).

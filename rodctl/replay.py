@@ -31,7 +31,7 @@ from rodctl.errors import RunFailed, UserError, make_out_folder
 from rodctl.figure_worker import FiguresFailed, FigureWorker, save_figures
 from rodctl.logs.codec import ReadRun
 from rodctl.records import FIELD_UNITS as RECORD_UNITS
-from rodctl.records import RunSummary, StepRecord
+from rodctl.records import RunSummary, StepRecord, summary_text
 
 __all__ = [
     "ReadRun",
@@ -194,14 +194,6 @@ def _renamed(exc: RunFailed | OSError, tmp: Path, final: Path) -> RunFailed | OS
     return RunFailed(str(exc).replace(str(tmp), str(final)))
 
 
-def _fmt(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:.6g}"
-    if v is None:
-        return "—"
-    return str(v)
-
-
 def summary_rows(run: ReadRun) -> list[tuple[str, str]]:
     """The run's summary as (name, value) rows for a table.
 
@@ -218,13 +210,13 @@ def summary_rows(run: ReadRun) -> list[tuple[str, str]]:
         for k, v in run.summary.items():
             if k in ("status", "method"):
                 continue
-            rows.append((k, _fmt(v)))
+            rows.append((k, summary_text(v)))
     elif run.records:
         last = run.records[-1]
         rows += [
             ("last step", str(last.step)),
-            ("final_T1", _fmt(float(last.T1))),
-            ("final_pixel_error", _fmt(float(last.pixel_error))),
+            ("final_T1", summary_text(float(last.T1))),
+            ("final_pixel_error", summary_text(float(last.pixel_error))),
         ]
     return rows
 

@@ -67,6 +67,17 @@ class _StrictLoader(yaml.SafeLoader):
             )
         return super().construct_yaml_int(node)
 
+    def construct_yaml_float(self, node: Any) -> Any:
+        # The same for YAML 1.1's base-60 floats: 1:30.5 is 90.5.
+        if ":" in str(node.value):
+            mark = node.start_mark
+            raise yaml.YAMLError(
+                f"{node.value!r} (line {mark.line + 1}, column {mark.column + 1}) is "
+                f"{super().construct_yaml_float(node)} in YAML 1.1 (a ':' is base 60); write "
+                "the number without it, or quote it for a text"
+            )
+        return super().construct_yaml_float(node)
+
     def construct_mapping(self, node: Any, deep: bool = False) -> Any:
         seen: dict[Any, Any] = {}
         for key_node, _ in node.value:
@@ -82,6 +93,7 @@ class _StrictLoader(yaml.SafeLoader):
 
 
 _StrictLoader.add_constructor("tag:yaml.org,2002:int", _StrictLoader.construct_yaml_int)
+_StrictLoader.add_constructor("tag:yaml.org,2002:float", _StrictLoader.construct_yaml_float)
 
 
 def _check_expanded_size(root: Any) -> None:

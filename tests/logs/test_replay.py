@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import subprocess
+from dataclasses import replace
+from types import SimpleNamespace
 
 import pytest
+from rich.console import Console
 
+from rodctl.display import summary_table
 from rodctl.errors import UserError
 from rodctl.logs.mcap import McapSink
 from rodctl.logs.rerun import RerunSink
@@ -90,3 +94,30 @@ def test_bad_paths(tmp_path):
         read_run(tmp_path)
     with pytest.raises(UserError, match="no such run directory or file"):
         read_run(tmp_path / "missing")
+
+
+def test_simulate_and_replay_tables_show_a_summary_the_same_way(synthetic, helpers):
+    """A run that never converged has no steps_to_converge: both tables show —, not `None`."""
+    _, records = synthetic
+    summary = replace(helpers.summary_of(records), converged=False, steps_to_converge=None)
+    console = Console(record=True, width=120)
+    console.print(summary_table(summary))
+    simulate_rows = {
+        cells[0]: cells[1]
+        for line in console.export_text().splitlines()
+        if len(cells := [c.strip() for c in line.strip("│┃ ").split("│")]) == 2
+    }
+    assert simulate_rows["steps_to_converge"] == "—"
+    replay_rows = dict(summary_rows(_ReadRunWith(summary.to_json())))
+    for key, value in replay_rows.items():
+        if key in simulate_rows:
+            assert simulate_rows[key] == value, key
+
+
+class _ReadRunWith:
+    """The little of a ReadRun that `summary_rows` reads: a header and a logged summary."""
+
+    def __init__(self, summary: dict) -> None:
+        self.header = SimpleNamespace(run_id="x", method="mfac-akf")
+        self.status, self.complete, self.records, self.summary = "completed", True, [], summary
+        self.notes: list[str] = []
