@@ -14,6 +14,7 @@ step and field that differ beyond the tolerance, or a step count, flag or text t
 
 from __future__ import annotations
 
+import errno
 import math
 import os
 from collections.abc import Iterator, Sequence
@@ -56,6 +57,13 @@ def mcap_path(path: str | Path) -> Path:
             raise UserError(f"{p}: no run.mcap in this run directory")
         return f
     if not p.exists():
+        try:
+            p.stat()
+        except OSError as exc:  # exists() says False for a link loop too: say which
+            if exc.errno == errno.ELOOP:
+                raise UserError(f"{p}: a loop of symbolic links, no run behind it") from None
+        if p.is_symlink():
+            raise UserError(f"{p}: a symbolic link to {os.readlink(p)}, which does not exist")
         raise UserError(f"{p}: no such run directory or file")
     return p
 

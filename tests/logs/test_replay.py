@@ -94,6 +94,12 @@ def test_bad_paths(tmp_path):
         read_run(tmp_path)
     with pytest.raises(UserError, match="no such run directory or file"):
         read_run(tmp_path / "missing")
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    with pytest.raises(UserError, match="loop: a loop of symbolic links"):
+        read_run(tmp_path / "loop")
+    (tmp_path / "gone").symlink_to(tmp_path / "elsewhere")
+    with pytest.raises(UserError, match="gone: a symbolic link to .*elsewhere, which does not"):
+        read_run(tmp_path / "gone")
 
 
 def test_simulate_and_replay_tables_show_a_summary_the_same_way(synthetic, helpers):
