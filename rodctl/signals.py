@@ -11,9 +11,11 @@ returns None) is left alone: it could not be put back.
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from multiprocessing import resource_tracker
 from typing import Any
 
 #: The signals that ask a run to stop.
@@ -65,3 +67,40 @@ def handled(
 def name(signum: int) -> str:
     """The signal's name ("SIGINT", "SIGTERM"): what a run's stop reason says."""
     return signal.Signals(signum).name
+
+
+@contextmanager
+def held_from_children(signals: tuple[int, ...] = (signal.SIGINT,)) -> Iterator[None]:
+    """Block `signals` in this thread for the block, so that processes started inside it
+    inherit them blocked (a blocked signal stays pending, not lost); the mask is put back after.
+
+    Why: a Ctrl-C at the terminal is sent to every process of its group, the workers included.
+    A spawned worker still importing (a second or more) has no handler yet, so the signal
+    raises KeyboardInterrupt in whatever it imports and the worker prints a traceback. Started
+    with SIGINT blocked, a worker takes it only when it calls `release` after its cooperative
+    handler is in place (`executors.base.init_worker`); a worker that never does leaves SIGINT
+    to the command, which stops it. This process still takes the signal: the kernel hands a
+    process-directed signal to a thread that does not block it, and the Python handler runs in
+    the main thread whichever thread received it. No-op without `pthread_sigmask` (Windows).
+
+    The multiprocessing resource tracker is started first: starting it unblocks SIGINT in the
+    calling thread (CPython's `resource_tracker.ensure_running` blocks, spawns, then unblocks),
+    which would undo the block for every process started after it, as a spawn `Pool` does.
+    """
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    if sys.platform != "win32":
+        resource_tracker.ensure_running()
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def release(signals: tuple[int, ...] = (signal.SIGINT,)) -> None:
+    """Unblock `signals` in this thread (a process started by `held_from_children`, once its
+    handler is set): one that arrived meanwhile is delivered now."""
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, signals)

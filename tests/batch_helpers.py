@@ -106,7 +106,7 @@ def interrupt(
         descendants = children(proc.pid)
         target = proc.pid
         if to_worker:
-            workers = [p for p in descendants if "spawn_main" in _cmdline(p)]
+            workers = [p for p in descendants if "spawn_main" in cmdline(p)]
             assert workers, f"no worker process among {descendants}"
             target = workers[0]
         t0 = time.monotonic()
@@ -127,7 +127,7 @@ def interrupt(
             proc.communicate()
 
 
-def _cmdline(pid: int) -> str:
+def cmdline(pid: int) -> str:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
     except OSError:

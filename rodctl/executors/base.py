@@ -105,9 +105,12 @@ def prepare_worker() -> None:
 
 def init_worker() -> None:
     """Start of every local pool process: `prepare_worker` (a config naming a plug-in type
-    must validate there too), and cooperative stop handlers."""
+    must validate there too), and cooperative stop handlers. The pool starts its processes
+    with SIGINT blocked (`signals.held_from_children`): a Ctrl-C during their imports waits
+    until the handler is in place, and is taken here."""
     prepare_worker()
     signals.install(_handler, over_ignored=True)
+    signals.release()
 
 
 @dataclass

@@ -23,6 +23,7 @@ from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from typing import Any, Literal
 
+from rodctl import signals
 from rodctl.errors import UserError
 from rodctl.executors.base import (
     CANCELLED,
@@ -132,9 +133,10 @@ class LocalExecutor(Executor):
     def _dispatch(self) -> None:
         assert self.pool is not None
         queue, self._queue = self._queue, []
-        for item in queue:
-            key, fn, task, _attempt = item
-            self._futures[self.pool.submit(call_unless_stopped, fn, task)] = item
+        with signals.held_from_children():  # `submit` starts the processes (see `init_worker`)
+            for item in queue:
+                key, fn, task, _attempt = item
+                self._futures[self.pool.submit(call_unless_stopped, fn, task)] = item
         self._procs = list((self.pool._processes or {}).values())  # noqa: SLF001
 
     def cancel(self) -> None:

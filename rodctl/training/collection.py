@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from rodctl import signals
 from rodctl.config import ExperimentConfig
 from rodctl.display import task_progress
 from rodctl.errors import UserError
@@ -339,7 +340,11 @@ def map_chunks(fn: Any, tasks: list[Any], workers: int) -> Any:
             yield task, fn(task)
         return
     ctx = multiprocessing.get_context(_start_method())
-    with ctx.Pool(min(workers, len(tasks))) as pool:
+    # The workers keep SIGINT blocked for good: a Ctrl-C (sent to the whole process group) is
+    # this process's to handle; leaving the `with` terminates them (no traceback from each).
+    with signals.held_from_children():
+        pool = ctx.Pool(min(workers, len(tasks)))
+    with pool:
         yield from zip(tasks, pool.imap(fn, tasks), strict=True)
 
 

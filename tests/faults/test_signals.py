@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from batch_helpers import children, cmdline
 from paths import REPO
 
 SCRIPTED = str(REPO / "configs/scripted.yaml")
@@ -66,6 +67,64 @@ def test_simulate_stops_cleanly_on_a_signal(tmp_path, sig, after_bytes):
     )
     assert res.returncode == 0, res.stderr
     assert "verify: OK" in res.stderr
+
+
+def _importing_worker(pid: int) -> bool:
+    """Whether a spawn worker of `pid` has begun its imports (numpy's extension is mapped: the
+    interpreter is up, its handlers set) and has not finished them (no stop handler yet: rodctl
+    takes a second more)."""
+    for p in children(pid):
+        if "spawn_main" in cmdline(p):
+            try:
+                if "_multiarray_umath" in Path(f"/proc/{p}/maps").read_text():
+                    return True
+            except OSError:
+                continue
+    return False
+
+
+def _start_at_a_terminal(args: list[str]) -> subprocess.Popen:
+    """The `rodctl` console script as a user starts it: SIGINT at its default action. (A test
+    runner started in the background inherits SIGINT ignored, and so would every worker, which
+    hides what a Ctrl-C at a terminal does to them.)"""
+    script = Path(sys.executable).with_name("rodctl")
+    return subprocess.Popen(
+        [str(script), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # noqa: PLW1509
+    )
+
+
+_STARTING_WORKERS = {
+    "compare": (["compare", str(REPO / "configs/compare-smoke.yaml")], "interrupted by SIGINT"),
+    "train-encoder": (
+        ["train-encoder", str(REPO / "configs/default.yaml"), "--set", "feature.data.workers=2"],
+        "error: interrupted",
+    ),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", sorted(_STARTING_WORKERS))
+def test_ctrl_c_while_the_workers_start_prints_no_traceback(tmp_path, command):
+    """A Ctrl-C goes to the terminal's whole process group: the spawn workers get it too, while
+    they are still importing (a second or more, before their stop handler exists). They used
+    to print a KeyboardInterrupt traceback each, or 'interrupted while rodctl was starting'.
+    Now they start with SIGINT held (the compare workers until their handler is in place, the
+    collection workers for good); the command reports the stop once."""
+    args, stopped = _STARTING_WORKERS[command]
+    proc = _start_at_a_terminal([*args, "-o", str(tmp_path)])
+    _wait_for(lambda: _importing_worker(proc.pid) or proc.poll() is not None, 120)
+    assert proc.poll() is None, proc.communicate()
+    os.killpg(proc.pid, signal.SIGINT)  # a worker is importing: numpy is in, rodctl not yet
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert "while rodctl was starting" not in err, err
+    assert err.count(stopped) == 1, err
 
 
 def _live_processes(session: int) -> list[str]:
