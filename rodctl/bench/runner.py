@@ -40,7 +40,9 @@ class RunInterrupted(Exception):
     def __init__(
         self, folder: Path, reason: str, done: int, total: int, unit: str = "episodes"
     ) -> None:
-        super().__init__(f"interrupted by {reason}: {done} of {total} {unit} finished")
+        # total 0: stopped while planning, before the episodes were counted
+        count = f"{done} of {total} {unit} finished" if total else f"before the {unit} started"
+        super().__init__(f"interrupted by {reason}: {count}")
         self.folder = folder
         self.reason = reason
         self.done = done
@@ -126,6 +128,8 @@ def run_study(
             new = stream_episodes(pool, todo, log, progress=progress, done_before=len(kept))
             reason = stop_reason()
         rows = _in_task_order(tasks, kept, new)
+        if total and len(rows) == total:
+            reason = None  # the stop came after the last episode: nothing was left to stop
         study.report(run.path, rows, total, pool, progress)
         status = "interrupted" if reason else "completed"
         if reason:
