@@ -19,6 +19,7 @@ import pytest
 from batch_helpers import alive, interrupt, journal, rows
 from paths import REPO
 
+from rodctl.bench import journal as journal_module
 from rodctl.bench.compare import run_compare
 from rodctl.errors import UserError
 from rodctl.executors import Done, clear_stop, make_executor, request_stop, stop_reason
@@ -86,6 +87,31 @@ def test_in_process_runs_in_task_order_and_stops_between_tasks():
         done = ex.map(stop_after_two, [1, 2, 3, 4])
     assert [d.value for d in done[:2]] == [1, 2]
     assert all(d.error in (CANCELLED, "not run") for d in done[2:])
+
+
+@pytest.mark.slow
+def test_a_stop_after_the_last_episode_leaves_the_run_completed_and_the_stop_standing(
+    tmp_path, monkeypatch
+):
+    """A Ctrl-C in the moment between a study's last episode and the end of its episode phase:
+    nothing was left to stop, so the run is completed (its report whole, not marked partial);
+    the stop still stands, so a suite running this study stops before its next scenario."""
+    append = journal_module.ResultsLog.append
+    count = []
+
+    def append_then_stop_at_the_last(self, row):
+        count.append(row)
+        if len(count) == 12:  # compare-smoke: 2 targets x 6 methods
+            request_stop("SIGINT")
+        return append(self, row)
+
+    monkeypatch.setattr(journal_module.ResultsLog, "append", append_then_stop_at_the_last)
+    folder = run_compare(str(SMOKE), [], str(tmp_path), progress=False, workers=1)
+    meta = json.loads((folder / "meta.json").read_text())
+    assert meta["status"] == "completed", meta
+    assert meta["episodes"] == {"finished": 12, "total": 12}
+    assert "PARTIAL" not in (folder / "summary.md").read_text()
+    assert stop_reason() == "SIGINT"
 
 
 @pytest.mark.slow

@@ -115,6 +115,7 @@ def run_study(
         on_start(run.path)
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
+    late: str | None = None
     failure: str | None = None
     bad_input = False
     try:
@@ -128,8 +129,8 @@ def run_study(
             new = stream_episodes(pool, todo, log, progress=progress, done_before=len(kept))
             reason = stop_reason()
         rows = _in_task_order(tasks, kept, new)
-        if total and len(rows) == total:
-            reason = None  # the stop came after the last episode: nothing was left to stop
+        if total and len(rows) == total:  # the stop came after the last episode: this run
+            late, reason = reason, None  # is whole; the stop still ends a suite (see finally)
         study.report(run.path, rows, total, pool, progress)
         status = "interrupted" if reason else "completed"
         if reason:
@@ -145,6 +146,8 @@ def run_study(
         raise
     finally:
         _finish(run, log, status, reason, failure, len(rows), total)
+        if late is not None:  # a suite running this study stops before its next scenario
+            request_stop(late)
         if bad_input and resume is None and not rows:
             # Bad input found once the folder existed (an unreachable target): nothing ran,
             # so nothing is left, as for bad input found before (docs/reliability.md).
