@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import yaml
 from pydantic import BaseModel, ValidationError
@@ -31,6 +31,15 @@ MAX_YAML_BYTES = 8 << 20
 #: Most values a YAML document may hold with every alias expanded (a 10,000-pose targets file
 #: holds 40,000): a guard against alias bombs, which are tiny until expanded.
 MAX_YAML_NODES = 200_000
+
+
+def _refuse_yaml11(node: Any, value: Any, why: str) -> NoReturn:
+    """A YAML 1.1 number that is not the one written (`construct_yaml_int` / `_float`)."""
+    mark = node.start_mark
+    raise yaml.YAMLError(
+        f"{node.value!r} (line {mark.line + 1}, column {mark.column + 1}) is {value} in YAML "
+        f"1.1 ({why}); write the number plainly, or quote it for a text"
+    )
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -59,23 +68,15 @@ class _StrictLoader(yaml.SafeLoader):
         # ones written (YAML 1.2 dropped both). Refused, saying what it would have been.
         text = str(node.value).replace("_", "").lstrip("+-")
         if ":" in text or (len(text) > 1 and text[0] == "0" and text[1:].isdigit()):
-            mark = node.start_mark
-            raise yaml.YAMLError(
-                f"{node.value!r} (line {mark.line + 1}, column {mark.column + 1}) is "
-                f"{super().construct_yaml_int(node)} in YAML 1.1 (a leading 0 is octal, a ':' "
-                "base 60); write the number without them, or quote it for a text"
+            _refuse_yaml11(
+                node, super().construct_yaml_int(node), "a leading 0 is octal, a ':' base 60"
             )
         return super().construct_yaml_int(node)
 
     def construct_yaml_float(self, node: Any) -> Any:
         # The same for YAML 1.1's base-60 floats: 1:30.5 is 90.5.
         if ":" in str(node.value):
-            mark = node.start_mark
-            raise yaml.YAMLError(
-                f"{node.value!r} (line {mark.line + 1}, column {mark.column + 1}) is "
-                f"{super().construct_yaml_float(node)} in YAML 1.1 (a ':' is base 60); write "
-                "the number without it, or quote it for a text"
-            )
+            _refuse_yaml11(node, super().construct_yaml_float(node), "a ':' is base 60")
         return super().construct_yaml_float(node)
 
     def construct_mapping(self, node: Any, deep: bool = False) -> Any:
