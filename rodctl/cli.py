@@ -950,6 +950,11 @@ def _estimate_pairs(
     """The (Delta s, Delta r) pairs of a points recording or of a run's log."""
     from rodctl import estimate as est
 
+    if checkpoint is not None and (feature or ("points" if recording else "logged")) in (
+        "points",
+        "logged",
+    ):  # it would be ignored (the rule of docs/reliability.md)
+        raise UserError("--checkpoint is for a learned feature: give --feature autoencoder too")
     if recording:
         from rodctl.recordings.points import read_points
 

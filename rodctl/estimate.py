@@ -137,7 +137,26 @@ def _encoder(feature: str, points: int, checkpoint: str | None = None) -> Any:
         cfg = model(**extra)
     except Exception as exc:  # noqa: BLE001 - e.g. the autoencoder needs a checkpoint path
         raise UserError(f"--feature {feature}: needs settings of its own ({exc})") from None
-    return make_feature_map(cfg, points=points)
+    try:
+        return make_feature_map(cfg, points=points)
+    except UserError as exc:
+        if "checkpoint" not in model.model_fields:
+            raise
+        # The run's advice (feature.checkpoint, --set) names config keys estimate has not: keep
+        # what does not fit (its indented lines), and say what estimate takes instead.
+        text = str(exc)
+        misfit = [line for line in text.splitlines()[1:] if line.startswith("  ")]
+        which = f"--checkpoint {checkpoint}" if checkpoint else "the packaged encoder"
+        raise UserError(
+            "\n".join(
+                [f"--feature {feature}: {which} does not fit this input ({points} points):"]
+                + (misfit or ["  " + text.splitlines()[0]])
+                + [
+                    f"give --checkpoint an encoder.npz trained for {points} points "
+                    f"(`rodctl train-encoder CONFIG --quick --set camera.points={points}`)"
+                ]
+            )
+        ) from None
 
 
 def _trained_feature(checkpoint: str, feature: str) -> dict[str, Any]:

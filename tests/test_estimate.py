@@ -551,3 +551,20 @@ def test_a_second_estimate_never_overwrites_the_first(tmp_path):
     res = runner.invoke(app, [*args, "-o", str(out), "--force"])
     assert res.exit_code == 0, res.output
     assert (out / "results.csv").is_file() and not (out / "errors.png").exists()
+
+
+def test_checkpoint_options_are_refused_where_they_cannot_apply(tmp_path):
+    """--checkpoint with a feature that takes none would be ignored: refused. An encoder that
+    does not fit the recording is refused with what estimate takes (--checkpoint), not the
+    config keys (feature.checkpoint, --set) of a run's advice."""
+    path = write_points_csv(dual_arm_recording(70, seed=3, points=4), tmp_path / "rec.csv")
+    runner = CliRunner()
+    res = runner.invoke(app, ["estimate", str(path), "--checkpoint", str(tmp_path / "no.npz")])
+    assert res.exit_code == 2 and "give --feature autoencoder" in res.output, res.output
+    res = runner.invoke(app, ["estimate", str(path), "--feature", "autoencoder"])
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    msg = " ".join(res.output.split())
+    assert "the packaged encoder does not fit this input (4 points)" in msg, msg
+    assert "give --checkpoint an encoder.npz trained for 4 points" in msg
+    assert "feature.checkpoint" not in msg and "--set feature" not in msg
+    assert not (tmp_path / "rec-estimate").exists()
