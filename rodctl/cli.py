@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 import os
 import sys
 from collections.abc import Callable
@@ -473,11 +474,29 @@ FiguresOpt = Annotated[bool, typer.Option("--figures/--no-figures", help="Redraw
 OpenOpt = Annotated[
     bool, typer.Option("--open", help="Open the rebuilt run.rrd in the Rerun viewer.")
 ]
+
+
+def _finite(value: float | None) -> float | None:
+    """A float option's check beyond its range: nan and inf are refused (a range lets them
+    through: nan compares false with every bound)."""
+    if value is not None and not math.isfinite(value):
+        raise typer.BadParameter(f"{value} is not a finite number")
+    return value
+
+
+def _positive(value: float | None) -> float | None:
+    """`_finite`, and > 0 (a rate)."""
+    if value is not None and not (math.isfinite(value) and value > 0.0):
+        raise typer.BadParameter(f"{value} is not a positive finite number")
+    return value
+
+
 ToleranceOpt = Annotated[
     float | None,
     typer.Option(
         "--tolerance",
         min=0.0,
+        callback=_finite,
         help="With --verify, accept numbers that differ by at most TOL * max(1, |value|) "
         "(a rerun on another CPU or BLAS kernel). 0 = bit for bit. [default: 0]",
         show_default=False,
@@ -1036,8 +1055,22 @@ def _numbers(flag: str, text: str | None, n: int, kind: type) -> list:
         vals = [kind(v) for v in (text or "").split(",")]
     except ValueError:
         vals = []
-    if len(vals) != n:
-        raise UserError(f"{flag} {text}: give {n} comma-separated numbers")
+    if len(vals) != n or not all(math.isfinite(v) for v in vals):
+        raise UserError(f"{flag} {text}: give {n} comma-separated finite numbers")
+    return vals
+
+
+#: OpenCV's 8-bit HSV bounds: hue 0-180 (degrees / 2; pixels reach 179), saturation and value 0-255.
+_HSV_MAX = (180, 255, 255)
+
+
+def _hsv(flag: str, text: str) -> list[int]:
+    """`--hsv-low/--hsv-high H,S,V` in OpenCV's 8-bit ranges, or a UserError naming the flag
+    (out of range, no pixel could match: the import would blame every frame instead)."""
+    vals = _numbers(flag, text, 3, int)
+    for name, v, top in zip(("H", "S", "V"), vals, _HSV_MAX, strict=True):
+        if not 0 <= v <= top:
+            raise UserError(f"{flag} {text}: {name} = {v} is outside 0-{top} (OpenCV's 8-bit HSV)")
     return vals
 
 
@@ -1047,7 +1080,7 @@ _RecordingArg = Annotated[
     str, typer.Argument(help="A points recording (.csv/.npz), a ROS 2 bag or an image folder.")
 ]
 _ImportNameOpt = Annotated[
-    str | None, typer.Option("--name", help="Run name (default import-<file stem>).")
+    str | None, typer.Option("--name", help="Run name (default: import- and the file's stem).")
 ]
 _PointsTopicOpt = Annotated[
     str | None,
@@ -1058,7 +1091,10 @@ _PoseTopicOpt = Annotated[
     typer.Option("--pose-topic", help="Bag: an end effector's PoseStamped (once or twice)."),
 ]
 _ToleranceOpt = Annotated[
-    float, typer.Option("--tolerance", min=0.0, help="Bag: largest pose gap (s) around a frame.")
+    float,
+    typer.Option(
+        "--tolerance", min=0.0, callback=_finite, help="Bag: largest pose gap (s) around a frame."
+    ),
 ]
 _ImageTopicOpt = Annotated[
     str | None,
@@ -1100,7 +1136,8 @@ _ExtrinsicOpt = Annotated[
     typer.Option("--extrinsic", help="Images: world->camera RX,RY,RZ,TX,TY,TZ (Rodrigues)."),
 ]
 _FpsOpt = Annotated[
-    float | None, typer.Option("--fps", min=0.0, help="Video: frame rate (t = k / fps).")
+    float | None,
+    typer.Option("--fps", callback=_positive, help="Video: frame rate (t = k / fps)."),
 ]
 _FrameTimesOpt = Annotated[
     str | None, typer.Option("--frame-times", help="Video: CSV with each frame's t.")
@@ -1146,8 +1183,8 @@ def _frames_args(
     clamp = None if clamp_pose is None else _numbers("--clamp-pose", clamp_pose, 3, float)
     return dict(
         camera=camera, clamp_pose=clamp,
-        hsv_low=_numbers("--hsv-low", hsv_low, 3, int),
-        hsv_high=_numbers("--hsv-high", hsv_high, 3, int),
+        hsv_low=_hsv("--hsv-low", hsv_low),
+        hsv_high=_hsv("--hsv-high", hsv_high),
         tolerance=tolerance, name=name, calibration=calib,
     )  # fmt: skip
 
@@ -1198,6 +1235,10 @@ def _bag_topics(flags: dict[str, Any]) -> dict[str, Any]:
         )
     if t["mask_topic"] and not t["image_topic"]:
         raise UserError(_NO_MASK)
+    for flag, key in (("--pose-topic", "pose_topic"), ("--tf-frame", "tf_frame")):
+        named = list(t[key] or [])
+        if len(set(named)) < len(named):
+            raise UserError(f"{flag} {' '.join(named)}: each end's own; one is given twice")
     if t["tf_world"] and not t["tf_frame"]:
         raise UserError("--tf-world: goes with --tf-frame (the tf chains it ends)")
     return t
@@ -1298,6 +1339,11 @@ def import_recording(
         tf_topic=tf_topic, tf_world=tf_world, mask_topic=mask_topic,
     )  # fmt: skip
     _refuse_misplaced_flags(path, is_dir, is_video, poses, flags)
+    timing = [f for f, v in (("--fps", fps), ("--frame-times", frame_times)) if v is not None]
+    if timing and not is_video:
+        raise UserError(f"{', '.join(timing)}: frame times of a video; {path} is not one")
+    if len(timing) == 2:
+        raise UserError("--fps and --frame-times: give one of them (the frame times)")
     if is_video:
         _import_video(path, out, poses, fps, frame_times, frames_args)
         return

@@ -143,6 +143,40 @@ def test_import_of_a_bad_file_exits_2(tmp_path):
     assert res.exit_code == 2 and "missing.csv" in res.output
 
 
+_CAMERA = str(Path(__file__).resolve().parents[1] / "configs" / "default.yaml")
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["{dir}", "--poses", "p.csv", "--camera", _CAMERA, "--clamp-pose", "0,0,nan"],
+         "--clamp-pose 0,0,nan: give 3 comma-separated finite numbers"),
+        (["{dir}", "--poses", "p.csv", "--camera", _CAMERA, "--hsv-low", "300,0,0"],
+         "H = 300 is outside 0-180"),
+        (["{dir}", "--poses", "p.csv", "--camera", _CAMERA, "--hsv-high", "10,-1,255"],
+         "S = -1 is outside 0-255"),
+        (["{dir}/v.avi", "--poses", "p.csv", "--fps", "0"], "0.0 is not a positive finite"),
+        (["{dir}/v.avi", "--poses", "p.csv", "--fps", "10", "--frame-times", "t.csv"],
+         "--fps and --frame-times: give one of them"),
+        (["{dir}", "--poses", "p.csv", "--camera", _CAMERA, "--fps", "10"],
+         "--fps: frame times of a video"),
+        (["{dir}", "--points-topic", "/pts", "--pose-topic", "/grip", "--pose-topic", "/grip"],
+         "--pose-topic /grip /grip: each end's own; one is given twice"),
+        (["{dir}", "--tolerance", "inf"], "inf is not a finite number"),
+        (["{dir}/twice.csv"], "column t is named twice"),
+        (["/dev/null"], "/dev/null: not a regular file"),
+    ],
+)  # fmt: skip
+def test_import_refuses_option_values_and_inputs_it_cannot_use(tmp_path, args, needle):
+    """Found by a new-user trial: each was accepted and then blamed on the frames (the rod not
+    visible, lost), or silently used one way (--fps beside --frame-times, a pose topic twice
+    as a second arm, one of two t columns)."""
+    (tmp_path / "twice.csv").write_text("t,x0,y0,t\n0,0,0,0\n")
+    res = CliRunner().invoke(app, ["import", *[a.format(dir=tmp_path) for a in args]])
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    assert needle in " ".join(res.output.split()), res.output
+
+
 # --- export to a ROS 2 bag (shares the simulated run above) -------------------------------
 
 

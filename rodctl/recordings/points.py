@@ -116,6 +116,9 @@ def _csv_rows(path: Path) -> tuple[str, list[str], list[tuple[int, list[str]]]]:
                     continue
                 if header is None:
                     header = [c.strip() for c in row]
+                    twice = sorted({c for c in header if header.count(c) > 1})
+                    if twice:  # which of the two would be read is nobody's guess
+                        raise UserError(f"{path}: line {line_no}: column {twice[0]} is named twice")
                     continue
                 if len(row) != len(header):
                     raise UserError(
@@ -192,7 +195,7 @@ def read_points(path: str | Path) -> PointsRecording:
     """
     p = Path(path)
     if not p.is_file():
-        raise UserError(f"{p}: no such file")
+        raise UserError(f"{p}: {'not a regular file' if p.exists() else 'no such file'}")
     if p.suffix.lower() == ".npz":
         rec = _read_npz(p)
     elif p.suffix.lower() == ".csv":
