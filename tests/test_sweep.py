@@ -381,3 +381,13 @@ def test_an_interrupted_sweep_keeps_what_finished_and_resumes_to_the_same_table(
     done = [r for r in journal(folder) if r["outcome"] != "interrupted"]
     assert len(done) == 4, done  # the finished ones were not run again
     assert finished >= 1
+
+
+def test_set_reaches_a_sweep_parameter_whose_name_has_dots():
+    """`parameters.estimator.p0` names the key `estimator.p0` of `parameters` (found by a
+    new-user trial: it was read as parameters -> estimator -> p0, 'unknown key')."""
+    cfg = load_sweep_config(SMOKE, ["parameters.estimator.p0={values: [1.0, 2.0]}"])
+    assert cfg.parameters["estimator.p0"].values == [1.0, 2.0]
+    cfg = load_sweep_config(SMOKE, ["parameters.estimator.p0.values=[3.0]"])
+    assert cfg.parameters["estimator.p0"].values == [3.0]
+    assert list(cfg.parameters) == ["estimator.p0"]

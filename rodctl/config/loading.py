@@ -236,9 +236,12 @@ def apply_override(data: dict[str, Any], parts: list[str], value: Any, text: str
     default type of its stage.
     """
     node: Any = data
-    for i, part in enumerate(parts):
-        last = i == len(parts) - 1
-        where = ".".join(parts[: i + 1])
+    i = 0
+    while i < len(parts):
+        start = i
+        part, i = _key_at(node, parts, i)
+        last = i == len(parts)
+        where = ".".join(parts[:i])
         if isinstance(node, dict):
             if last and part == "type" and _section_type(node, parts[:-1]) not in (None, value):
                 node.clear()
@@ -265,8 +268,19 @@ def apply_override(data: dict[str, Any], parts: list[str], value: Any, text: str
                 node = node[idx]
         else:
             raise ConfigError(
-                f"--set {text!r}: {'.'.join(parts[:i])!r} is a value ({node!r}), not a section"
+                f"--set {text!r}: {'.'.join(parts[:start])!r} is a value ({node!r}), not a section"
             )
+
+
+def _key_at(node: Any, parts: list[str], i: int) -> tuple[str, int]:
+    """The key of `node` that `parts[i:]` starts with, and the index after it: `parts[i]`, or
+    the longest run of parts that a key with dots in it spells (a sweep's `parameters` are
+    named `estimator.p0`: `--set parameters.estimator.p0=...` reaches that key)."""
+    if isinstance(node, dict) and parts[i] not in node:
+        for j in range(len(parts), i + 1, -1):
+            if ".".join(parts[i:j]) in node:
+                return ".".join(parts[i:j]), j
+    return parts[i], i + 1
 
 
 def _section_type(section: dict[str, Any], path: list[str]) -> Any:
