@@ -323,7 +323,14 @@ def test_a_bag_frame_with_another_point_count_exits_2_naming_it(tmp_path):
     frames = [(0.1 * k, np.zeros((3 if k != 4 else 2, 2))) for k in range(8)]
     _bag(tmp_path / "bag", frames, [(0.05 * k, [0, 0, 0]) for k in range(20)])
     res = _import(tmp_path / "bag", tmp_path / "runs")
-    assert res.exit_code == 2 and "frame 4" in res.output and "/tracker/points" in res.output
+    assert res.exit_code == 2 and "/tracker/points" in res.output
+    # On the run's clock (t = 0 at the first frame), not the bag's stamps (10^9 s here)
+    assert "frame 4 (t = 0.400000 s) has 2 points, frame 0 has 3" in res.output
+    # Too few points in frame 0 is not compared with frame 0
+    frames = [(0.1 * k, np.zeros((1, 2))) for k in range(8)]
+    _bag(tmp_path / "bag1", frames, [(0.05 * k, [0, 0, 0]) for k in range(20)])
+    res = _import(tmp_path / "bag1", tmp_path / "runs")
+    assert res.exit_code == 2 and "frame 0 (t = 0.000000 s) has 1 points (need" in res.output
 
 
 # --- camera images from a bag: segmentation and extraction on a textured scene ------------

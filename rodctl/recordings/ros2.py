@@ -527,7 +527,7 @@ class _Poses:
         if topic in self.series:
             p = msg.pose
             t = _stamp_ns(msg, log_ns)
-            check_pose(p.position, p.orientation, f"{topic} at t = {t / 1e9:.6f} s")
+            check_pose(p.position, p.orientation, f"{topic} at stamp {t / 1e9:.6f} s")
             self.series[topic].append((t, [p.position.x, p.position.y, _yaw(p.orientation)]))
 
     def get(self, path: Path, src: PoseSource) -> RowSeries | TfSeries:
@@ -614,33 +614,36 @@ def read_bag_points(
 
 def _point_frames(path: Path, points_topic: str, poses: _Poses) -> list[tuple[int, np.ndarray]]:
     """The frames (time in ns, (N, 2) points) of `points_topic` in time order, the same N >= 2
-    finite points in each; the pose topics' messages go into `poses` on the way."""
-    frames: list[tuple[int, np.ndarray]] = []
+    finite points in each; the pose topics' messages go into `poses` on the way. Decoded in
+    time order, so that every refusal names its frame on one clock (t = 0 at the first)."""
+    stamped: list[tuple[int, int, str, Any]] = []
     need = [(points_topic, POINTS_TYPES), *poses.need()]
     for topic, msgtype, log_ns, msg in _bag_messages(path, need, poses.optional()):
         if topic == points_topic:
-            t = _stamp_ns(msg, log_ns)
-            where = f"{path}: {points_topic}: frame {len(frames)} (t = {t / 1e9:.6f} s)"
-            frames.append((t, _xy(msg, msgtype, where)))
+            stamped.append((_stamp_ns(msg, log_ns), len(stamped), msgtype, msg))
         if topic in poses.topics():
             poses.add(topic, msgtype, log_ns, msg)
-    if not frames:
+    if not stamped:
         raise UserError(f"{path}: topic {points_topic} has no messages")
-    frames.sort(key=lambda f: f[0])
-    n = len(frames[0][1])
-    t0 = frames[0][0]
-    for k, (t, xy) in enumerate(frames):
-        if len(xy) != n or n < 2:
+    stamped.sort(key=lambda f: f[:2])  # by time, then as written
+    t0 = stamped[0][0]
+    frames: list[tuple[int, np.ndarray]] = []
+    n = 0
+    for k, (t, _, msgtype, msg) in enumerate(stamped):
+        where = f"{path}: {points_topic}: frame {k} (t = {(t - t0) / 1e9:.6f} s)"
+        xy = _xy(msg, msgtype, where)
+        n = len(xy) if k == 0 else n
+        if n < 2:
+            raise UserError(f"{where} has {n} points (need the same N >= 2 in every frame)")
+        if len(xy) != n:
             raise UserError(
-                f"{path}: {points_topic}: frame {k} (t = {(t - t0) / 1e9:.6f} s) has {len(xy)} "
-                f"points, frame 0 has {n} (need the same N >= 2 in every frame)"
+                f"{where} has {len(xy)} points, frame 0 has {n} (need the same N >= 2 in every "
+                "frame)"
             )
         if not np.isfinite(xy).all():
             i = int(np.argmax(~np.isfinite(xy).all(axis=1)))
-            raise UserError(
-                f"{path}: {points_topic}: frame {k} (t = {(t - t0) / 1e9:.6f} s): point {i} is "
-                "not a finite number"
-            )
+            raise UserError(f"{where}: point {i} is not a finite number")
+        frames.append((t, xy))
     return frames
 
 

@@ -110,7 +110,7 @@ class TfTree:
             v, o = tr.transform.translation, tr.transform.rotation
             t = t if t > 0 else int(log_ns)
             vals = np.array([v.x, v.y, v.z, o.x, o.y, o.z, o.w], dtype=float)
-            where = f"{topic}: child frame {child!r} at t = {t / 1e9:.6f} s"
+            where = f"{topic}: child frame {child!r} at stamp {t / 1e9:.6f} s"
             if not np.all(np.isfinite(vals)):
                 shown = ", ".join(f"{float(x):g}" for x in vals)
                 raise UserError(f"{where}: the transform has non-finite values ({shown})")
