@@ -164,6 +164,10 @@ _CAMERA = str(Path(__file__).resolve().parents[1] / "configs" / "default.yaml")
          "--pose-topic /grip /grip: each end's own; one is given twice"),
         (["{dir}", "--tolerance", "inf"], "inf is not a finite number"),
         (["{dir}/twice.csv"], "column t is named twice"),
+        (["{dir}/text.npz"], "not a NumPy .npz archive"),
+        (["{dir}/object.npz"], "(object arrays; ValueError)"),
+        (["{dir}/complex.npz"], "array 'points' is complex128, not real numbers"),
+        (["{dir}/column.npz"], "array 't' has shape (5, 1); one time per frame"),
         (["/dev/null"], "/dev/null: not a regular file"),
     ],
 )  # fmt: skip
@@ -172,6 +176,11 @@ def test_import_refuses_option_values_and_inputs_it_cannot_use(tmp_path, args, n
     visible, lost), or silently used one way (--fps beside --frame-times, a pose topic twice
     as a second arm, one of two t columns)."""
     (tmp_path / "twice.csv").write_text("t,x0,y0,t\n0,0,0,0\n")
+    (tmp_path / "text.npz").write_text("not an archive")
+    pts, poses = np.zeros((5, 3, 2)), np.zeros((5, 3))
+    np.savez(tmp_path / "object.npz", t=np.array([1, "a"], dtype=object), points=pts, poses=poses)
+    np.savez(tmp_path / "complex.npz", t=np.arange(5.0), points=pts + 0j, poses=poses)
+    np.savez(tmp_path / "column.npz", t=np.arange(5.0)[:, None], points=pts, poses=poses)
     res = CliRunner().invoke(app, ["import", *[a.format(dir=tmp_path) for a in args]])
     assert res.exit_code == 2 and "Traceback" not in res.output, res.output
     assert needle in " ".join(res.output.split()), res.output

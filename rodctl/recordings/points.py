@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import re
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -174,16 +175,29 @@ def _read_npz(path: Path) -> PointsRecording:
             if missing:
                 raise UserError(f"{path}: no array {missing[0]!r} (needs t, points, poses)")
             units = str(z["units"]) if "units" in z.files else "m"
-            return PointsRecording(
-                t=np.asarray(z["t"], dtype=float).reshape(-1),
-                points=np.asarray(z["points"], dtype=float),
-                poses=np.asarray(z["poses"], dtype=float),
-                units=units,
-            )
+            arrays = {k: z[k] for k in ("t", "points", "poses")}
     except UserError:
         raise
     except Exception as exc:  # noqa: BLE001 - not a zip, a pickled object array, ...
-        raise UserError(f"{path}: not a points NPZ file ({type(exc).__name__}: {exc})") from None
+        # numpy's own text advises loading the file unsafely (allow_pickle): never passed on
+        # for a file that may not be trusted.
+        what = "not a NumPy .npz archive" if not zipfile.is_zipfile(path) else "object arrays"
+        raise UserError(
+            f"{path}: not a points NPZ file ({what}; {type(exc).__name__}): it needs plain "
+            "numeric arrays t, points, poses"
+        ) from None
+    for name, a in arrays.items():
+        if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+            raise UserError(f"{path}: array {name!r} is {a.dtype}, not real numbers")
+    if arrays["t"].ndim != 1:
+        shape = arrays["t"].shape
+        raise UserError(f"{path}: array 't' has shape {shape}; one time per frame, (T,)")
+    return PointsRecording(
+        t=arrays["t"].astype(float),
+        points=arrays["points"].astype(float),
+        poses=arrays["poses"].astype(float),
+        units=units,
+    )
 
 
 def read_points(path: str | Path) -> PointsRecording:
