@@ -1365,12 +1365,13 @@ def export_run(
     storage: Annotated[
         str, typer.Option("--storage", help="Bag storage: mcap or sqlite3.")
     ] = "mcap",
+    recover: RecoverOpt = False,
 ) -> None:
     """Write a run as a ROS 2 bag (Image, CameraInfo, PoseStamped, MarkerArray; CDR), no
     ROS 2 install needed (docs/recordings.md). Prints the messages per topic and the bag last."""
     from rodctl.recordings.ros2 import export_ros2
 
-    counts = export_ros2(path, ros2, storage)
+    counts = export_ros2(path, ros2, storage, recover=recover)
     for topic, n in counts.items():
         typer.echo(f"{topic}: {n} messages", err=True)
     typer.echo(ros2)

@@ -190,6 +190,23 @@ def test_import_refuses_option_values_and_inputs_it_cannot_use(tmp_path, args, n
 
 
 @pytest.mark.slow
+def test_export_of_a_run_cut_short_needs_recover_and_then_writes_its_whole_steps(sim_run, tmp_path):
+    """The refusal names the option that reads a log whose writer never finished, and export
+    takes it (a new-user trial found it pointing to `replay --recover`, which export lacked)."""
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    data = (sim_run / "run.mcap").read_bytes()
+    (cut / "run.mcap").write_bytes(data[: len(data) // 2])
+    res = CliRunner().invoke(app, ["export", str(cut), "--ros2", str(tmp_path / "a")])
+    assert res.exit_code == 2 and "export --recover" in " ".join(res.output.split())
+    res = CliRunner().invoke(app, ["export", str(cut), "--ros2", str(tmp_path / "b"), "--recover"])
+    assert res.exit_code == 0, res.output
+    steps = len(read_run(cut, recover=True, images=False).records)
+    assert 0 < steps < len(read_run(sim_run, images=False).records)
+    assert f"/gripper/pose: {steps} messages" in res.output
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_export_writes_a_ros2_bag_that_rosbags_reads_back(sim_run, tmp_path, storage):
     from rosbags.highlevel import AnyReader

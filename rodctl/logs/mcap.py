@@ -918,7 +918,7 @@ def read_mcap(path: str | Path, *, recover: bool = False, images: bool = True) -
             f"loss): {reason}. {len(run.records)} complete steps are readable"
         )
         if not recover:
-            raise UserError(what + "; read it with recovery (rodctl replay --recover) to use them.")
+            raise UserError(what + "; `rodctl replay --recover` or `export --recover` reads them.")
         notes.insert(0, what + ".")
     run.complete = complete
     return run

@@ -174,8 +174,11 @@ def _check_bag_folder(out: Path) -> None:
         raise out_error("--ros2", out, "cannot create the bag folder", exc) from None
 
 
-def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") -> dict[str, int]:
+def export_ros2(
+    run_path: str | Path, bag: str | Path, storage: str = "mcap", *, recover: bool = False
+) -> dict[str, int]:
     """Write the run at `run_path` as the ROS 2 bag folder `bag`; return messages per topic.
+    `recover`: a log whose writer never finished gives its complete steps (`read_run`).
 
     Raises:
         UserError: not a run, a bag folder that exists already, an unknown storage.
@@ -192,7 +195,7 @@ def export_ros2(run_path: str | Path, bag: str | Path, storage: str = "mcap") ->
     out = out_path(bag, "--ros2")
     if out.exists():
         raise UserError(f"--ros2 {out}: exists already; a bag is written to a new folder")
-    run = read_run(run_path, images=True)
+    run = read_run(run_path, images=True, recover=recover)
     ts = get_typestore(Stores.ROS2_HUMBLE)
     T = ts.types
     width, height = run.header.image_size
