@@ -1209,6 +1209,17 @@ def _refuse_misplaced_flags(
         )
 
 
+def _refuse_misplaced_timing(
+    path: str, is_video: bool, fps: float | None, frame_times: str | None
+) -> None:
+    """A UserError for --fps or --frame-times with another input than a video, or both."""
+    timing = [f for f, v in (("--fps", fps), ("--frame-times", frame_times)) if v is not None]
+    if timing and not is_video:
+        raise UserError(f"{', '.join(timing)}: frame times of a video; {path} is not one")
+    if len(timing) == 2:
+        raise UserError("--fps and --frame-times: give one of them (the frame times)")
+
+
 def _bag_topics(flags: dict[str, Any]) -> dict[str, Any]:
     """The bag's topics: the flags, each unset one from the --topics YAML, checked together."""
     t = dict(flags)
@@ -1339,11 +1350,7 @@ def import_recording(
         tf_topic=tf_topic, tf_world=tf_world, mask_topic=mask_topic,
     )  # fmt: skip
     _refuse_misplaced_flags(path, is_dir, is_video, poses, flags)
-    timing = [f for f, v in (("--fps", fps), ("--frame-times", frame_times)) if v is not None]
-    if timing and not is_video:
-        raise UserError(f"{', '.join(timing)}: frame times of a video; {path} is not one")
-    if len(timing) == 2:
-        raise UserError("--fps and --frame-times: give one of them (the frame times)")
+    _refuse_misplaced_timing(path, is_video, fps, frame_times)
     if is_video:
         _import_video(path, out, poses, fps, frame_times, frames_args)
         return

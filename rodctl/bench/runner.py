@@ -145,9 +145,7 @@ def run_study(
             raise RunFailed(failure) from None
         raise
     finally:
-        _finish(run, log, status, reason, failure, len(rows), total)
-        if late is not None:  # a suite running this study stops before its next scenario
-            request_stop(late)
+        _finish(run, log, status, reason, failure, len(rows), total, late)
         if bad_input and resume is None and not rows:
             # Bad input found once the folder existed (an unreachable target): nothing ran,
             # so nothing is left, as for bad input found before (docs/reliability.md).
@@ -173,13 +171,18 @@ def _finish(
     failure: str | None,
     finished: int,
     total: int,
+    late: str | None = None,
 ) -> None:
-    """The journal compacted and meta.json's end: status, why, how many episodes finished."""
+    """The journal compacted and meta.json's end: status, why, how many episodes finished.
+    `late`: a stop that came after the last episode (the run is whole): it stays requested, so
+    that a suite running this study stops before its next scenario."""
     log.compact()
     extra = {"episodes": {"finished": finished, "total": total}}
     why = f"interrupted by {reason}" if reason else failure
     run.finish(status, **({"error": why} if why else {}), **extra)
     clear_stop()
+    if late is not None:
+        request_stop(late)
 
 
 def failure_reason(exc: BaseException, folder: Path) -> str:
