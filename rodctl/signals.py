@@ -11,7 +11,6 @@ returns None) is left alone: it could not be put back.
 from __future__ import annotations
 
 import signal
-import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -80,8 +79,9 @@ def held_from_children(signals: tuple[int, ...] = (signal.SIGINT,)) -> Iterator[
     with SIGINT blocked, a worker takes it only when it calls `release` after its cooperative
     handler is in place (`executors.base.init_worker`); a worker that never does leaves SIGINT
     to the command, which stops it. This process still takes the signal: the kernel hands a
-    process-directed signal to a thread that does not block it, and the Python handler runs in
-    the main thread whichever thread received it. No-op without `pthread_sigmask` (Windows).
+    process-directed signal to a thread that does not block it (the Python handler runs in the
+    main thread whichever thread received it), or, with none, delivers it when the mask is put
+    back. No-op without `pthread_sigmask` (Windows).
 
     The multiprocessing resource tracker is started first: starting it unblocks SIGINT in the
     calling thread (CPython's `resource_tracker.ensure_running` blocks, spawns, then unblocks),
@@ -90,8 +90,7 @@ def held_from_children(signals: tuple[int, ...] = (signal.SIGINT,)) -> Iterator[
     if not hasattr(signal, "pthread_sigmask"):
         yield
         return
-    if sys.platform != "win32":
-        resource_tracker.ensure_running()
+    resource_tracker.ensure_running()
     old = signal.pthread_sigmask(signal.SIG_BLOCK, signals)
     try:
         yield
