@@ -159,7 +159,8 @@ class EpisodeResult:
     records: list[StepRecord]
     error: str | None = None
     traceback: str | None = None
-    #: why a diverged episode diverged: the quantity and the step (`divergence`), else None.
+    #: why a diverged episode diverged (the quantity and the step: `divergence`) or why one
+    #: lost the rod (`lost_tracking`), else None.
     reason: str | None = None
 
     @property
@@ -293,6 +294,8 @@ def _steps(
         outcome = stop_rule.check(rec, method, diverged=info["diverged"])
         if outcome is Outcome.DIVERGED:
             loop.reason = divergence(rec, info["diverged"])
+        elif outcome is Outcome.LOST_TRACKING:
+            loop.reason = lost_tracking(rec, loop.cfg.run.max_lost_frames)
         elif outcome is None and truncated:
             outcome = Outcome.STEP_LIMIT  # a time limit: run.max_steps or a wrapper's
     return outcome or Outcome.STEP_LIMIT
@@ -330,6 +333,23 @@ def _servo_env(env: gym.Env) -> ServoEnv:
 
 def _numbers(v: np.ndarray) -> str:
     return "[" + ", ".join(f"{float(x):.6g}" for x in np.ravel(v)) + "]"
+
+
+def lost_tracking(rec: StepRecord, max_lost_frames: int) -> str:
+    """Why an episode lost the rod at `rec`'s step, in words: during probing too few frames
+    were good to fit J_0; in control, `max_lost_frames` frames in a row found no rod."""
+    where = f"lost the rod at step {rec.step}"
+    if rec.phase != CONTROL:
+        return (
+            f"{where}: too few probing frames showed the rod to fit the initial Jacobian J_0 "
+            "(the extractor found no rod in one or more of them: an occluder, the rod out of "
+            "view, or noise past what it tolerates)"
+        )
+    return (
+        f"{where}: the extractor found no rod in {max_lost_frames} frames in a row "
+        "(run.max_lost_frames): an occluder, the rod out of view, or noise past what it "
+        "tolerates"
+    )
 
 
 def divergence(rec: StepRecord, simulator: bool) -> str:
@@ -538,7 +558,8 @@ class _Loop:
             elif not isinstance(error, UserError):
                 message = f"{type(error).__name__}: {error}"
             tb = "".join(traceback.format_exception(error))
-        reason = self.reason if outcome is Outcome.DIVERGED else None
+        failed = (Outcome.DIVERGED, Outcome.LOST_TRACKING)
+        reason = self.reason if outcome in failed else None
         return EpisodeResult(outcome, summary, self.header, self.records, message, tb, reason)
 
     def _benchmark_metrics(self, outcome: Outcome) -> dict[str, Any]:

@@ -189,7 +189,7 @@ def _run(
 
 def _episode_error(result: EpisodeResult, stops: StopRequests, run: RunDir) -> str | None:
     """Why the episode did not complete (its error, its divergence, its stop signal), else None;
-    a divergence's reason goes into error.txt."""
+    a divergence's or a lost rod's reason goes into error.txt."""
     error = (
         result.error
         or result.reason
@@ -199,7 +199,7 @@ def _episode_error(result: EpisodeResult, stops: StopRequests, run: RunDir) -> s
             else None
         )
     )
-    if result.reason and not result.error:  # diverged: no traceback, the reason says it
+    if result.reason and not result.error:  # diverged or lost: no traceback, the reason says it
         text = result.reason + "\n"
         _best_effort(lambda: (run.path / "error.txt").write_text(text))
     return error

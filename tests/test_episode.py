@@ -90,6 +90,8 @@ def test_a_frame_lost_while_probing_ends_as_lost_tracking_not_a_setup_error():
     result = run_episode(env, method)
     assert result.outcome == Outcome.LOST_TRACKING
     assert [r.step for r in result.records if not r.extraction_ok] == [2]  # a probing step
+    assert result.reason is not None and result.reason.startswith("lost the rod at step")
+    assert "too few probing frames" in result.reason
 
 
 def test_a_nan_command_ends_the_run_as_diverged_without_moving():

@@ -73,6 +73,22 @@ def test_a_simulation_that_breaks_down_says_so_with_the_step(tmp_path, monkeypat
     assert "rod.gap_limit" in (run_dir / "error.txt").read_text()
 
 
+@pytest.mark.slow
+def test_a_run_that_loses_the_rod_says_so_in_the_terminal_meta_and_error_txt(tmp_path):
+    """Found by a new-user trial: a lost_tracking run exited 1 with no `error:` line, no
+    `error` in meta.json and no error.txt, which the failure table promises."""
+    blind = "run.events=[{at_step: 6, type: occluder, action: add, box: [0, 0, 640, 480]}]"
+    res = _run("simulate", SCRIPTED, "-q", "-o", tmp_path, "--set", blind, *QUICK)
+    assert res.exit_code == 1, res.output
+    said = "lost the rod at step 8: the extractor found no rod in 3 frames in a row"
+    assert f"error: {said}" in res.output
+    (run_dir,) = tmp_path.iterdir()
+    meta = json.loads((run_dir / "meta.json").read_text())
+    assert meta["status"] == "failed" and meta["outcome"] == "lost_tracking"
+    assert said in meta["error"]
+    assert said in (run_dir / "error.txt").read_text()
+
+
 # --------------------------------------------------------------------------- exit codes
 def _simulate_out(out):
     return _run("simulate", SCRIPTED, "-q", "-o", out, "--set", "run.max_steps=5", *QUICK)
