@@ -32,10 +32,16 @@ def results_file(path: str | Path) -> Path:
     """The results file of a run folder: results.csv, else results.jsonl; a file as given.
 
     Raises:
-        UserError: no such folder or file, or a folder with neither results file.
+        UserError: no such folder or file, a folder with neither results file, or a file that
+            is not a `.csv` or `.jsonl` (a run's results.json, summary.md or config.yaml).
     """
     p = Path(path)
     if p.is_file():
+        if p.suffix not in (".csv", ".jsonl"):
+            raise UserError(
+                f"{p}: not a results file: load_results reads a compare, sweep or suite "
+                "folder, or its results.csv or results.jsonl"
+            )
         return p
     if not p.is_dir():
         raise UserError(f"{p}: no such run folder or results file")
@@ -61,7 +67,7 @@ def load_results(path: str | Path) -> Any:
 
     Raises:
         ModuleNotFoundError: pandas is not installed (the message says how to install it).
-        UserError: no results there.
+        UserError: no results there, or a file that is not a results table.
     """
     pd = _pandas()
     file = results_file(path)
@@ -80,7 +86,10 @@ def load_results(path: str | Path) -> Any:
         if "error" in frame:  # as read from results.csv: no error is an empty cell
             frame["error"] = frame["error"].mask(frame["error"] == "")
         return frame
-    return pd.read_csv(file)
+    try:
+        return pd.read_csv(file)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise UserError(f"{file}: cannot be read as a results table: {exc}") from None
 
 
 def load_run(path: str | Path, *, recover: bool = False, images: bool = True) -> Any:

@@ -41,3 +41,24 @@ def test_load_results_says_what_is_missing(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "pandas", None)  # as if pandas were not installed
     with pytest.raises(ModuleNotFoundError, match=r"pip install pandas"):
         rodctl.load_results(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "said"),
+    [
+        ("results.json", '{"rows": []}', "not a results file"),
+        ("summary.md", "| a | b |\n|---|---|\n| 1 | 2 | 3 | 4 |\n", "not a results file"),
+        ("config.yaml", "seed: 1\n", "not a results file"),
+        ("results.csv", "", "cannot be read as a results table"),
+        ("results.csv", "a,b\n1,2\n1,2,3,4\n", "cannot be read as a results table"),
+    ],
+)
+def test_load_results_refuses_a_file_that_is_not_a_results_table(tmp_path, name, text, said):
+    """Found by a new-user trial: any file was read as CSV (junk columns for results.json, a
+    pandas traceback for summary.md, an empty frame for a YAML)."""
+    pytest.importorskip("pandas")
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(UserError, match=said) as caught:
+        rodctl.load_results(path)
+    assert str(path) in str(caught.value)
