@@ -377,6 +377,13 @@ def divergence(rec: StepRecord, simulator: bool) -> str:
     return f"{where}: the method reported that it diverged"
 
 
+def _final_pose(rec: StepRecord) -> np.ndarray:
+    """The moved ends' poses after `rec`'s step: the gripper's, then (dual-arm) the x0 end's."""
+    if rec.clamp is None:
+        return np.asarray(rec.gripper)
+    return np.concatenate([rec.gripper, rec.clamp])
+
+
 def _jacobian_error_summary(recs: Sequence[StepRecord]) -> dict[str, float | None]:
     """The episode's Jacobian errors in brief: the median over the steps that have one, and the
     last step's (None where there is none)."""
@@ -604,7 +611,8 @@ class _Loop:
                 target_pose=[float(v) for v in target.pose],
                 target_difficulty=round(target.difficulty, 6),
                 home_pose=[float(v) for v in self.task.home_pose],
-                final_gripper=[float(v) for v in last.gripper],
+                # Like home_pose and target_pose: 6 values dual-arm (the x0 end's after).
+                final_gripper=[float(v) for v in _final_pose(last)],
                 final_J_singular_values=[float(v) for v in last.J_singular_values],
                 path_length=float(np.sum(np.linalg.norm(us[:, :2], axis=1))),
                 rotation_length=float(np.sum(np.abs(us[:, 2]))),

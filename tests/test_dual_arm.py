@@ -194,6 +194,9 @@ def test_a_short_dual_arm_episode_converges(name, tmp_path):
     last = result.records[-1]
     assert last.clamp is not None and len(last.u) == 6
     assert np.any(np.abs(last.clamp - np.asarray(cfg.rod.clamp_pose)) > 1e-4)  # it moved
+    extra = result.summary.extra  # both ends' poses, as home_pose and target_pose
+    assert extra["final_gripper"] == [*last.gripper.tolist(), *last.clamp.tolist()]
+    assert len(extra["home_pose"]) == len(extra["target_pose"]) == 6
     logged = read_mcap(tmp_path / "run.mcap", images=False)
     assert logged.header.home_pose.shape == (6,)
     assert compare_records(logged.records, result.records) == []
