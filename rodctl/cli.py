@@ -587,7 +587,7 @@ _QuickOpt = Annotated[
     typer.Option(
         "--quick",
         help="A quick encoder: 3,000 samples, 300 epochs, batches of 500 (about 30 s on "
-        "2 cores), enough for a new rod or camera.",
+        "2 cores), enough for a new rod or camera. A --set of one of these sizes wins.",
     ),
 ]
 
@@ -668,12 +668,12 @@ def train_encoder(
     """
     from rodctl.features.autoencoder import require_torch
     from rodctl.runs import RunDir
-    from rodctl.training.encoder import quick_config
+    from rodctl.training.encoder import quick_overrides
 
     require_torch("rodctl train-encoder")  # before anything is collected or written
     cfg = load_config(config, set_ or [])
-    if quick:
-        cfg = quick_config(cfg)
+    if quick:  # the quick sizes, under what --set gives explicitly
+        cfg = load_config(config, [*quick_overrides(cfg), *(set_ or [])])
     cfg, recording = _training_recording(cfg, dataset)
     run = RunDir.create(out, cfg, command="train-encoder", argv=sys.argv)
     if recording is not None:

@@ -299,18 +299,31 @@ def _write_checkpoint(ckpt: EncoderCheckpoint, run: RunDir) -> dict[str, Any]:
     return metrics
 
 
-def quick_config(cfg: ExperimentConfig) -> ExperimentConfig:
-    """`cfg` with the quick encoder's data and training sizes (`rodctl.features.auto`:
-    QUICK_SAMPLES, QUICK_EPOCHS, batches of at most QUICK_BATCH; they also name its cache file)."""
+def quick_overrides(cfg: ExperimentConfig) -> list[str]:
+    """The quick encoder's data and training sizes as `--set` overrides for `cfg`
+    (`rodctl.features.auto`: QUICK_SAMPLES, QUICK_EPOCHS, batches of at most QUICK_BATCH; they
+    also name its cache file); none when the feature is not an autoencoder."""
     if not isinstance(cfg.feature, AutoencoderFeatureConfig):
-        return cfg  # nothing to shrink; train_encoder says what is wrong
+        return []  # nothing to shrink; train_encoder says what is wrong
+    data, training = cfg.feature.data, cfg.feature.training
+    return [
+        f"feature.data.samples={quick.QUICK_SAMPLES}",
+        f"feature.data.chunk={min(data.chunk, quick.QUICK_SAMPLES // 6)}",
+        f"feature.training.epochs={quick.QUICK_EPOCHS}",
+        f"feature.training.batch_size={min(training.batch_size, quick.QUICK_BATCH)}",
+    ]
+
+
+def quick_config(cfg: ExperimentConfig) -> ExperimentConfig:
+    """`cfg` with the quick encoder's data and training sizes (`quick_overrides`)."""
     data = cfg.model_dump(mode="json")
-    feature = data["feature"]
-    feature["data"]["samples"] = quick.QUICK_SAMPLES
-    feature["data"]["chunk"] = min(int(feature["data"]["chunk"]), quick.QUICK_SAMPLES // 6)
-    feature["training"]["epochs"] = quick.QUICK_EPOCHS
-    batch = min(int(feature["training"]["batch_size"]), quick.QUICK_BATCH)
-    feature["training"]["batch_size"] = batch
+    for item in quick_overrides(cfg):
+        key, value = item.split("=", 1)
+        *path, leaf = key.split(".")
+        section = data
+        for name in path:
+            section = section[name]
+        section[leaf] = int(value)
     return ExperimentConfig.model_validate(data)
 
 

@@ -3,6 +3,9 @@ names the user's config keys (issue #15)."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 from paths import REPO
@@ -251,11 +254,23 @@ def test_train_encoder_quick_uses_the_quick_sizes(tiny_quick, tmp_path):
         ],
     )
     assert res.exit_code == 0, res.output
-    import json
-    from pathlib import Path
-
     run = Path(res.stdout.strip().splitlines()[-1])
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["epochs"] == 3
     assert metrics["train_samples"] + metrics["validation_samples"] == 24
     assert (run / "encoder.npz").is_file() and (run / "encoder.pt").is_file()
+
+
+@pytest.mark.slow
+def test_train_encoder_quick_keeps_the_sizes_given_by_set(tiny_quick, tmp_path):
+    """Found by a new-user trial: --quick silently replaced an explicit --set of its sizes."""
+    sets = ["feature.hidden=[16, 8]", "feature.data.workers=1", "feature.training.batch_size=8"]
+    sets += ["feature.data.samples=30", "feature.training.epochs=2"]
+    args = ["train-encoder", str(REPO / "configs/default.yaml"), "--quick", "-q"]
+    args += ["--out", str(tmp_path), *[f"--set={s}" for s in sets]]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    run = Path(res.stdout.strip().splitlines()[-1])
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["epochs"] == 2
+    assert metrics["train_samples"] + metrics["validation_samples"] == 30
