@@ -383,7 +383,7 @@ def _simulate(
     from rodctl.simulate import simulate as run_simulation
 
     table = not quiet
-    rerun_view = _live_rerun(cfg, live_rerun) if live_rerun else None
+    rerun_view = _live_rerun(cfg, live_rerun) if live_rerun is not None else None
     view = _live_view(cfg, live_port) if live else None  # stopped when the run is over
     if table:  # rich (~0.05 s of CPU to import) only for the bar and the table
         from rodctl.display import print_summary, step_progress
@@ -437,6 +437,11 @@ def _live_rerun(cfg: ExperimentConfig, url: str) -> Any:
     """`simulate --live-rerun URL`: the run's Rerun recording, streamed to that viewer too."""
     from rodctl.logs.rerun import RerunSink, check_viewer
 
+    if not url.strip():  # an unset shell variable, say: refused, not ignored
+        raise UserError(
+            "--live-rerun is empty: give the URL of a listening Rerun viewer, e.g. "
+            "rerun+http://127.0.0.1:9876/proxy"
+        )
     check_viewer(url)
     return RerunSink(None, cfg.logging, url=url)
 
@@ -777,11 +782,20 @@ ResumeOpt = Annotated[
 ]
 
 
-def _finish_batch(runner: Callable[..., Any], config: str, **kwargs: Any) -> None:
+def _finish_batch(
+    ctx: typer.Context, runner: Callable[..., Any], config: str, **kwargs: Any
+) -> None:
     """Run compare/sweep (`runner(config, overrides, out, ...)`); an interrupted run prints its
     folder and exits 1 (results kept)."""
     from rodctl.bench.runner import RunInterrupted
 
+    # typer carries its own click: its ParameterSource is compared by name.
+    source = ctx.get_parameter_source("out")
+    if kwargs["resume"] and source is not None and source.name == "COMMANDLINE":
+        raise UserError(
+            f"--resume continues {kwargs['resume']} in its own folder; -o/--out "
+            f"({kwargs['out']}) does not apply to it: leave it out"
+        )
     kwargs["overrides"] = kwargs.pop("set_") or []
     kwargs["progress"] = not kwargs.pop("quiet")
     try:
@@ -810,6 +824,7 @@ WorkersOpt = Annotated[
 @app.command()
 @user_errors
 def compare(
+    ctx: typer.Context,
     config: Annotated[str, typer.Argument(help="Compare config, e.g. configs/compare.yaml.")],
     set_: SetOpt = None,
     out: OutOpt = "runs",
@@ -849,7 +864,7 @@ def compare(
     # compare folder's resolved config.yaml says `scenarios: null`: a plain compare).
     runner = run_suite if data.get("scenarios") is not None else run_compare
     _finish_batch(
-        runner, config, set_=set_, out=out, quiet=quiet, workers=workers,
+        ctx, runner, config, set_=set_, out=out, quiet=quiet, workers=workers,
         executor=executor, address=address, resume=resume,
     )  # fmt: skip
 
@@ -857,6 +872,7 @@ def compare(
 @app.command()
 @user_errors
 def sweep(
+    ctx: typer.Context,
     config: Annotated[str, typer.Argument(help="Sweep config, e.g. configs/sweep-tuning.yaml.")],
     set_: SetOpt = None,
     out: OutOpt = "runs",
@@ -893,7 +909,7 @@ def sweep(
             "configs/sweep-smoke.yaml"
         )
     _finish_batch(
-        run_sweep, config, set_=set_, out=out, quiet=quiet, workers=workers,
+        ctx, run_sweep, config, set_=set_, out=out, quiet=quiet, workers=workers,
         executor=executor, address=address, resume=resume,
     )  # fmt: skip
 

@@ -15,6 +15,8 @@ from rodctl.cli import app
 
 runner = CliRunner()
 DEFAULT = str(REPO / "configs/default.yaml")
+SMOKE = str(REPO / "configs/compare-smoke.yaml")
+SWEEP = str(REPO / "configs/sweep-smoke.yaml")
 
 
 def test_help_has_no_type_placeholders_and_shows_examples():
@@ -106,11 +108,19 @@ def test_a_usage_error_is_one_error_line_then_the_usage_not_a_panel():
         (["simulate", DEFAULT, "--live-port", "9000"], "--live-port is the port of the --live"),
         (["simulate", DEFAULT, "--live", "--live-port", "99999"], "a port is 0 to 65535"),
         (["replay", DEFAULT, "--tolerance", "1e-9"], "--tolerance is how closely --verify"),
+        (["simulate", DEFAULT, "--live-rerun", ""], "--live-rerun is empty"),
+        (["compare", SMOKE, "--resume", "runs/x"], "--resume continues runs/x in its own folder"),
+        (["sweep", SWEEP, "--resume", "runs/x"], "-o/--out"),
     ],
-    ids=["schema-both", "port-without-live", "port-out-of-range", "tolerance-without-verify"],
-)
+    ids=[
+        "schema-both", "port-without-live", "port-out-of-range", "tolerance-without-verify",
+        "empty-live-rerun", "compare-resume-with-out", "sweep-resume-with-out",
+    ],
+)  # fmt: skip
 def test_an_option_that_would_be_silently_ignored_is_refused(args, said, tmp_path):
-    res = runner.invoke(app, [*args, *(["-o", str(tmp_path)] if args[0] == "simulate" else [])])
+    """--live-rerun "" and --resume with -o were found ignored by a new-user trial."""
+    out = ["-o", str(tmp_path)] if args[0] in ("simulate", "compare", "sweep") else []
+    res = runner.invoke(app, [*args, *out])
     assert res.exit_code == 2, res.output
     assert res.output.startswith("error: ") and said in res.output, res.output
     assert not any(tmp_path.iterdir())  # refused before any run folder
