@@ -397,6 +397,8 @@ class ShapeServoEnv(gym.Env):
 
         Raises:
             UserError: a target or start pose that is out of reach or unusable.
+            ValueError: an unknown option, or a pose that is not 3 (dual-arm: or 6) finite
+                numbers.
         """
         options = dict(options or {})
         if "config" in options:
@@ -409,11 +411,13 @@ class ShapeServoEnv(gym.Env):
         rod = self._start_rod(options.get("start_pose"))
         self._rod_cfg = rod
         given = _given_target(options)
+        pose = options.get("target_pose")
+        pose = None if pose is None else self._pose_option("target_pose", pose)
         self.times = StageTimes()
         self._new_camera(seed)
         # A target made earlier (`make_target`) is reused as is: the clean camera that sees it
         # has no noise stream, so it is the same target this episode would make.
-        self.target = given or self._make_target(options.get("target_pose"), seed)
+        self.target = given or self._make_target(pose, seed)
         self.sim = _home_sim(rod)
         self.home_pose = self.sim.home_end_poses
         self.steps = 0
@@ -437,18 +441,31 @@ class ShapeServoEnv(gym.Env):
         rod = self.cfg.rod
         if start_pose is None:
             return rod
-        start = tuple(map(float, start_pose))
-        if len(start) not in (3, self.q):
-            raise ValueError(
-                f"reset: start_pose has {len(start)} values; it takes 3 (the gripper's)"
-                + (" or 6 (both ends')" if self.dual_arm else "")
-            )
+        start = self._pose_option("start_pose", start_pose)
         update: dict[str, Any] = {"home_pose": start[:3]}
         if self.dual_arm and len(start) == 6:  # both ends' start poses
             update["clamp_pose"] = start[3:]
         return validate_config(
             {**rod.model_dump(), **update}, f"reset: start_pose {list(start)}", model=type(rod)
         )
+
+    def _pose_option(self, name: str, value: Any) -> tuple[float, ...]:
+        """`reset`'s `start_pose` or `target_pose` as floats: 3 values (the gripper's) or,
+        dual-arm, 6 (both ends'), all finite; anything else is a ValueError naming it."""
+        takes = "3 values (the gripper's [x, y, theta])"
+        takes += " or 6 (both ends')" if self.dual_arm else ""
+        try:
+            pose = tuple(float(v) for v in np.asarray(value, dtype=float).reshape(-1))
+            shape = np.shape(value)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"reset: {name} {value!r} is not a list of numbers; it takes {takes}"
+            ) from None
+        if len(shape) != 1 or len(pose) not in (3, self.q):
+            raise ValueError(f"reset: {name} {value!r} has shape {shape}; it takes {takes}")
+        if not all(np.isfinite(pose)):
+            raise ValueError(f"reset: {name} {list(pose)} is not finite")
+        return pose
 
     def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
         """Move the gripper by `action` = [dx, dy, dtheta] (dual-arm: then the x0 end's), let

@@ -72,6 +72,23 @@ def test_options_give_a_target_and_a_start_pose():
         env.reset(options={"goal": [0, 0, 0]})
 
 
+@pytest.mark.parametrize(
+    ("pose", "said"),
+    [
+        ([0.3], r"has shape \(1,\); it takes 3 values"),
+        ([[0.3, 0.0, 0.0]], r"has shape \(1, 3\)"),
+        ("abc", "is not a list of numbers"),
+        ([0.3, 0.0, float("nan")], "is not finite"),
+    ],
+)
+@pytest.mark.parametrize("name", ["target_pose", "start_pose"])
+def test_a_pose_option_that_is_not_a_pose_is_a_value_error_naming_it(name, pose, said):
+    """Found by a new-user trial: target_pose=[0.3] was a bare 'not enough values to unpack'."""
+    env = ShapeServoEnv({"rod": {"segments": 20, "engine": "quasistatic"}})
+    with pytest.raises(ValueError, match=f"reset: {name} .*{said}"):
+        env.reset(options={name: pose})
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", ["sync", "async"])
 def test_vector_env_rolls_out_two_envs(mode):
