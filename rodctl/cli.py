@@ -615,7 +615,8 @@ def _training_recording(cfg: ExperimentConfig, dataset: str | None) -> tuple[Exp
             "folder or a dataset .npz"
         )
     elif dataset is not None and not Path(dataset).is_file():
-        raise UserError(f"--dataset {dataset}: no such file")
+        what = "not a regular file" if Path(dataset).exists() else "no such file"
+        raise UserError(f"--dataset {dataset}: {what} (give a dataset .npz or a run folder)")
     return cfg, recording
 
 

@@ -4,6 +4,7 @@ error, an aligned `rodctl plugins`, and `config show` naming a file that exists.
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -124,3 +125,17 @@ def test_an_option_that_would_be_silently_ignored_is_refused(args, said, tmp_pat
     assert res.exit_code == 2, res.output
     assert res.output.startswith("error: ") and said in res.output, res.output
     assert not any(tmp_path.iterdir())  # refused before any run folder
+
+
+def test_train_encoder_dataset_that_is_not_a_regular_file_says_so(tmp_path):
+    """A FIFO (or a device) given as --dataset exists: "no such file" was wrong."""
+    pytest.importorskip("torch")
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    res = runner.invoke(
+        app, ["train-encoder", DEFAULT, "--dataset", str(fifo), "-o", str(tmp_path)]
+    )
+    assert res.exit_code == 2, res.output
+    assert f"--dataset {fifo}: not a regular file" in res.output
+    res = runner.invoke(app, ["train-encoder", DEFAULT, "--dataset", str(tmp_path / "no.npz")])
+    assert res.exit_code == 2 and "no such file" in res.output

@@ -40,6 +40,7 @@ from rodctl.features.autoencoder import (
     require_torch,
 )
 from rodctl.features.autoencoder_config import AutoencoderFeatureConfig, EncoderTrainingConfig
+from rodctl.notices import say_once
 from rodctl.runs import RunDir, rng, torch_seed, write_json_atomic
 from rodctl.training.collection import CenterlineDataset, CollectionFailed, collect_dataset
 
@@ -239,6 +240,13 @@ def train_encoder(
     train_idx, val_idx = split_by_chunk(
         data, cfg.feature.training.validation_fraction, rng(cfg.seed, "data")
     )
+    if len(val_idx) == 0:  # one walk: nothing whole to hold out
+        say_once(
+            "encoder-no-validation",
+            f"warning: the dataset holds {len(data)} centerlines from one collection walk, so "
+            "no walk is held out: metrics.json's validation errors are null. Collect more "
+            "(feature.data.samples above feature.data.chunk) for a held-out error.",
+        )
     ckpt = fit_autoencoder(
         data.centerlines[train_idx].astype(np.float64),
         data.centerlines[val_idx].astype(np.float64),

@@ -274,3 +274,18 @@ def test_train_encoder_quick_keeps_the_sizes_given_by_set(tiny_quick, tmp_path):
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["epochs"] == 2
     assert metrics["train_samples"] + metrics["validation_samples"] == 30
+
+
+@pytest.mark.slow
+def test_train_encoder_on_one_walk_warns_that_nothing_is_held_out(tmp_path, monkeypatch):
+    """Found by a new-user trial: a dataset of one walk trained with validation null silently."""
+    monkeypatch.setattr("rodctl.notices._SAID", set())
+    sets = ["feature.hidden=[16, 8]", "feature.data.workers=1", "feature.training.batch_size=8"]
+    sets += ["feature.data.samples=24", "feature.data.chunk=24", "feature.training.epochs=2"]
+    args = ["train-encoder", str(REPO / "configs/default.yaml"), "-q", "--out", str(tmp_path)]
+    res = runner.invoke(app, [*args, *[f"--set={s}" for s in sets]])
+    assert res.exit_code == 0, res.output
+    assert "warning: the dataset holds 24 centerlines from one collection walk" in res.stderr
+    run = Path(res.stdout.strip().splitlines()[-1])
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["validation_samples"] == 0 and metrics["validation"] is None
