@@ -548,7 +548,14 @@ def replay(
         for note in result.notes:
             typer.echo(f"note: {note}", err=True)
     code = 0
-    if verify:
+    if not result.run.records:  # a killed run cut before its first flush: nothing came back
+        typer.echo(
+            f"error: {path}: the log holds no complete step (the run was cut before its first "
+            "steps were flushed: logging.flush_every_steps); run.rrd holds its header only",
+            err=True,
+        )
+        code = 1
+    elif verify:
         from rodctl.replay import config_file_differences
 
         for diff in config_file_differences(result.run):

@@ -8,7 +8,9 @@ from types import SimpleNamespace
 
 import pytest
 from rich.console import Console
+from typer.testing import CliRunner
 
+from rodctl.cli import app
 from rodctl.display import summary_table
 from rodctl.errors import UserError
 from rodctl.logs.mcap import McapSink
@@ -127,3 +129,14 @@ class _ReadRunWith:
         self.header = SimpleNamespace(run_id="x", method="mfac-akf")
         self.status, self.complete, self.records, self.summary = "completed", True, [], summary
         self.notes: list[str] = []
+
+
+def test_recover_of_a_log_with_no_complete_step_fails_saying_so(run_dir):
+    """Found by a new-user trial: `replay --recover` of a log cut before its first flush
+    rebuilt a header-only run.rrd and exited 0."""
+    data = (run_dir / "run.mcap").read_bytes()
+    (run_dir / "run.mcap").write_bytes(data[: len(data) // 10])  # the header, no whole chunk
+    res = CliRunner().invoke(app, ["replay", str(run_dir), "--recover", "--no-figures"])
+    assert res.exit_code == 1, res.output
+    assert "the log holds no complete step" in res.stderr
+    assert "Traceback" not in res.output
