@@ -119,6 +119,20 @@ def test_an_episode_on_the_shared_target_equals_one_that_drives_its_own(tmp_path
         assert shared == own, task.method
 
 
+@pytest.mark.slow
+def test_a_lost_episodes_row_says_why_in_its_error(tmp_path):
+    """results.csv's `error` of a lost_tracking (or diverged) row holds the episode's reason,
+    as `rodctl simulate` prints it; it was empty."""
+    blind = "base.run.events=[{at_step: 6, type: occluder, action: add, box: [0, 0, 640, 480]}]"
+    cfg = load_compare_config(SMOKE, ["targets.count=1", "base.rod.engine=quasistatic", blind])
+    configs = preflight(cfg)
+    targets = make_targets(cfg, None, lambda tasks, fn: [fn(t) for t in tasks])
+    (task, *_) = episode_tasks(cfg, configs, targets, fig_target=-1, folder=tmp_path)
+    row = run_episode_task(task)
+    assert row["outcome"] == "lost_tracking", row
+    assert row["error"].startswith("lost the rod at step 8: the extractor found no rod")
+
+
 def test_summary_statistics():
     rows = [
         {

@@ -86,7 +86,8 @@ def run_episode_task(task: EpisodeTask) -> dict[str, Any]:
     if result is not None and env is not None:
         if task.diagnose:
             _diagnose(env, cfg, result, row)
-        row.update(_result_columns(result, row.get("error", "")))
+        # A diverged or lost episode's reason (`EpisodeResult.reason`) is its row's error.
+        row.update(_result_columns(result, row.get("error", "") or result.reason or ""))
         if log_dir is not None:
             write_json_atomic(log_dir / "summary.json", result.summary.to_json())
         if task.want_records:
