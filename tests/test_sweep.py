@@ -391,3 +391,20 @@ def test_set_reaches_a_sweep_parameter_whose_name_has_dots():
     cfg = load_sweep_config(SMOKE, ["parameters.estimator.p0.values=[3.0]"])
     assert cfg.parameters["estimator.p0"].values == [3.0]
     assert list(cfg.parameters) == ["estimator.p0"]
+
+
+def test_set_adds_a_sweep_parameter_the_file_does_not_sweep_yet():
+    """A new key is every part up to the first field of a parameter (`values`, `low`, ...):
+    it needed the whole `parameters` mapping before."""
+    new = "parameters.rod.bending_stiffness"
+    cfg = load_sweep_config(SMOKE, [f"{new}={{values: [0.002, 0.004]}}"])
+    assert cfg.parameters["rod.bending_stiffness"].values == [0.002, 0.004]
+    assert list(cfg.parameters) == ["estimator.p0", "rod.bending_stiffness"]
+    cfg = load_sweep_config(SMOKE, [f"{new}.values=[0.003]", "search=random", "samples=2"])
+    assert cfg.parameters["rod.bending_stiffness"].values == [0.003]
+    sets = ["search=random", "samples=2", "parameters.run.pixel_tolerance.low=0.5"]
+    cfg = load_sweep_config(SMOKE, [*sets, "parameters.run.pixel_tolerance.high=2.0"])
+    tolerance = cfg.parameters["run.pixel_tolerance"]
+    assert (tolerance.low, tolerance.high) == (0.5, 2.0)
+    with pytest.raises(ConfigError, match=r"rod\.lenth: unknown key"):
+        load_sweep_config(SMOKE, ["parameters.rod.lenth.values=[0.4]"])

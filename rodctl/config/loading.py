@@ -227,19 +227,32 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     return [p.strip() for p in parts], value
 
 
-def apply_override(data: dict[str, Any], parts: list[str], value: Any, text: str) -> None:
+def apply_override(
+    data: dict[str, Any],
+    parts: list[str],
+    value: Any,
+    text: str,
+    dotted: dict[str, frozenset[str]] | None = None,
+) -> None:
     """Set `data[parts[0]][parts[1]]... = value`, creating mappings on the way; lists by index.
 
     Setting a section's `type` to another type replaces the section: the old type's keys mean
     nothing to the new one (`--set controller.type=pinv` drops MFAC's `weights`). Keys set by
     later `--set`s are applied to the new section. A section written without `type` has the
     default type of its stage.
+    `dotted`: top-level sections whose keys have dots in them, with the fields their values
+    take (a sweep's `parameters`, `SweepConfig.DOTTED_SECTIONS`): a key not there yet is every
+    part up to the first such field (`parameters.rod.length.values` -> key `rod.length`).
     """
     node: Any = data
     i = 0
     while i < len(parts):
         start = i
         part, i = _key_at(node, parts, i)
+        fields = (dotted or {}).get(parts[0]) if start == 1 else None
+        if fields is not None and isinstance(node, dict) and part not in node:
+            end = next((k for k in range(i, len(parts)) if parts[k] in fields), len(parts))
+            part, i = ".".join(parts[1:end]), end
         last = i == len(parts)
         where = ".".join(parts[:i])
         if isinstance(node, dict):
@@ -508,9 +521,10 @@ def load_config(
     Returns an instance of `model` (an `ExperimentConfig` unless told otherwise).
     """
     data: dict[str, Any] = read_yaml(path) if path is not None else {}
+    dotted = getattr(model, "DOTTED_SECTIONS", None)
     for text in overrides or []:
         parts, value = parse_override(text)
-        apply_override(data, parts, value, text)
+        apply_override(data, parts, value, text, dotted)
     return validate_config(data, config_source(path, overrides), model)
 
 

@@ -11,7 +11,7 @@ noise), so points differ only by the swept values.
 from __future__ import annotations
 
 import re
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import ConfigDict, Field, PositiveInt, field_validator, model_validator
 
@@ -110,6 +110,12 @@ class SweepConfig(StrictModel):
     """`rodctl sweep`: a grid or seeded random search over experiment keys."""
 
     model_config = ConfigDict(defer_build=True)
+    #: Sections keyed by dotted experiment keys (`parameters: {estimator.p0: ...}`), with the
+    #: fields their values take: `--set parameters.rod.length.values=[...]` names the key
+    #: `rod.length` even before the file sweeps it (`rodctl.config.loading.apply_override`).
+    DOTTED_SECTIONS: ClassVar[dict[str, frozenset[str]]] = {
+        "parameters": frozenset(ParameterConfig.model_fields)
+    }
 
     name: str = Field(
         "sweep",
