@@ -240,13 +240,8 @@ def train_encoder(
     train_idx, val_idx = split_by_chunk(
         data, cfg.feature.training.validation_fraction, rng(cfg.seed, "data")
     )
-    if len(val_idx) == 0:  # one walk: nothing whole to hold out
-        say_once(
-            "encoder-no-validation",
-            f"warning: the dataset holds {len(data)} centerlines from one collection walk, so "
-            "no walk is held out: metrics.json's validation errors are null. Collect more "
-            "(feature.data.samples above feature.data.chunk) for a held-out error.",
-        )
+    if len(val_idx) == 0:
+        _warn_no_validation(len(data))
     ckpt = fit_autoencoder(
         data.centerlines[train_idx].astype(np.float64),
         data.centerlines[val_idx].astype(np.float64),
@@ -264,6 +259,16 @@ def train_encoder(
         collection_attempts=data.attempts if collected else None,
     )
     return _write_checkpoint(ckpt, run)
+
+
+def _warn_no_validation(samples: int) -> None:
+    """A dataset of one collection walk: nothing whole to hold out (`split_by_chunk`)."""
+    say_once(
+        "encoder-no-validation",
+        f"warning: the dataset holds {samples} centerlines from one collection walk, so no "
+        "walk is held out: metrics.json's validation errors are null. Collect more "
+        "(feature.data.samples above feature.data.chunk) for a held-out error.",
+    )
 
 
 def _dataset(
