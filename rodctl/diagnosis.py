@@ -18,8 +18,8 @@ simulator's own model (what no real robot has), and gets one of:
   (after a mid-run event, or with a tolerance tighter than what the rod can show).
 - `other`: the target is reachable and the true Jacobian does not help the method's law: the
   feature (its minimum is not the shape's) or the law itself.
-- `inconclusive`: the pose search was still lowering the error when it ran out of iterations,
-  so it says neither reachable nor not.
+- `inconclusive`: the pose search was still lowering the error (by more than `MIN_GAIN_PX` an
+  iteration) when it ran out of iterations, so it says neither reachable nor not.
 
 The pose search is Gauss-Newton on the clean pixel residual (the simulated centerline through
 the camera model minus the target's pixels), its Jacobian by central differences of the
@@ -54,6 +54,11 @@ ESTIMATOR_STEPS = 30
 
 #: Gauss-Newton iterations of the pose search.
 SEARCH_ITERATIONS = 20
+
+#: An iteration that lowers the error by less than this [px] has reached the search's minimum:
+#: below it the gain is rounding in the settles (a dual-arm search crept by < 1e-9 px an
+#: iteration on one machine and was called `inconclusive`, `unreachable` on another).
+MIN_GAIN_PX = 1e-3
 
 #: Finite-difference step per axis [m, m, rad] of each moved end (as `ShapeServoEnv.true_jacobian`).
 _FD = (1e-3, 1e-3, 5e-3)
@@ -241,11 +246,11 @@ def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool, bool]
             err = pixel_error(r_new + target, target)
             if err < best and not res.diverged:
                 clipped = clipped or bool(res.clipped or res.refused)
-                r, best, improved = r_new, err, True
+                r, best, improved = r_new, err, best - err > MIN_GAIN_PX
                 break
             clipped = clipped or bool(res.clipped or res.refused)
             sim.restore(snap)
             step = step / 2.0
         if not improved:
-            break  # a local minimum of the pixel error (or the workspace edge)
+            break  # a local minimum of the pixel error (or the workspace edge), to MIN_GAIN_PX
     return best, clipped, improved and best >= tol
