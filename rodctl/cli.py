@@ -813,7 +813,7 @@ def _finish_batch(
             folder = runner(config, **kwargs)
     except RunInterrupted as exc:
         kept = "partial results kept" if exc.done else "no episode had finished"
-        typer.echo(f"interrupted: {exc}; {kept}, resume with --resume", err=True)
+        typer.echo(f"error: {exc}; {kept}, resume with --resume", err=True)
         typer.echo(str(exc.folder))
         raise typer.Exit(code=1) from None
     typer.echo(str(folder))

@@ -131,7 +131,12 @@ def run_study(
         rows = _in_task_order(tasks, kept, new)
         if total and len(rows) == total:  # the stop came after the last episode: this run
             late, reason = reason, None  # is whole; the stop still ends a suite (see finally)
-        study.report(run.path, rows, total, pool, progress)
+        # A stop during the report (seconds) lets it finish: its episodes are all there, so
+        # the run is completed, and the stop, late, still ends a suite.
+        with stop_handlers():
+            study.report(run.path, rows, total, pool, progress)
+        if reason is None:
+            late = late or stop_reason()
         status = "interrupted" if reason else "completed"
         if reason:
             raise RunInterrupted(run.path, reason, len(rows), total)
