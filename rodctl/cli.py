@@ -1402,7 +1402,8 @@ def export_run(
     ROS 2 install needed (docs/recordings.md). Prints the messages per topic and the bag last."""
     from rodctl.recordings.ros2 import export_ros2
 
-    counts = export_ros2(path, ros2, storage, recover=recover)
+    with sigterm_as_interrupt():  # SIGTERM too removes the unfinished bag
+        counts = export_ros2(path, ros2, storage, recover=recover)
     for topic, n in counts.items():
         typer.echo(f"{topic}: {n} messages", err=True)
     typer.echo(ros2)
@@ -1412,7 +1413,7 @@ def main() -> None:
     """Console-script entry point. Click's own usage errors (an unknown option, a missing
     argument, a value of the wrong type) are one `error:` line naming what is wrong, then the
     usage line, exit 2, as rodctl's own bad-input errors are (not Typer's boxed panel); a
-    Ctrl-C before a command's own handler takes over says so (exit 130)."""
+    Ctrl-C that no command's own handler takes says so, exit 1 (an interrupted run's code)."""
     import signal
 
     signal.signal(signal.SIGINT, signal.default_int_handler)  # after `_entry.quiet_start`
@@ -1427,6 +1428,7 @@ def main() -> None:
         code = 1
     if code == 130:  # Typer's answer to a KeyboardInterrupt no command handled
         typer.echo("error: interrupted by SIGINT", err=True)
+        code = 1  # one rule for every command: interrupted is exit 1 (RunFailed's code)
     sys.exit(code if isinstance(code, int) else 0)
 
 

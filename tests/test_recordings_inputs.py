@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 
 from rodctl.cli import app
 from rodctl.config.camera import CameraConfig
+from rodctl.recordings import ros2 as ros2_module
 from rodctl.recordings.calibration import Calibration
 from rodctl.recordings.points import write_points_csv
 from rodctl.recordings.ros2 import _header, _yaw, line_marker, pose_stamped, undistorter
@@ -817,3 +818,30 @@ def test_export_of_a_two_end_recording_writes_both_ends_poses(tmp_path):
             o, p = msg.pose.orientation, msg.pose.position
             assert np.allclose([p.x, p.y], want[:2], atol=1e-12)
             assert abs(np.angle(np.exp(1j * (2 * np.arctan2(o.z, o.w) - want[2])))) < 1e-9
+
+
+@pytest.mark.parametrize("fault", [KeyboardInterrupt, OSError])
+def test_an_export_cut_short_removes_its_unfinished_bag_and_exits_1(tmp_path, monkeypatch, fault):
+    """Found by a new-user trial: a Ctrl-C mid-export left a bag folder without metadata.yaml
+    (no reader opens it, and the next export to it said 'exists already'), exit 130."""
+    rec = dual_arm_recording(8, seed=3)
+    csv_path = write_points_csv(rec, tmp_path / "rec.csv")
+    res = CliRunner().invoke(app, ["import", str(csv_path), "-o", str(tmp_path / "r")])
+    run = _last_line(res).as_posix()
+    real, calls = ros2_module.line_marker, []
+
+    def marker(*args):  # cut while the 4th step is written
+        calls.append(1)
+        if len(calls) == 4:
+            raise fault(28, "No space left on device") if fault is OSError else fault()
+        return real(*args)
+
+    monkeypatch.setattr(ros2_module, "line_marker", marker)
+    bag = tmp_path / "bag"
+    res = CliRunner().invoke(app, ["export", run, "--ros2", str(bag)])
+    assert res.exit_code == 1, res.output
+    assert f"the unfinished bag {bag} was removed" in res.output and "Traceback" not in res.output
+    assert not bag.exists()
+    monkeypatch.undo()
+    res = CliRunner().invoke(app, ["export", run, "--ros2", str(bag)])  # the same folder again
+    assert res.exit_code == 0, res.output

@@ -20,6 +20,7 @@ same bytes each time (sqlite3 aside, whose pages are the database's business).
 from __future__ import annotations
 
 import math
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +29,14 @@ from typing import Any
 import numpy as np
 import yaml
 
-from rodctl.errors import UserError, make_out_folder, out_error, out_path
+from rodctl.errors import (
+    RunFailed,
+    UserError,
+    describe_os_error,
+    make_out_folder,
+    out_error,
+    out_path,
+)
 
 STORAGES = ("sqlite3", "mcap")
 TOPIC_IMAGE = "/camera/image_raw"
@@ -182,12 +190,12 @@ def export_ros2(
 
     Raises:
         UserError: not a run, a bag folder that exists already, an unknown storage.
+        RunFailed: interrupted (SIGINT) or a write error; the unfinished bag is removed.
     """
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.errors import WriterError
     from rosbags.typesys import Stores, get_typestore
 
-    from rodctl.logs.codec import log_time_ns
     from rodctl.replay import read_run
 
     if storage not in STORAGES:
@@ -197,7 +205,6 @@ def export_ros2(
         raise UserError(f"--ros2 {out}: exists already; a bag is written to a new folder")
     run = read_run(run_path, images=True, recover=recover)
     ts = get_typestore(Stores.ROS2_HUMBLE)
-    T = ts.types
     width, height = run.header.image_size
     K = _intrinsics(run.header.config_yaml, (width, height))
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
@@ -208,6 +215,26 @@ def export_ros2(
         writer = Writer(out, version=8, storage_plugin=plugin)
     except WriterError as exc:
         raise UserError(f"{out}: {exc}") from None
+    try:
+        _write_bag(writer, run, ts, K, counts)
+    except BaseException as exc:
+        # A bag cut short (Ctrl-C, a full disk) is not one a reader opens, and it would block
+        # the next export to the same folder: it goes, and the message says so.
+        shutil.rmtree(out, ignore_errors=True)
+        removed = f"the unfinished bag {out} was removed"
+        if isinstance(exc, KeyboardInterrupt):
+            raise RunFailed(f"interrupted by {str(exc) or 'SIGINT'}: {removed}") from None
+        if isinstance(exc, OSError):
+            raise RunFailed(f"{describe_os_error(exc)}; {removed}") from None
+        raise
+    return counts
+
+
+def _write_bag(writer: Any, run: Any, ts: Any, K: np.ndarray, counts: dict[str, int]) -> None:
+    """Every record of `run` into the open bag `writer` (`export_ros2`), counted by topic."""
+    from rodctl.logs.codec import log_time_ns
+
+    T = ts.types
     with writer:
         two = bool(run.records) and all(np.size(r.u) == 6 for r in run.records)
         conns = _export_connections(writer, ts, two)
@@ -233,7 +260,6 @@ def export_ros2(
             h, w = img.shape[:2]
             put(TOPIC_IMAGE, t_ns, _image_msg(ts, t_ns, img))
             put(TOPIC_INFO, t_ns, _camera_info_msg(ts, t_ns, h, w, K))
-    return counts
 
 
 # --- reading tracked points and poses from a bag ------------------------------------------
