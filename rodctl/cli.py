@@ -537,12 +537,13 @@ def replay(
         rodctl replay runs/20261201-120000_default --verify
         rodctl replay runs/20261201-120000_default/run.mcap --recover -q
     """
-    from rodctl.replay import format_summary, rebuild
+    from rodctl.replay import check_verifiable, format_summary, rebuild
     from rodctl.replay import verify as verify_run
 
     if tolerance is not None and not verify:
         raise UserError("--tolerance is how closely --verify's rerun must match: give --verify too")
-    result = rebuild(path, out, recover=recover, figures=figures)
+    check = check_verifiable if verify else None  # refused before anything is written
+    result = rebuild(path, out, recover=recover, figures=figures, check=check)
     if not quiet:
         typer.echo(format_summary(result.run), err=True)
         for note in result.notes:

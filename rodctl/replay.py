@@ -17,7 +17,7 @@ from __future__ import annotations
 import errno
 import math
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import nullcontext, suppress
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -131,6 +131,7 @@ def rebuild(
     recover: bool = False,
     rerun: bool = True,
     figures: bool = True,
+    check: Callable[[ReadRun], None] | None = None,
 ) -> Rebuilt:
     """Rewrite run.rrd and figures/ from a run's MCAP alone (no simulation).
 
@@ -141,6 +142,8 @@ def rebuild(
         rerun: write `out_dir/run.rrd`.
         figures: write `out_dir/figures/*.png`, drawn by a helper process
             (`rodctl.figure_worker`) while run.rrd is rewritten.
+        check: called with the run as read, before anything is written (e.g.
+            `check_verifiable` for `replay --verify`: its UserError leaves the folder as it was).
 
     Returns:
         The records read and the paths written.
@@ -151,6 +154,8 @@ def rebuild(
     src = mcap_path(path)
     with FigureWorker.start() if figures else nullcontext() as worker:
         run = read_run(src, recover=recover)
+        if check is not None:
+            check(run)
         if worker is not None and run.records:
             worker.submit(run.header, run.records)  # drawn while run.rrd is written
         out = make_out_folder(out_dir) if out_dir is not None else src.parent
@@ -589,6 +594,22 @@ def _note_deviation(worst: dict[str, Deviation], dev: Deviation) -> None:
         prev.max_scaled = max(prev.max_scaled, dev.max_scaled)
 
 
+def check_verifiable(run: ReadRun) -> None:
+    """Refuse `--verify` of a run that has no simulation to re-run (an imported recording).
+
+    Raises:
+        UserError: naming the recording and what to use instead.
+    """
+    data = safe_load(run.header.config_yaml)
+    source = data.get("source") if isinstance(data, dict) else None
+    if isinstance(source, dict):  # written by `rodctl import` (rodctl.recordings)
+        raise UserError(
+            f"{run.path}: an imported recording ({source.get('kind', 'recording')} from "
+            f"{source.get('file', '?')}): there is no simulation to re-run, so --verify does "
+            "not apply (plain `rodctl replay` rebuilds its views; `rodctl estimate` reads it)"
+        )
+
+
 def verify(run: ReadRun, *, tolerance: float = 0.0, progress: bool = False) -> VerifyResult:
     """Re-run the simulation from the log's embedded config and compare it with the log.
 
@@ -604,14 +625,8 @@ def verify(run: ReadRun, *, tolerance: float = 0.0, progress: bool = False) -> V
     """
     from rodctl.config import validate_config
 
+    check_verifiable(run)
     data = safe_load(run.header.config_yaml)
-    source = data.get("source") if isinstance(data, dict) else None
-    if isinstance(source, dict):  # written by `rodctl import` (rodctl.recordings)
-        raise UserError(
-            f"{run.path}: an imported recording ({source.get('kind', 'recording')} from "
-            f"{source.get('file', '?')}): there is no simulation to re-run, so --verify does "
-            "not apply (plain `rodctl replay` rebuilds its views; `rodctl estimate` reads it)"
-        )
     logged = run.records
     ended = run.complete and run.status == "completed"
     if not ended and logged:

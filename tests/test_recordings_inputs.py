@@ -845,3 +845,15 @@ def test_an_export_cut_short_removes_its_unfinished_bag_and_exits_1(tmp_path, mo
     monkeypatch.undo()
     res = CliRunner().invoke(app, ["export", run, "--ros2", str(bag)])  # the same folder again
     assert res.exit_code == 0, res.output
+
+
+def test_replay_verify_of_an_imported_recording_is_refused_before_anything_is_written(tmp_path):
+    """Found by a new-user trial: exit 2 came after run.rrd and figures/ had been written."""
+    csv_path = write_points_csv(dual_arm_recording(8, seed=3), tmp_path / "rec.csv")
+    res = CliRunner().invoke(app, ["import", str(csv_path), "-o", str(tmp_path / "r")])
+    run = _last_line(res)
+    before = sorted(p.name for p in run.iterdir())
+    res = CliRunner().invoke(app, ["replay", str(run), "--verify"])
+    assert res.exit_code == 2, res.output
+    assert res.output.startswith("error: ") and "--verify does not apply" in res.output
+    assert sorted(p.name for p in run.iterdir()) == before
