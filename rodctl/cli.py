@@ -1325,9 +1325,34 @@ def _import_bag_folder(
     _print_import(run_dir, notes)
 
 
+#: `import` options that apply to some inputs only, and to which: a tracked-points input has no
+#: camera frames, so these are refused there, not ignored.
+_FRAMES = "camera frames (a video, an image folder, an image bag)"
+_ONLY_FOR = {
+    "camera": _FRAMES, "clamp_pose": _FRAMES, "hsv_low": _FRAMES, "hsv_high": _FRAMES,
+    "calibration": _FRAMES, "extrinsic": _FRAMES,
+    "poses": "an image folder or a video", "tolerance": "a ROS 2 bag",
+}  # fmt: skip
+
+
+def _refuse_options(given: set[str], path: str, what: str, names: tuple[str, ...]) -> None:
+    """A UserError naming the options of `names` in `given` and the inputs they apply to."""
+    named = [n for n in names if n in given]
+    if not named:
+        return
+    wheres = dict.fromkeys(_ONLY_FOR[n] for n in named)
+    said = "; ".join(
+        ", ".join("--" + n.replace("_", "-") for n in named if _ONLY_FOR[n] == where)
+        + f" {'apply' if sum(_ONLY_FOR[n] == where for n in named) > 1 else 'applies'} to {where}"
+        for where in wheres
+    )
+    raise UserError(f"{said}; {path} is {what}")
+
+
 @app.command("import")
 @user_errors
 def import_recording(
+    ctx: typer.Context,
     path: _RecordingArg,
     out: OutOpt = "runs",
     name: _ImportNameOpt = None,
@@ -1376,6 +1401,9 @@ def import_recording(
     )  # fmt: skip
     _refuse_misplaced_flags(path, is_dir, is_video, poses, flags)
     _refuse_misplaced_timing(path, is_video, fps, frame_times)
+    given = {
+        n for n in ctx.params if (src := ctx.get_parameter_source(n)) and src.name == "COMMANDLINE"
+    }  # typer's own click: its ParameterSource is compared by name
     if is_video:
         _import_video(path, out, poses, fps, frame_times, frames_args)
         return
@@ -1384,8 +1412,12 @@ def import_recording(
         return
     t = _bag_topics(flags)
     if is_dir:
+        if not t["image_topic"]:
+            frames = tuple(n for n, where in _ONLY_FOR.items() if where == _FRAMES)
+            _refuse_options(given, path, "a bag of tracked points", frames)
         _import_bag_folder(path, out, t, tolerance, name, frames_args)
         return
+    _refuse_options(given, path, "a file of tracked points", tuple(_ONLY_FOR))
     typer.echo(str(import_points(path, out, name)))
 
 

@@ -857,3 +857,32 @@ def test_replay_verify_of_an_imported_recording_is_refused_before_anything_is_wr
     assert res.exit_code == 2, res.output
     assert res.output.startswith("error: ") and "--verify does not apply" in res.output
     assert sorted(p.name for p in run.iterdir()) == before
+
+
+@pytest.mark.parametrize(
+    ("extra", "said"),
+    [
+        (["--clamp-pose", "0,0,0"], "--clamp-pose applies to camera frames"),
+        (["--hsv-low", "1,2,3", "--camera", "c.yaml"], "--camera, --hsv-low apply to camera"),
+        (["--extrinsic", "1,2,3,4,5,6"], "--extrinsic applies to camera frames"),
+        (["--poses", "p.csv"], "--poses applies to an image folder or a video"),
+        (["--tolerance", "5"], "--tolerance applies to a ROS 2 bag"),
+    ],
+)
+def test_options_that_do_not_apply_to_tracked_points_are_refused(tmp_path, extra, said):
+    """Found by a new-user trial: a points file took --clamp-pose, --camera, --hsv-low,
+    --tolerance, ... and silently ignored them (exit 0), while it refused --fps."""
+    csv_path = write_points_csv(dual_arm_recording(8, seed=3), tmp_path / "rec.csv")
+    res = CliRunner().invoke(app, ["import", str(csv_path), *extra, "-o", str(tmp_path / "r")])
+    assert res.exit_code == 2, res.output
+    assert res.output.startswith(f"error: {said}") and "a file of tracked points" in res.output
+    assert not (tmp_path / "r").exists()
+    if "--poses" in extra or "--tolerance" in extra:
+        return  # a bag takes --tolerance; --poses is refused there by the bag flags' check
+    line = np.array([[0.0, 0.0], [0.1, 0.02], [0.2, 0.0]])
+    tf = [(t, _two_arm_motion(t)) for t in np.arange(-0.05, 1.1, 1 / 7)]
+    _points_bag(tmp_path / "bag", [(0.1 * k, line) for k in range(10)], tf=tf, storage="mcap")
+    args = ["import", str(tmp_path / "bag"), "--points-topic", "/tracker/points"]
+    res = CliRunner().invoke(app, [*args, "--tf-frame", "left_tool", *extra])
+    assert res.exit_code == 2, res.output
+    assert said in res.output and "a bag of tracked points" in res.output
