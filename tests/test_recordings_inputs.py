@@ -886,3 +886,38 @@ def test_options_that_do_not_apply_to_tracked_points_are_refused(tmp_path, extra
     res = CliRunner().invoke(app, [*args, "--tf-frame", "left_tool", *extra])
     assert res.exit_code == 2, res.output
     assert said in res.output and "a bag of tracked points" in res.output
+
+
+@pytest.mark.parametrize(
+    ("first", "said"),
+    [
+        ("# unit: px", "'# unit: px': the units comment is '# units: px' (or m)"),
+        ("# Units: px", "'# Units: px': the units comment is"),
+    ],
+)
+def test_a_misspelt_units_comment_is_refused_not_read_as_metres(tmp_path, first, said):
+    rows = [first, "t,x0,y0,x1,y1,e0_x,e0_y,e0_theta", "0,0,0,100,0,0,0,0", "1,0,0,100,0,0,0,0.1"]
+    (tmp_path / "rec.csv").write_text("\n".join(rows) + "\n")
+    res = CliRunner().invoke(app, ["import", str(tmp_path / "rec.csv"), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 2, res.output
+    assert "line 1: " + said in res.output, res.output
+
+
+def test_a_points_npz_with_an_array_it_does_not_know_is_refused(tmp_path):
+    """Found by a new-user trial: `unit='px'` was ignored and the pixels imported as metres."""
+    path = tmp_path / "rec.npz"
+    t, pts = np.arange(5) * 0.1, np.random.default_rng(0).random((5, 4, 2)) * 500
+    np.savez(path, t=t, points=pts, poses=np.zeros((5, 1, 3)), unit="px")
+    res = CliRunner().invoke(app, ["import", str(path), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 2, res.output
+    assert "array 'unit' is not one a points file has (t, points, poses, units)" in res.output
+
+
+def test_a_csv_with_a_byte_order_mark_is_read_and_one_with_semicolons_is_named(tmp_path):
+    rows = ["t,x0,y0,x1,y1,e0_x,e0_y,e0_theta"] + [f"{k},0,0,0.1,0,0,0,{k / 10}" for k in range(4)]
+    (tmp_path / "bom.csv").write_bytes(b"\xef\xbb\xbf" + ("\n".join(rows) + "\n").encode())
+    res = CliRunner().invoke(app, ["import", str(tmp_path / "bom.csv"), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 0, res.output  # Excel's "CSV UTF-8"
+    (tmp_path / "semi.csv").write_text("\n".join(r.replace(",", ";") for r in rows) + "\n")
+    res = CliRunner().invoke(app, ["import", str(tmp_path / "semi.csv"), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 2 and "the columns are separated by ';'" in res.output, res.output

@@ -104,19 +104,31 @@ def _csv_rows(path: Path) -> tuple[str, list[str], list[tuple[int, list[str]]]]:
     rows: list[tuple[int, list[str]]] = []
     header: list[str] | None = None
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
+        # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, read as part of `t`
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.reader(fh)
             for row in reader:
                 line_no = reader.line_num  # the record's last line (a quoted field may span)
                 if not row or not "".join(row).strip():
                     continue
                 if row[0].lstrip().startswith("#"):
-                    m = re.match(r"#\s*units\s*:\s*(\S+)", ",".join(row).strip())
+                    text = ",".join(row).strip()
+                    m = re.match(r"#\s*(units?)\s*:\s*(\S+)", text, re.IGNORECASE)
+                    if m and m.group(1) != "units":  # a misspelt key would read px as metres
+                        raise UserError(
+                            f"{path}: line {line_no}: {text!r}: the units comment is "
+                            "'# units: px' (or m)"
+                        )
                     if m:
-                        units = m.group(1)
+                        units = m.group(2)
                     continue
                 if header is None:
                     header = [c.strip() for c in row]
+                    if len(header) == 1 and ";" in header[0]:
+                        raise UserError(
+                            f"{path}: line {line_no}: the columns are separated by ';'; a "
+                            "points CSV is comma-separated (t,x0,y0,...)"
+                        )
                     twice = sorted({c for c in header if header.count(c) > 1})
                     if twice:  # which of the two would be read is nobody's guess
                         raise UserError(f"{path}: line {line_no}: column {twice[0]} is named twice")
@@ -168,12 +180,22 @@ def _csv_columns(
     return points, ends
 
 
+#: The arrays of a points NPZ file: `units` is optional (m).
+NPZ_ARRAYS = ("t", "points", "poses", "units")
+
+
 def _read_npz(path: Path) -> PointsRecording:
     try:
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in ("t", "points", "poses") if k not in z.files]
             if missing:
                 raise UserError(f"{path}: no array {missing[0]!r} (needs t, points, poses)")
+            extra = [k for k in z.files if k not in NPZ_ARRAYS]
+            if extra:  # a misspelt `units` would read pixels as metres
+                raise UserError(
+                    f"{path}: array {extra[0]!r} is not one a points file has "
+                    f"({', '.join(NPZ_ARRAYS)})"
+                )
             units = str(z["units"]) if "units" in z.files else "m"
             arrays = {k: z[k] for k in ("t", "points", "poses")}
     except UserError:
