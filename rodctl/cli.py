@@ -1331,7 +1331,9 @@ _FRAMES = "camera frames (a video, an image folder, an image bag)"
 _ONLY_FOR = {
     "camera": _FRAMES, "clamp_pose": _FRAMES, "hsv_low": _FRAMES, "hsv_high": _FRAMES,
     "calibration": _FRAMES, "extrinsic": _FRAMES,
-    "poses": "an image folder or a video", "tolerance": "a ROS 2 bag",
+    "poses": "an image folder or a video",
+    "tolerance": "inputs whose poses are matched to frames by time (a bag, an image folder, "
+    "a video)",
 }  # fmt: skip
 
 

@@ -866,7 +866,7 @@ def test_replay_verify_of_an_imported_recording_is_refused_before_anything_is_wr
         (["--hsv-low", "1,2,3", "--camera", "c.yaml"], "--camera, --hsv-low apply to camera"),
         (["--extrinsic", "1,2,3,4,5,6"], "--extrinsic applies to camera frames"),
         (["--poses", "p.csv"], "--poses applies to an image folder or a video"),
-        (["--tolerance", "5"], "--tolerance applies to a ROS 2 bag"),
+        (["--tolerance", "5"], "--tolerance applies to inputs whose poses are matched"),
     ],
 )
 def test_options_that_do_not_apply_to_tracked_points_are_refused(tmp_path, extra, said):
@@ -921,3 +921,31 @@ def test_a_csv_with_a_byte_order_mark_is_read_and_one_with_semicolons_is_named(t
     (tmp_path / "semi.csv").write_text("\n".join(r.replace(",", ";") for r in rows) + "\n")
     res = CliRunner().invoke(app, ["import", str(tmp_path / "semi.csv"), "-o", str(tmp_path / "r")])
     assert res.exit_code == 2 and "the columns are separated by ';'" in res.output, res.output
+
+
+@pytest.mark.parametrize("which", ["frames.csv", "poses.csv"])
+def test_an_image_folder_whose_times_do_not_increase_is_refused(sim_frames, tmp_path, which):
+    """Found by a new-user trial: two frames at one time in frames.csv (or a reversed one) were
+    re-sorted silently, and a frame got another frame's pose."""
+    run_dir, run, cam_cfg, framed, images = sim_frames
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    times = [float(r.sim_time) for r in framed[:4]]
+    lines = ["file,t"]
+    for k, img in enumerate(images[:4]):
+        cv2.imwrite(str(folder / f"f{k}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        t = times[1] if (which == "frames.csv" and k == 2) else times[k]
+        lines.append(f"f{k}.png,{t!r}")
+    (folder / "frames.csv").write_text("\n".join(lines) + "\n")
+    poses = _poses_csv(tmp_path / "poses.csv", run, 0.0)
+    if which == "poses.csv":
+        rows = poses.read_text().splitlines()
+        rows[2], rows[3] = rows[3], rows[2]
+        poses.write_text("\n".join(rows) + "\n")
+    (tmp_path / "cam.yaml").write_text(yaml.safe_dump({"camera": cam_cfg.model_dump(mode="json")}))
+    clamp = ",".join(repr(float(v)) for v in run.header.clamp_pose)
+    res = CliRunner().invoke(app, ["import", str(folder), "--poses", str(poses), "--camera",
+                                   str(tmp_path / "cam.yaml"), "--clamp-pose", clamp,
+                                   "-o", str(tmp_path / "r")])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    assert f"{which}: row 3: t = " in res.output and "does not increase" in res.output

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -58,25 +59,35 @@ def _loader(path: Path) -> Callable[[], np.ndarray]:
 def read_folder(
     folder: str | Path, poses_csv: str | Path
 ) -> tuple[list[tuple[int, Callable[[], np.ndarray]]], list[tuple[int, list[float]]]]:
-    """(frames [(t_ns, loader)] sorted by time, gripper poses [(t_ns, [x, y, theta])]).
+    """(frames [(t_ns, loader)] in time order, gripper poses [(t_ns, [x, y, theta])]).
 
     Raises:
         UserError: a missing frames.csv or column, a frame file that does not exist, a time
-            that is not a number; the message names the file and the row.
+            that is not a number or does not increase; the message names the file and the row.
     """
     root = Path(folder)
     index = root / "frames.csv"
-    frames = []
+    frames: list[tuple[int, Callable[[], np.ndarray]]] = []
     for i, row in enumerate(_table(index, ["file", "t"])):
         f = root / row["file"]
         if not f.is_file():
             raise UserError(f"{index}: row {i + 1}: no frame file {f}")
-        frames.append((int(round(_number(index, i, "t", row["t"]) * 1e9)), _loader(f)))
-    frames.sort(key=lambda x: x[0])
+        t = _number(index, i, "t", row["t"])
+        _increasing(index, i, t, frames)
+        frames.append((int(round(t * 1e9)), _loader(f)))
     p = Path(poses_csv)
-    poses = []
+    poses: list[tuple[int, list[float]]] = []
     for i, row in enumerate(_table(p, ["t", "x", "y", "theta"])):
         t = _number(p, i, "t", row["t"])
+        _increasing(p, i, t, poses)
         vals = [_number(p, i, c, row[c]) for c in ("x", "y", "theta")]
         poses.append((int(round(t * 1e9)), vals))
     return frames, poses
+
+
+def _increasing(path: Path, i: int, t: float, earlier: list[tuple[int, Any]]) -> None:
+    """Row `i`'s time `t` [s] must follow the last of `earlier` (a pose or a frame matched to
+    the wrong time would be silently misassigned), as in a points CSV."""
+    if earlier and round(t * 1e9) <= earlier[-1][0]:
+        previous = earlier[-1][0] / 1e9
+        raise UserError(f"{path}: row {i + 1}: t = {t:g} does not increase (previous {previous:g})")
