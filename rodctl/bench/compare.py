@@ -251,6 +251,7 @@ class CompareStudy:
         label_rows(cfg, self.targets, rows)
         summary = summarize(rows, list(cfg.methods), bands)
         wall = time.perf_counter() - self.wall0
+        workers = min(pool.workers, max(total, 1))  # a pool starts no more than it has tasks
         write_results(
             folder,
             cfg,
@@ -258,14 +259,14 @@ class CompareStudy:
             rows,
             summary,
             wall,
-            pool.workers,
+            workers,
             partial=partial,
             executor=pool.name,
             figure_target=self.fig_target,
         )
         header, lines = summary_rows(summary, bands)
         md = folder / "summary.md"
-        write_summary_md(md, cfg, header, lines, summary, wall, pool.workers, self.fig_target)
+        write_summary_md(md, cfg, header, lines, summary, wall, workers, self.fig_target)
         if partial:
             _mark_partial(md, len(rows), len(self.targets) * len(cfg.methods))
         if rows:

@@ -399,7 +399,7 @@ def _report(
         "episodes": {"finished": len(rows), "total": total},
         "partial": len(rows) < total,
         "executor": pool.name,
-        "workers": pool.workers,
+        "workers": min(pool.workers, max(total, 1)),  # a pool starts no more than it has tasks
         "wall_time_s": round(wall, 2),
         "ranking": ranked,
     }
