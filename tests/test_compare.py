@@ -16,6 +16,7 @@ from paths import REPO
 from rodctl.bench.compare import episode_tasks, load_compare_config, preflight, run_compare
 from rodctl.bench.episodes import run_episode_task
 from rodctl.bench.stats import OUTCOMES, summarize
+from rodctl.bench.sweep import load_sweep_config
 from rodctl.bench.target_set import make_targets
 from rodctl.config import ConfigError
 from rodctl.errors import UserError
@@ -368,3 +369,14 @@ def test_terminal_table_fits_80_columns_without_truncating_a_cell():
     assert all(len(line) <= 80 for line in text.splitlines())
     for cell in ("aghajanzadeh2022", "77%", "17 [9-25]", "0.057", "0.97", "20/2/3/1"):
         assert cell in text
+
+
+def test_keep_logs_where_the_base_writes_no_log_is_refused():
+    """Found by a new-user trial: keep_logs with base.logging.mcap false kept config.yaml and
+    summary.json only, silently; docs/benchmarks.md promises each episode's run.mcap."""
+    with pytest.raises(ConfigError, match=r"keep_logs: true keeps each episode's run\.mcap"):
+        load_compare_config(SMOKE, ["keep_logs=true"])
+    load_compare_config(SMOKE, ["keep_logs=true", "base.logging.mcap=true"])  # fine
+    from_sweep = REPO / "configs" / "sweep-smoke.yaml"
+    with pytest.raises(ConfigError, match="base.logging writes none of them"):
+        load_sweep_config(from_sweep, ["keep_logs=true"])

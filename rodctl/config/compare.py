@@ -22,6 +22,7 @@ from rodctl.config.experiment import (
     ExperimentConfig,
     FeatureConfig,
 )
+from rodctl.config.logging import NO_LOGS_TO_KEEP
 from rodctl.config.run import EndPoses
 from rodctl.registry import depends_on_stages
 
@@ -275,6 +276,12 @@ class CompareConfig(StrictModel):
         """3 values a pose for one arm, 6 (both ends') for rod.arms: 2 (docs/dual-arm.md)."""
         if self.targets.poses is not None:
             check_pose_lengths(self.targets.poses, self.base.rod.arms, "targets.poses", ValueError)
+        return self
+
+    @model_validator(mode="after")
+    def _logs_to_keep(self) -> CompareConfig:
+        if self.keep_logs and not self.base.logging.writes_episode_logs:
+            raise ValueError(NO_LOGS_TO_KEEP)
         return self
 
     @model_validator(mode="after")

@@ -75,3 +75,17 @@ class LoggingConfig(StrictModel):
                     "listed in logging.sinks"
                 )
         return self
+
+    @property
+    def writes_episode_logs(self) -> bool:
+        """Whether an episode run with this config writes a log file (MCAP, Rerun or a listed
+        sink): what a study's `keep_logs` keeps."""
+        return self.mcap or self.rerun or bool(self.sinks)
+
+
+#: What a study says of `keep_logs: true` where the base's logging writes no log file.
+NO_LOGS_TO_KEEP = (
+    "keep_logs: true keeps each episode's run.mcap (or run.rrd, or a sink's file), but "
+    "base.logging writes none of them (mcap and rerun false, no sinks): set "
+    "base.logging.mcap=true, or leave keep_logs out"
+)

@@ -18,6 +18,7 @@ from pydantic import ConfigDict, Field, PositiveInt, field_validator, model_vali
 from rodctl.config.base import RUN_NAME, RUN_NAME_MAX, StrictModel, is_run_name
 from rodctl.config.compare import MAX_SEED, MAX_TARGETS, CompareTargetsConfig, MethodConfig
 from rodctl.config.experiment import ExperimentConfig
+from rodctl.config.logging import NO_LOGS_TO_KEEP
 from rodctl.registry import depends_on_stages
 
 _KEY = r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*$"
@@ -168,6 +169,12 @@ class SweepConfig(StrictModel):
     keep_logs: bool = Field(
         False, description="Keep every episode's logs under episodes/ (as base.logging asks)."
     )
+
+    @model_validator(mode="after")
+    def _logs_to_keep(self) -> SweepConfig:
+        if self.keep_logs and not self.base.logging.writes_episode_logs:
+            raise ValueError(NO_LOGS_TO_KEEP)
+        return self
 
     @field_validator("parameters")
     @classmethod
