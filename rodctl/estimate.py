@@ -316,7 +316,9 @@ def _init_refusal(
         need = f"J_0 needs at least q = {q} pairs"
     else:
         need = f"J_0 is fitted from the first {n0} pairs and at least one pair must follow them"
-    if pairs > q:
+    if pairs > q and n0 < q:  # too few asked for: the recording has enough
+        fix = f"pass --init N with {q} <= N < {pairs}"
+    elif pairs > q:
         fix = f"record more frames (at least {n0 + 2}), or pass --init N with {q} <= N < {pairs}"
     else:
         fix = f"record more frames: at least {q + 2} with --init {q}, {10 * q + 2} without --init"

@@ -635,3 +635,22 @@ def test_checkpoint_options_are_refused_where_they_cannot_apply(tmp_path):
     assert "give --checkpoint an encoder.npz trained for 4 points" in msg
     assert "feature.checkpoint" not in msg and "--set feature" not in msg
     assert not (tmp_path / "rec-estimate").exists()
+
+
+def test_an_init_below_q_on_a_long_recording_says_only_to_raise_it(tmp_path):
+    """Found by a new-user trial: --init 1 on 151 frames advised 'record more frames (at
+    least 3)'."""
+    path = write_points_csv(dual_arm_recording(40, seed=3, points=4), tmp_path / "rec.csv")
+    res = CliRunner().invoke(app, ["estimate", str(path), "--init", "1", "--no-plots"])
+    assert res.exit_code == 2, res.output
+    msg = " ".join(res.output.split())
+    assert "J_0 needs at least q = 6 pairs" in msg and "pass --init N with 6 <= N < 40" in msg
+    assert "record more frames" not in msg
+
+
+def test_a_checkpoint_that_is_not_an_encoder_file_is_named_as_such(tmp_path):
+    path = write_points_csv(dual_arm_recording(40, seed=3, points=4), tmp_path / "rec.csv")
+    args = ["estimate", str(path), "--feature", "autoencoder", "--checkpoint", str(path)]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2, res.output
+    assert "not an encoder checkpoint" in res.output and "torch" not in res.output

@@ -486,7 +486,12 @@ class EncoderCheckpoint:
         path = Path(path)
         if not path.is_file():
             raise UserError(f"{path}: encoder checkpoint not found")
-        if path.suffix != ".npz":
+        if path.suffix not in (".npz", ".pt"):
+            raise UserError(
+                f"{path}: not an encoder checkpoint (an encoder.npz, or the encoder.pt that "
+                "`rodctl train-encoder` writes beside it)"
+            )
+        if path.suffix == ".pt":
             torch = require_torch(f"{path}: reading a .pt checkpoint (or use its .npz twin)")
         try:
             if path.suffix == ".npz":
