@@ -481,16 +481,16 @@ OpenOpt = Annotated[
 ]
 
 
-def _finite(value: float | None) -> float | None:
-    """A float option's check beyond its range: nan and inf are refused (a range lets them
-    through: nan compares false with every bound)."""
-    if value is not None and not math.isfinite(value):
-        raise typer.BadParameter(f"{value} is not a finite number")
+def _nonnegative(value: float | None) -> float | None:
+    """A finite number >= 0 (a tolerance): nan and inf are refused. Checked here, not by a
+    range: typer's range check said "Input should be greater than or equal to 0" of nan."""
+    if value is not None and not (math.isfinite(value) and value >= 0.0):
+        raise typer.BadParameter(f"{value} is not a finite number >= 0")
     return value
 
 
 def _positive(value: float | None) -> float | None:
-    """`_finite`, and > 0 (a rate)."""
+    """A finite number > 0 (a rate)."""
     if value is not None and not (math.isfinite(value) and value > 0.0):
         raise typer.BadParameter(f"{value} is not a positive finite number")
     return value
@@ -500,8 +500,7 @@ ToleranceOpt = Annotated[
     float | None,
     typer.Option(
         "--tolerance",
-        min=0.0,
-        callback=_finite,
+        callback=_nonnegative,
         help="With --verify, accept numbers that differ by at most TOL * max(1, |value|) "
         "(a rerun on another CPU or BLAS kernel). 0 = bit for bit. [default: 0]",
         show_default=False,
@@ -1118,7 +1117,7 @@ _PoseTopicOpt = Annotated[
 _ToleranceOpt = Annotated[
     float,
     typer.Option(
-        "--tolerance", min=0.0, callback=_finite, help="Bag: largest pose gap (s) around a frame."
+        "--tolerance", callback=_nonnegative, help="Bag: largest pose gap (s) around a frame."
     ),
 ]
 _ImageTopicOpt = Annotated[

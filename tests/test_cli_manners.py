@@ -139,3 +139,12 @@ def test_train_encoder_dataset_that_is_not_a_regular_file_says_so(tmp_path):
     assert f"--dataset {fifo}: not a regular file" in res.output
     res = runner.invoke(app, ["train-encoder", DEFAULT, "--dataset", str(tmp_path / "no.npz")])
     assert res.exit_code == 2 and "no such file" in res.output
+
+
+@pytest.mark.parametrize("value", ["nan", "-1", "inf"])
+def test_a_tolerance_that_is_not_a_finite_number_at_least_0_says_so(tmp_path, value):
+    """Found by a new-user trial: nan was refused as 'Input should be greater than or equal to
+    0'."""
+    res = runner.invoke(app, ["import", str(tmp_path / "x.csv"), "--tolerance", value])
+    assert res.exit_code == 2
+    assert f"{float(value)} is not a finite number >= 0" in res.output

@@ -949,3 +949,13 @@ def test_an_image_folder_whose_times_do_not_increase_is_refused(sim_frames, tmp_
                                    "-o", str(tmp_path / "r")])  # fmt: skip
     assert res.exit_code == 2, res.output
     assert f"{which}: row 3: t = " in res.output and "does not increase" in res.output
+
+
+@pytest.mark.parametrize("bad", ["nan", "inf", "-inf"])
+def test_a_non_finite_csv_value_is_named_by_its_line_and_column(tmp_path, bad):
+    rows = ["t,x0,y0,x1,y1,e0_x,e0_y,e0_theta"] + [f"{k},0,0,0.1,0,0,0,{k / 10}" for k in range(4)]
+    rows[3] = rows[3].rsplit(",", 1)[0] + f",{bad}"
+    (tmp_path / "rec.csv").write_text("\n".join(rows) + "\n")
+    res = CliRunner().invoke(app, ["import", str(tmp_path / "rec.csv"), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 2, res.output
+    assert f"line 4 (frame 2), column e0_theta: '{bad}' is not a finite number" in res.output

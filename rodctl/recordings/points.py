@@ -76,6 +76,12 @@ def _read_csv(path: Path) -> PointsRecording:
                     f"{path}: line {line_no} (frame {frame}), column {header[col]}: "
                     f"{value.strip()!r} is not a number"
                 ) from None
+        bad = np.flatnonzero(~np.isfinite(data[frame]))
+        if len(bad):  # nan, inf: named by column, as a value that is not a number is
+            raise UserError(
+                f"{path}: line {line_no} (frame {frame}), column {header[bad[0]]}: "
+                f"{row[bad[0]].strip()!r} is not a finite number"
+            )
     if data.size == 0:
         raise UserError(f"{path}: no frames after the header")
     t = data[:, header.index("t")]
