@@ -558,13 +558,20 @@ def replay(
     elif verify:
         from rodctl.replay import config_file_differences
 
-        for diff in config_file_differences(result.run):
+        edited = config_file_differences(result.run)
+        for diff in edited:
             typer.echo(f"verify: config.yaml differs from the log: {diff}", err=True)
-            code = 1
         verdict = verify_run(result.run, tolerance=tolerance or 0.0)
         for line in verdict.report():
             typer.echo(line, err=True)
-        code = max(code, verdict.exit_code)
+        code = verdict.exit_code
+        if edited:  # the log reproduces, the folder's config.yaml does not say what ran
+            typer.echo(
+                "verify: FAILED: the log's steps rerun as above, but the run folder's "
+                f"config.yaml was edited ({len(edited)} key(s) above)",
+                err=True,
+            )
+            code = 1
     if open_viewer:
         _open_rerun(result.rrd)
     typer.echo(str(result.rrd.parent if result.rrd else result.run.path.parent))

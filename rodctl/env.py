@@ -276,6 +276,11 @@ def _home_sim(rod: Any) -> RodSim:
     return RodSim.at_home(rod)
 
 
+#: The largest episode seed `reset` takes: the config's `seed` bound, so that a run's seed is
+#: one a config file and the command line can give too.
+MAX_EPISODE_SEED = 2**63 - 1
+
+
 def _given_target(options: dict[str, Any]) -> Target | None:
     """`reset`'s `target` option (a `Target` from `make_target`) or None; an unknown option or
     a target of another type is a ValueError."""
@@ -397,14 +402,16 @@ class ShapeServoEnv(gym.Env):
 
         Raises:
             UserError: a target or start pose that is out of reach or unusable.
-            ValueError: an unknown option, or a pose that is not 3 (dual-arm: or 6) finite
-                numbers.
+            ValueError: an unknown option, a pose that is not 3 (dual-arm: or 6) finite
+                numbers, or a seed outside [0, 2**63 - 1].
         """
         options = dict(options or {})
         if "config" in options:
             self._configure(_as_config(options.pop("config")))
         if seed is None:
             seed = self.cfg.seed if not self._seeded else int(self.np_random.integers(2**31))
+        elif isinstance(seed, bool) or not 0 <= int(seed) <= MAX_EPISODE_SEED:
+            raise ValueError(f"reset: seed {seed!r} must be an integer in [0, 2**63 - 1]")
         super().reset(seed=seed)
         self._seeded = True
         self.episode_seed = int(seed)

@@ -68,6 +68,12 @@ class ShapeServoRLEnv(gym.Env):
         normalize_observations: bool = True,
         success_bonus: float = 0.0,
     ) -> None:
+        for name, flag in (
+            ("normalize_actions", normalize_actions),
+            ("normalize_observations", normalize_observations),
+        ):
+            if not isinstance(flag, bool | np.bool_):  # "no" would be read as True
+                raise TypeError(f"{name} must be True or False, got {flag!r}")
         if not (math.isfinite(success_bonus) and success_bonus >= 0.0):
             raise ValueError(f"success_bonus must be a finite number >= 0, got {success_bonus!r}")
         self.core = ShapeServoEnv(config, render_mode=render_mode)

@@ -131,3 +131,10 @@ def test_a_target_made_once_is_the_target_every_episode_would_make():
     assert env.target is target
     obs_b, _ = env.reset(seed=4, options={"target_pose": [0.38, 0.05, 0.6]})
     np.testing.assert_array_equal(obs_a["centerline"], obs_b["centerline"])
+
+
+@pytest.mark.parametrize("seed", [-1, 2**63, 2**64, True])
+def test_reset_refuses_a_seed_no_config_could_give(seed):
+    env = ShapeServoEnv({"rod": {"segments": 20, "engine": "quasistatic"}})
+    with pytest.raises(ValueError, match=r"seed .* must be an integer in \[0, 2\*\*63 - 1\]"):
+        env.reset(seed=seed)

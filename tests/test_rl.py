@@ -137,3 +137,10 @@ def test_the_ppo_example_trains_and_evaluates(tmp_path, monkeypatch):
     result = example["main"](["--steps", "32", "--n-steps", "16", "--out", str(tmp_path), *sets])
     assert (tmp_path / "ppo_shapeservo.zip").is_file()
     assert 1 <= result["episode_steps"] <= 8 and result["train_steps"] == 32
+
+
+@pytest.mark.parametrize("flag", ["normalize_actions", "normalize_observations"])
+def test_a_normalisation_flag_that_is_not_a_bool_is_refused(flag):
+    """Found by a new-user trial: normalize_actions="no" was read as True."""
+    with pytest.raises(TypeError, match=f"{flag} must be True or False, got 'no'"):
+        ShapeServoRLEnv({"rod": {"segments": 20, "engine": "quasistatic"}}, **{flag: "no"})

@@ -75,6 +75,8 @@ def test_verify_reports_a_config_yaml_that_no_longer_matches_the_log(tmp_path, d
     assert "config.yaml differs from the log" in res.output
     if damage == "edit":
         assert "run.max_steps" in res.output
+    # The last line is the verdict (a trial read the rerun's "OK … identical" as a pass)
+    assert res.stderr.strip().splitlines()[-1].startswith("verify: FAILED: the log's steps rerun")
 
 
 def test_messages_print_plain_numbers(tmp_path):
