@@ -959,3 +959,18 @@ def test_a_non_finite_csv_value_is_named_by_its_line_and_column(tmp_path, bad):
     res = CliRunner().invoke(app, ["import", str(tmp_path / "rec.csv"), "-o", str(tmp_path / "r")])
     assert res.exit_code == 2, res.output
     assert f"line 4 (frame 2), column e0_theta: '{bad}' is not a finite number" in res.output
+
+
+def test_a_folder_that_is_not_a_bag_is_one_line_naming_what_is_missing(tmp_path):
+    """Found by a new-user trial: rosbags' own text ('Expected metadata file … does not exist',
+    a multi-line YAML dump) was passed on."""
+    args = ["--points-topic", "/p", "--pose-topic", "/x", "-o", str(tmp_path / "r")]
+    (tmp_path / "empty").mkdir()
+    res = CliRunner().invoke(app, ["import", str(tmp_path / "empty"), *args])
+    assert res.exit_code == 2 and "no metadata.yaml in the folder" in res.output, res.output
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  version: 8\n  x: [1, 2\n")
+    res = CliRunner().invoke(app, ["import", str(bad), *args])
+    assert res.exit_code == 2 and "not a readable ROS 2 bag (metadata.yaml: " in res.output
+    assert len(res.output.strip().splitlines()) == 1, res.output

@@ -262,6 +262,16 @@ def _write_bag(writer: Any, run: Any, ts: Any, K: np.ndarray, counts: dict[str, 
             put(TOPIC_INFO, t_ns, _camera_info_msg(ts, t_ns, h, w, K))
 
 
+def _bag_error(path: str | Path, exc: Exception) -> str:
+    """rosbags' reason a folder is not a bag, in one line: no metadata.yaml said plainly, and
+    a multi-line YAML dump of a bad metadata.yaml cut to its first line."""
+    folder = Path(path)
+    if folder.is_dir() and not (folder / "metadata.yaml").is_file():
+        return "no metadata.yaml in the folder: a ROS 2 bag folder has one beside its storage file"
+    first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return f"metadata.yaml: {first[:200]}" if (folder / "metadata.yaml").is_file() else first
+
+
 # --- reading tracked points and poses from a bag ------------------------------------------
 
 #: Message types a tracked-points topic may have: the (N, 2) x, y of each message.
@@ -479,7 +489,7 @@ def _bag_messages(
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except Exception as exc:  # noqa: BLE001 - rosbags' errors for a missing/foreign folder
-        raise UserError(f"{path}: not a readable ROS 2 bag ({exc})") from None
+        raise UserError(f"{path}: not a readable ROS 2 bag ({_bag_error(path, exc)})") from None
     try:
         types = {c.topic: c.msgtype for c in reader.connections}
         listing = ", ".join(f"{t} ({m})" for t, m in sorted(types.items())) or "none"
