@@ -1254,6 +1254,11 @@ def _refuse_misplaced_timing(
 def _bag_topics(flags: dict[str, Any]) -> dict[str, Any]:
     """The bag's topics: the flags, each unset one from the --topics YAML, checked together."""
     t = dict(flags)
+    for key, value in t.items():  # "" (an unset shell variable) is no topic, not a wildcard
+        given = value if isinstance(value, list) else [value]
+        if any(v is not None and not str(v).strip() for v in given):
+            flag = "--" + key.replace("_", "-")
+            raise UserError(f"{flag} is empty: give a name (e.g. --pose-topic /arm/pose)")
     mapping = None
     if t["topics"]:
         from rodctl.recordings.mapping import load_mapping
@@ -1277,10 +1282,15 @@ def _bag_topics(flags: dict[str, Any]) -> dict[str, Any]:
         )
     if t["mask_topic"] and not t["image_topic"]:
         raise UserError(_NO_MASK)
-    for flag, key in (("--pose-topic", "pose_topic"), ("--tf-frame", "tf_frame")):
+    for flag, key, entry in (
+        ("--pose-topic", "pose_topic", "poses"),
+        ("--tf-frame", "tf_frame", "tf.frames"),
+    ):
         named = list(t[key] or [])
         if len(set(named)) < len(named):
-            raise UserError(f"{flag} {' '.join(named)}: each end's own; one is given twice")
+            # named as the user gave it: the flags, or the --topics file's key
+            where = flag if flags[key] else f"{t['topics']}: {entry}"
+            raise UserError(f"{where} {' '.join(named)}: each end's own; one is given twice")
     if t["tf_world"] and not t["tf_frame"]:
         raise UserError("--tf-world: goes with --tf-frame (the tf chains it ends)")
     return t

@@ -974,3 +974,16 @@ def test_a_folder_that_is_not_a_bag_is_one_line_naming_what_is_missing(tmp_path)
     res = CliRunner().invoke(app, ["import", str(bad), *args])
     assert res.exit_code == 2 and "not a readable ROS 2 bag (metadata.yaml: " in res.output
     assert len(res.output.strip().splitlines()) == 1, res.output
+
+
+def test_a_topic_given_empty_or_twice_in_the_mapping_is_named_where_it_was_given(tmp_path):
+    (tmp_path / "bag").mkdir()
+    bag = str(tmp_path / "bag")
+    res = CliRunner().invoke(app, ["import", bag, "--points-topic", "/p", "--pose-topic", ""])
+    assert res.exit_code == 2 and "--pose-topic is empty" in res.output, res.output
+    mapping = tmp_path / "m.yaml"
+    mapping.write_text("points: /p\nposes: [/arm/pose, /arm/pose]\n")
+    res = CliRunner().invoke(app, ["import", bag, "--topics", str(mapping)])
+    assert res.exit_code == 2, res.output
+    assert f"{mapping}: poses /arm/pose /arm/pose: each end's own" in res.output
+    assert "--pose-topic" not in res.output
