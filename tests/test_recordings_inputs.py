@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import csv
 import math
+import subprocess
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -987,3 +989,15 @@ def test_a_topic_given_empty_or_twice_in_the_mapping_is_named_where_it_was_given
     assert res.exit_code == 2, res.output
     assert f"{mapping}: poses /arm/pose /arm/pose: each end's own" in res.output
     assert "--pose-topic" not in res.output
+
+
+def test_a_file_that_is_not_a_video_gives_rodctls_line_without_ffmpegs_log(tmp_path):
+    """Found by a new-user trial: FFmpeg printed '[mov,mp4,...] moov atom not found' on stderr
+    before the error. A fresh process: FFmpeg reads its log level when first used."""
+    fake = tmp_path / "fake.mp4"
+    fake.write_text("t,x0,y0\n0,0,0\n")
+    code = "from pathlib import Path; from rodctl.recordings.video import _Decoder\n"
+    code += f"_Decoder(Path({str(fake)!r}))._open()"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1 and "not a video OpenCV can read" in proc.stderr
+    assert "moov" not in proc.stderr and "[mov" not in proc.stderr, proc.stderr

@@ -9,6 +9,7 @@ poses CSV is the image folder's (`t, x, y, theta`), on the same clock.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -40,6 +41,9 @@ class _Decoder:
         # a video needs OpenCV.
         import cv2  # noqa: PLC0415
 
+        # FFmpeg's own log (e.g. "[mov,mp4,...] moov atom not found" for a file that is not a
+        # video) goes to stderr past rodctl's one-line error; quiet unless the user set it.
+        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
         if self.cap is not None:
             self.cap.release()
         cap = self.cap = cv2.VideoCapture(str(self.path))
