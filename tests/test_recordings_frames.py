@@ -405,5 +405,7 @@ def test_an_import_cut_short_keeps_its_frames_as_an_interrupted_run(scene, tmp_p
         )  # fmt: skip
     (run_dir,) = (tmp_path / "r").iterdir()
     assert json.loads((run_dir / "meta.json").read_text())["status"] == "interrupted"
-    assert json.loads((run_dir / "summary.json").read_text())["status"] == "interrupted"
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["status"] == summary["outcome"] == "interrupted"  # as a simulate run's
+    assert summary["method"] == "recording/ros2_bag_images"
     assert len(read_run(run_dir, images=False).records) == 3

@@ -399,14 +399,15 @@ def _run_config(rec: PointsRecording, src: Path, stem: str, source: dict, view: 
 
 def _run_header(
     rec: PointsRecording, run_id: str, config_yaml: str, size: Any, clamp: np.ndarray | None,
-    world: np.ndarray, px: np.ndarray, s_target: np.ndarray,
+    world: np.ndarray, px: np.ndarray, s_target: np.ndarray, kind: str,
 ) -> Any:  # fmt: skip
-    """The run.mcap header: the last frame is the target, the clamp as `write_run` says."""
+    """The run.mcap header: the last frame is the target, the clamp as `write_run` says; the
+    method names what was imported (`recording/<source kind>`: points, ros2_bag, video, ...)."""
     from rodctl.records import RunHeader
 
     return RunHeader(
         run_id=run_id,
-        method="recording/points",
+        method=f"recording/{kind}",
         config_yaml=config_yaml,
         image_size=size,
         clamp_pose=np.asarray(
@@ -473,7 +474,7 @@ def _run_summary(
 
     return RunSummary(
         status=status,
-        outcome="recording",
+        outcome="interrupted" if status == "interrupted" else "recording",
         method=method,
         steps=max(written - 1, 0),
         converged=False,
@@ -523,7 +524,8 @@ def write_run(
     write_json_atomic(run_dir / "meta.json", meta)
 
     s_all = px.reshape(T, -1) if rec.units == "px" else world.reshape(T, -1)
-    header = _run_header(rec, run_dir.name, config_yaml, size, clamp, world, px, s_all[-1])
+    kind = str(source.get("kind", "points"))
+    header = _run_header(rec, run_dir.name, config_yaml, size, clamp, world, px, s_all[-1], kind)
     sink = McapSink(run_dir / "run.mcap")
     sink.open(header)
     t0 = time.perf_counter()
