@@ -732,6 +732,7 @@ def test_bad_camera_info_image_or_pose_exits_2_naming_the_topic(tmp_path, case, 
     )  # fmt: skip
     assert res.exit_code == 2, res.output
     assert "Traceback" not in res.output
+    assert res.output.startswith(f"error: {tmp_path / 'bag'}: "), res.output  # the bag first
     for n in needles:
         assert n in res.output, res.output
 

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import re
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -102,15 +104,16 @@ def import_bag(
     from rodctl.recordings.ros2 import read_bag_points
 
     src = Path(bag)
-    rec, notes = read_bag_points(
-        src,
-        points_topic,
-        pose_topics,
-        tolerance,
-        tf_frames=tf_frames or (),
-        tf_topic=tf_topic,
-        tf_world=tf_world,
-    )
+    with _bag_named(src):
+        rec, notes = read_bag_points(
+            src,
+            points_topic,
+            pose_topics,
+            tolerance,
+            tf_frames=tf_frames or (),
+            tf_topic=tf_topic,
+            tf_world=tf_world,
+        )
     source = {
         "kind": "ros2_bag",
         "points_topic": points_topic,
@@ -121,6 +124,18 @@ def import_bag(
     if tf_frames:
         source["tf"] = {"topic": tf_topic, "frames": list(tf_frames), "world": tf_world}
     return write_run(rec, src, out, name, source), notes
+
+
+@contextmanager
+def _bag_named(bag: Path) -> Iterator[None]:
+    """A bag's refusals start with the bag, as its others do (a zero quaternion or a pose gap
+    was named by topic and stamp alone)."""
+    try:
+        yield
+    except UserError as exc:
+        if str(exc).startswith(str(bag)):
+            raise
+        raise UserError(f"{bag}: {exc}") from None
 
 
 def _listed(v: str | list[str] | None) -> list[str]:
@@ -188,11 +203,12 @@ def import_bag_images(
     cam_cfg = camera_config(camera)
     pose_topics, tf_frames = _listed(pose_topic), _listed(tf_frame)
     ends = _image_ends(src, pose_topics, tf_frames, tf_topic, tf_world, clamp_pose)
-    rec, world, used, notes = read_bag_images(
-        src, image_topic, info_topic, ends, cam_cfg, clamp_pose,
-        hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
-        mask_topic=mask_topic,
-    )  # fmt: skip
+    with _bag_named(src):
+        rec, world, used, notes = read_bag_images(
+            src, image_topic, info_topic, ends, cam_cfg, clamp_pose,
+            hsv_low=hsv_low, hsv_high=hsv_high, tolerance=tolerance, calibration=calibration,
+            mask_topic=mask_topic,
+        )  # fmt: skip
     source: dict[str, Any] = {
         "kind": "ros2_bag_images",
         "image_topic": image_topic,
