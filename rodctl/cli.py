@@ -537,7 +537,6 @@ def replay(
         rodctl replay runs/20261201-120000_default/run.mcap --recover -q
     """
     from rodctl.replay import check_verifiable, format_summary, rebuild
-    from rodctl.replay import verify as verify_run
 
     if tolerance is not None and not verify:
         raise UserError("--tolerance is how closely --verify's rerun must match: give --verify too")
@@ -548,7 +547,8 @@ def replay(
         for note in result.notes:
             typer.echo(f"note: {note}", err=True)
     code = 0
-    if not result.run.records:  # a killed run cut before its first flush: nothing came back
+    if not result.run.records and not result.run.complete:
+        # A killed run cut before its first flush: nothing came back.
         typer.echo(
             f"error: {path}: the log holds no complete step (the run was cut before its first "
             "steps were flushed: logging.flush_every_steps); run.rrd holds its header only",
@@ -556,26 +556,33 @@ def replay(
         )
         code = 1
     elif verify:
-        from rodctl.replay import config_file_differences
-
-        edited = config_file_differences(result.run)
-        for diff in edited:
-            typer.echo(f"verify: config.yaml differs from the log: {diff}", err=True)
-        verdict = verify_run(result.run, tolerance=tolerance or 0.0)
-        for line in verdict.report():
-            typer.echo(line, err=True)
-        code = verdict.exit_code
-        if edited:  # the log reproduces, the folder's config.yaml does not say what ran
-            typer.echo(
-                "verify: FAILED: the log's steps rerun as above, but the run folder's "
-                f"config.yaml was edited ({len(edited)} key(s) above)",
-                err=True,
-            )
-            code = 1
+        code = _verify(result.run, tolerance or 0.0)
     if open_viewer:
         _open_rerun(result.rrd)
     typer.echo(str(result.rrd.parent if result.rrd else result.run.path.parent))
     raise typer.Exit(code=code)
+
+
+def _verify(run: Any, tolerance: float) -> int:
+    """`replay --verify`: rerun the log's steps and say the verdict, the folder's config.yaml
+    checked against the log too; the exit code (1: a mismatch or an edited config.yaml)."""
+    from rodctl.replay import config_file_differences
+    from rodctl.replay import verify as verify_run
+
+    edited = config_file_differences(run)
+    for diff in edited:
+        typer.echo(f"verify: config.yaml differs from the log: {diff}", err=True)
+    verdict = verify_run(run, tolerance=tolerance)
+    for line in verdict.report():
+        typer.echo(line, err=True)
+    if edited:  # the log reproduces, the folder's config.yaml does not say what ran
+        typer.echo(
+            "verify: FAILED: the log's steps rerun as above, but the run folder's config.yaml "
+            f"was edited ({len(edited)} key(s) above)",
+            err=True,
+        )
+        return 1
+    return verdict.exit_code
 
 
 def _open_rerun(rrd) -> None:
@@ -692,8 +699,9 @@ def train_encoder(
 
     require_torch("rodctl train-encoder")  # before anything is collected or written
     cfg = load_config(config, set_ or [])
-    if quick:  # the quick sizes, under what --set gives explicitly
-        cfg = load_config(config, [*quick_overrides(cfg), *(set_ or [])])
+    if quick:  # the quick sizes, after the --sets (a feature.type=… among them included)
+        keep = frozenset(item.partition("=")[0].strip() for item in set_ or [])
+        cfg = load_config(config, [*(set_ or []), *quick_overrides(cfg, keep)])
     cfg, recording = _training_recording(cfg, dataset)
     run = RunDir.create(out, cfg, command="train-encoder", argv=sys.argv)
     if recording is not None:
@@ -797,6 +805,14 @@ ResumeOpt = Annotated[
 ]
 
 
+def _given_on_command_line(ctx: typer.Context) -> set[str]:
+    """The parameters of `ctx`'s command the user gave on the command line (not defaults).
+    typer carries its own click: its ParameterSource is compared by name."""
+    return {
+        n for n in ctx.params if getattr(ctx.get_parameter_source(n), "name", "") == "COMMANDLINE"
+    }
+
+
 def _finish_batch(
     ctx: typer.Context, runner: Callable[..., Any], config: str, **kwargs: Any
 ) -> None:
@@ -804,9 +820,7 @@ def _finish_batch(
     folder and exits 1 (results kept)."""
     from rodctl.bench.runner import RunInterrupted
 
-    # typer carries its own click: its ParameterSource is compared by name.
-    source = ctx.get_parameter_source("out")
-    if kwargs["resume"] and source is not None and source.name == "COMMANDLINE":
+    if kwargs["resume"] and "out" in _given_on_command_line(ctx):
         raise UserError(
             f"--resume continues {kwargs['resume']} in its own folder; -o/--out "
             f"({kwargs['out']}) does not apply to it: leave it out"
@@ -814,8 +828,8 @@ def _finish_batch(
     kwargs["overrides"] = kwargs.pop("set_") or []
     kwargs["progress"] = not kwargs.pop("quiet")
     try:
-        # Outside the episodes (set-up, an encoder trained for 'auto', the report, between a
-        # suite's scenarios) SIGTERM ends the run as Ctrl-C does, recorded as interrupted.
+        # Outside the episodes and the reports (set-up, an encoder trained for 'auto', between
+        # a suite's scenarios) SIGTERM ends the run as Ctrl-C does, recorded as interrupted.
         with sigterm_as_interrupt():
             folder = runner(config, **kwargs)
     except RunInterrupted as exc:
@@ -1206,9 +1220,10 @@ def _frames_args(
     hsv_high: str,
     tolerance: float,
     name: str | None,
-    calib: Any,
+    calibration: Any,
 ) -> dict:
-    """The keyword arguments every camera-frames import takes (needs --camera)."""
+    """The keyword arguments every camera-frames import takes (needs --camera);
+    `calibration`: --calibration / --extrinsic as read (`_import_calibration`)."""
     if not camera:
         raise UserError(f"{path}: camera frames need --camera FILE (intrinsics, pose)")
     clamp = None if clamp_pose is None else _numbers("--clamp-pose", clamp_pose, 3, float)
@@ -1216,7 +1231,7 @@ def _frames_args(
         camera=camera, clamp_pose=clamp,
         hsv_low=_hsv("--hsv-low", hsv_low),
         hsv_high=_hsv("--hsv-high", hsv_high),
-        tolerance=tolerance, name=name, calibration=calib,
+        tolerance=tolerance, name=name, calibration=calibration,
     )  # fmt: skip
 
 
@@ -1251,14 +1266,20 @@ def _refuse_misplaced_timing(
         raise UserError("--fps and --frame-times: give one of them (the frame times)")
 
 
+def _refuse_empty(flags: dict[str, Any]) -> None:
+    """A topic, frame or file option given as "" (an unset shell variable) is refused by name,
+    whatever the input: it is no topic, not a wildcard."""
+    for key, value in flags.items():
+        values = value if isinstance(value, list) else [value]
+        if any(v is not None and not str(v).strip() for v in values):
+            flag = "--" + key.replace("_", "-")
+            what = "a file" if key == "topics" else "a name (e.g. --pose-topic /arm/pose)"
+            raise UserError(f"{flag} is empty: give {what}")
+
+
 def _bag_topics(flags: dict[str, Any]) -> dict[str, Any]:
     """The bag's topics: the flags, each unset one from the --topics YAML, checked together."""
     t = dict(flags)
-    for key, value in t.items():  # "" (an unset shell variable) is no topic, not a wildcard
-        given = value if isinstance(value, list) else [value]
-        if any(v is not None and not str(v).strip() for v in given):
-            flag = "--" + key.replace("_", "-")
-            raise UserError(f"{flag} is empty: give a name (e.g. --pose-topic /arm/pose)")
     mapping = None
     if t["topics"]:
         from rodctl.recordings.mapping import load_mapping
@@ -1403,31 +1424,41 @@ def import_recording(
     Prints the run directory last; exit 2 on a bad file or --name, 1 when cut short."""
     from pathlib import Path
 
-    from rodctl.recordings.importer import import_image_folder, import_points, run_name
+    from rodctl.recordings.importer import import_image_folder, run_name
     from rodctl.recordings.video import VIDEO_SUFFIXES
 
     run_name(name, path)  # a bad --name is refused before any work
-    calib = _import_calibration(calibration, extrinsic)
+    is_dir, is_video = Path(path).is_dir(), Path(path).suffix.lower() in VIDEO_SUFFIXES
+    # Read first where frames may follow; a points file refuses the options by name instead.
+    calib = _import_calibration(calibration, extrinsic) if is_dir or is_video else None
     frames_args = functools.partial(
         _frames_args, path, camera, clamp_pose, hsv_low, hsv_high, tolerance, name, calib
     )
-    is_dir, is_video = Path(path).is_dir(), Path(path).suffix.lower() in VIDEO_SUFFIXES
     flags = dict(
         points_topic=points_topic, pose_topic=pose_topic, image_topic=image_topic,
         camera_info_topic=camera_info_topic, topics=topics, tf_frame=tf_frame,
         tf_topic=tf_topic, tf_world=tf_world, mask_topic=mask_topic,
     )  # fmt: skip
+    _refuse_empty(flags)
     _refuse_misplaced_flags(path, is_dir, is_video, poses, flags)
     _refuse_misplaced_timing(path, is_video, fps, frame_times)
-    given = {
-        n for n in ctx.params if (src := ctx.get_parameter_source(n)) and src.name == "COMMANDLINE"
-    }  # typer's own click: its ParameterSource is compared by name
     if is_video:
         _import_video(path, out, poses, fps, frame_times, frames_args)
-        return
-    if is_dir and poses:
+    elif is_dir and poses:
         _print_import(*import_image_folder(path, out, poses=poses, **frames_args()))
-        return
+    else:
+        _import_tracked_or_bag(ctx, path, out, is_dir, flags, tolerance, name, frames_args)
+
+
+def _import_tracked_or_bag(
+    ctx: typer.Context, path: str, out: str, is_dir: bool, flags: dict[str, Any],
+    tolerance: float, name: str | None, frames_args: Callable[[], dict],
+) -> None:  # fmt: skip
+    """`import` of a ROS 2 bag folder or a points file; the options that apply to camera
+    frames only are refused for tracked points (named, not ignored)."""
+    from rodctl.recordings.importer import import_points
+
+    given = _given_on_command_line(ctx)
     t = _bag_topics(flags)
     if is_dir:
         if not t["image_topic"]:

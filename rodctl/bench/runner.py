@@ -129,14 +129,7 @@ def run_study(
             new = stream_episodes(pool, todo, log, progress=progress, done_before=len(kept))
             reason = stop_reason()
         rows = _in_task_order(tasks, kept, new)
-        if total and len(rows) == total:  # the stop came after the last episode: this run
-            late, reason = reason, None  # is whole; the stop still ends a suite (see finally)
-        # A stop during the report (seconds) lets it finish: its episodes are all there, so
-        # the run is completed, and the stop, late, still ends a suite.
-        with stop_handlers():
-            study.report(run.path, rows, total, pool, progress)
-        if reason is None:
-            late = late or stop_reason()
+        reason, late = _report(study, run.path, rows, total, pool, progress, reason)
         status = "interrupted" if reason else "completed"
         if reason:
             raise RunInterrupted(run.path, reason, len(rows), total)
@@ -150,11 +143,35 @@ def run_study(
             raise RunFailed(failure) from None
         raise
     finally:
-        _finish(run, log, status, reason, failure, len(rows), total, late)
+        with stop_handlers():  # a stop while meta.json is made final is late, not lost
+            _finish(run, log, status, reason, failure, len(rows), total, late)
         if bad_input and resume is None and not rows:
             # Bad input found once the folder existed (an unreachable target): nothing ran,
             # so nothing is left, as for bad input found before (docs/reliability.md).
             run.discard_if_empty()
+
+
+def _report(
+    study: Study,
+    folder: Path,
+    rows: list[dict[str, Any]],
+    total: int,
+    pool: Executor,
+    progress: bool,
+    reason: str | None,
+) -> tuple[str | None, str | None]:
+    """Write the study's report; (the stop that leaves the run interrupted, a late stop).
+
+    A stop after the last episode, or during the report (seconds: it is let finish), leaves a
+    whole run completed; late, it still ends a suite before its next scenario (`_finish`)."""
+    late = None
+    if total and len(rows) == total:
+        late, reason = reason, None
+    with stop_handlers():
+        study.report(folder, rows, total, pool, progress)
+    if reason is None:
+        late = late or stop_reason()
+    return reason, late
 
 
 def _in_task_order(
@@ -185,6 +202,8 @@ def _finish(
     extra = {"episodes": {"finished": finished, "total": total}}
     why = f"interrupted by {reason}" if reason else failure
     run.finish(status, **({"error": why} if why else {}), **extra)
+    if status == "completed":  # a stop while finishing (under stop_handlers) is late too
+        late = late or stop_reason()
     clear_stop()
     if late is not None:
         request_stop(late)

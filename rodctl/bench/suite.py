@@ -195,9 +195,7 @@ def run_suite(
             _run_scenarios(
                 run, scenarios, folders, wall, executor=executor, address=address, **options
             )
-        report = write_suite_outputs(cfg, run.path, folders, wall())
-        if progress:
-            stderr.print(report)
+        _suite_report(cfg, run.path, folders, wall(), progress)
         status = "completed"
         return run.path
     except (KeyboardInterrupt, RunInterrupted) as exc:
@@ -208,6 +206,17 @@ def run_suite(
         raise RunInterrupted(run.path, reason, done, len(scenarios), "scenarios") from None
     finally:
         run.finish(status, wall_s=wall())
+
+
+def _suite_report(
+    cfg: CompareConfig, folder: Path, folders: dict[str, str], wall: float, progress: bool
+) -> None:
+    """The suite's own tables (`write_suite_outputs`), shown when `progress`. Every scenario
+    is done: a stop meanwhile lets them finish (the suite stays completed, as a compare does)."""
+    with stop_handlers():
+        report = write_suite_outputs(cfg, folder, folders, wall)
+    if progress:
+        stderr.print(report)
 
 
 def _create(out: str, cfg: CompareConfig) -> RunDir:

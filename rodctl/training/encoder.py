@@ -312,19 +312,22 @@ def _write_checkpoint(ckpt: EncoderCheckpoint, run: RunDir) -> dict[str, Any]:
     return metrics
 
 
-def quick_overrides(cfg: ExperimentConfig) -> list[str]:
+def quick_overrides(cfg: ExperimentConfig, keep: frozenset[str] = frozenset()) -> list[str]:
     """The quick encoder's data and training sizes as `--set` overrides for `cfg`
     (`rodctl.features.auto`: QUICK_SAMPLES, QUICK_EPOCHS, batches of at most QUICK_BATCH; they
-    also name its cache file); none when the feature is not an autoencoder."""
+    also name its cache file), but for the keys in `keep` (the user's own `--set`s, whose
+    values `cfg` holds); none when the feature is not an autoencoder."""
     if not isinstance(cfg.feature, AutoencoderFeatureConfig):
         return []  # nothing to shrink; train_encoder says what is wrong
     data, training = cfg.feature.data, cfg.feature.training
-    return [
-        f"feature.data.samples={quick.QUICK_SAMPLES}",
-        f"feature.data.chunk={min(data.chunk, quick.QUICK_SAMPLES // 6)}",
-        f"feature.training.epochs={quick.QUICK_EPOCHS}",
-        f"feature.training.batch_size={min(training.batch_size, quick.QUICK_BATCH)}",
-    ]
+    samples = data.samples if "feature.data.samples" in keep else quick.QUICK_SAMPLES
+    sizes = {
+        "feature.data.samples": samples,
+        "feature.data.chunk": min(data.chunk, max(1, samples // 6)),  # six walks or more
+        "feature.training.epochs": quick.QUICK_EPOCHS,
+        "feature.training.batch_size": min(training.batch_size, quick.QUICK_BATCH),
+    }
+    return [f"{key}={value}" for key, value in sizes.items() if key not in keep]
 
 
 def quick_config(cfg: ExperimentConfig) -> ExperimentConfig:

@@ -289,3 +289,17 @@ def test_train_encoder_on_one_walk_warns_that_nothing_is_held_out(tmp_path, monk
     run = Path(res.stdout.strip().splitlines()[-1])
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["validation_samples"] == 0 and metrics["validation"] is None
+
+
+@pytest.mark.slow
+def test_train_encoder_quick_survives_a_set_of_the_feature_type(tiny_quick, tmp_path):
+    """Found by a review: the quick sizes went before the --sets, so a --set feature.type that
+    switched the section to the autoencoder dropped them (a full-size training)."""
+    sets = ["feature.type=autoencoder", "feature.hidden=[16, 8]", "feature.data.workers=1"]
+    sets += ["feature.training.batch_size=8"]
+    args = ["train-encoder", str(REPO / "configs/fourier.yaml"), "--quick", "-q"]
+    res = runner.invoke(app, [*args, "--out", str(tmp_path), *[f"--set={s}" for s in sets]])
+    assert res.exit_code == 0, res.output
+    metrics = json.loads((Path(res.stdout.strip().splitlines()[-1]) / "metrics.json").read_text())
+    assert metrics["epochs"] == 3
+    assert metrics["train_samples"] + metrics["validation_samples"] == 24
