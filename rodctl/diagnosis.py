@@ -55,9 +55,9 @@ ESTIMATOR_STEPS = 30
 #: Gauss-Newton iterations of the pose search.
 SEARCH_ITERATIONS = 20
 
-#: An iteration that lowers the error by less than this [px] has reached the search's minimum:
-#: below it the gain is rounding in the settles (a dual-arm search crept by < 1e-9 px an
-#: iteration on one machine and was called `inconclusive`, `unreachable` on another).
+#: A search cut off at `SEARCH_ITERATIONS` is `inconclusive` only if its last iteration lowered
+#: the error by more than this [px]; less is rounding in the settles (a dual-arm search crept by
+#: < 1e-9 px an iteration on one machine and was `inconclusive`, `unreachable` on another).
 MIN_GAIN_PX = 1e-3
 
 #: Finite-difference step per axis [m, m, rad] of each moved end (as `ShapeServoEnv.true_jacobian`).
@@ -220,7 +220,7 @@ def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool, bool]
 
     r = residual()
     best, clipped = pixel_error(r + target, target), False
-    improved = False
+    improved, gain = False, 0.0
     for _ in range(iterations):
         if best < tol:
             break
@@ -246,11 +246,12 @@ def pose_search(env: ShapeServoEnv, iterations: int) -> tuple[float, bool, bool]
             err = pixel_error(r_new + target, target)
             if err < best and not res.diverged:
                 clipped = clipped or bool(res.clipped or res.refused)
-                r, best, improved = r_new, err, best - err > MIN_GAIN_PX
+                r, best, improved, gain = r_new, err, True, best - err
                 break
             clipped = clipped or bool(res.clipped or res.refused)
             sim.restore(snap)
             step = step / 2.0
         if not improved:
-            break  # a local minimum of the pixel error (or the workspace edge), to MIN_GAIN_PX
-    return best, clipped, improved and best >= tol
+            break  # a local minimum of the pixel error (or the workspace edge)
+    # Cut off while still improving, by more than rounding in the settles (MIN_GAIN_PX).
+    return best, clipped, improved and gain > MIN_GAIN_PX and best >= tol
