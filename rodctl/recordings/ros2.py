@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import shutil
 from collections.abc import Sequence
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -213,13 +214,17 @@ def export_ros2(
     _check_bag_folder(out)
     try:
         writer = Writer(out, version=8, storage_plugin=plugin)
+        writer.open()  # makes the folder: from here on it is this export's own
     except WriterError as exc:
         raise UserError(f"{out}: {exc}") from None
     try:
         _write_bag(writer, run, ts, K, counts)
+        writer.close()
     except BaseException as exc:
         # A bag cut short (Ctrl-C, a full disk) is not one a reader opens, and it would block
         # the next export to the same folder: it goes, and the message says so.
+        with suppress(Exception):
+            writer.abort()
         shutil.rmtree(out, ignore_errors=True)
         removed = f"the unfinished bag {out} was removed"
         if isinstance(exc, KeyboardInterrupt):
@@ -231,35 +236,35 @@ def export_ros2(
 
 
 def _write_bag(writer: Any, run: Any, ts: Any, K: np.ndarray, counts: dict[str, int]) -> None:
-    """Every record of `run` into the open bag `writer` (`export_ros2`), counted by topic."""
+    """Every record of `run` into the opened bag `writer` (`export_ros2` closes it), counted
+    by topic."""
     from rodctl.logs.codec import log_time_ns
 
     T = ts.types
-    with writer:
-        two = bool(run.records) and all(np.size(r.u) == 6 for r in run.records)
-        conns = _export_connections(writer, ts, two)
-        if two:
-            counts[TOPIC_POSE_1] = 0
-        end1 = np.asarray(run.header.clamp_pose, dtype=float)[:3].copy()
+    two = bool(run.records) and all(np.size(r.u) == 6 for r in run.records)
+    conns = _export_connections(writer, ts, two)
+    if two:
+        counts[TOPIC_POSE_1] = 0
+    end1 = np.asarray(run.header.clamp_pose, dtype=float)[:3].copy()
 
-        def put(topic: str, t_ns: int, msg: Any) -> None:
-            writer.write(conns[topic], t_ns, ts.serialize_cdr(msg, conns[topic].msgtype))
-            counts[topic] += 1
+    def put(topic: str, t_ns: int, msg: Any) -> None:
+        writer.write(conns[topic], t_ns, ts.serialize_cdr(msg, conns[topic].msgtype))
+        counts[topic] += 1
 
-        for r in run.records:
-            t_ns = int(log_time_ns(r.sim_time))
-            put(TOPIC_POSE, t_ns, pose_stamped(ts, t_ns, np.asarray(r.gripper)[:3]))
-            if two:  # end effector 1: its first pose plus the logged changes (u[3:6])
-                end1 = end1 + np.asarray(r.u, dtype=float)[3:6]
-                put(TOPIC_POSE_1, t_ns, pose_stamped(ts, t_ns, end1))
-            marker = line_marker(ts, t_ns, np.asarray(r.centerline, dtype=float))
-            put(TOPIC_CENTERLINE, t_ns, T["visualization_msgs/msg/MarkerArray"](markers=[marker]))
-            if r.image is None:
-                continue
-            img = np.ascontiguousarray(r.image, dtype=np.uint8)
-            h, w = img.shape[:2]
-            put(TOPIC_IMAGE, t_ns, _image_msg(ts, t_ns, img))
-            put(TOPIC_INFO, t_ns, _camera_info_msg(ts, t_ns, h, w, K))
+    for r in run.records:
+        t_ns = int(log_time_ns(r.sim_time))
+        put(TOPIC_POSE, t_ns, pose_stamped(ts, t_ns, np.asarray(r.gripper)[:3]))
+        if two:  # end effector 1: its first pose plus the logged changes (u[3:6])
+            end1 = end1 + np.asarray(r.u, dtype=float)[3:6]
+            put(TOPIC_POSE_1, t_ns, pose_stamped(ts, t_ns, end1))
+        marker = line_marker(ts, t_ns, np.asarray(r.centerline, dtype=float))
+        put(TOPIC_CENTERLINE, t_ns, T["visualization_msgs/msg/MarkerArray"](markers=[marker]))
+        if r.image is None:
+            continue
+        img = np.ascontiguousarray(r.image, dtype=np.uint8)
+        h, w = img.shape[:2]
+        put(TOPIC_IMAGE, t_ns, _image_msg(ts, t_ns, img))
+        put(TOPIC_INFO, t_ns, _camera_info_msg(ts, t_ns, h, w, K))
 
 
 def _bag_error(path: str | Path, exc: Exception) -> str:
