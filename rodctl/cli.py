@@ -83,7 +83,8 @@ SetOpt = Annotated[
 def user_errors(fn: F) -> F:
     """Turn the two kinds of expected failure into one line on stderr, never a traceback:
     bad input (`UserError`) exits 2; a run that could not go on (`RunFailed`, or an `OSError`
-    such as a full disk or a read-only folder) exits 1."""
+    such as a full disk or a read-only folder) or was interrupted (a KeyboardInterrupt the
+    command did not handle, named by its signal: `sigterm_as_interrupt`) exits 1."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -94,6 +95,9 @@ def user_errors(fn: F) -> F:
             raise typer.Exit(code=2) from None
         except RunFailed as exc:
             typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(code=1) from None
+        except KeyboardInterrupt as exc:  # one no command handled: its signal, exit 1
+            typer.echo(f"error: interrupted by {str(exc) or 'SIGINT'}", err=True)
             raise typer.Exit(code=1) from None
         except BrokenPipeError:
             # The reader went away (`rodctl config show … | head`): what it read was right.

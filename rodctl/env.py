@@ -53,6 +53,7 @@ normalised observations, a success bonus, a goal-conditioned form for HER): docs
 from __future__ import annotations
 
 import math
+import operator
 import time
 from dataclasses import dataclass, replace
 from typing import Any, Protocol, cast, runtime_checkable
@@ -281,6 +282,17 @@ def _home_sim(rod: Any) -> RodSim:
 MAX_EPISODE_SEED = 2**63 - 1
 
 
+def _episode_seed(seed: Any) -> int:
+    """`reset`'s seed as a Python int (numpy integers too), in [0, MAX_EPISODE_SEED]."""
+    try:
+        value = operator.index(seed) if not isinstance(seed, bool) else None
+    except TypeError:
+        value = None
+    if value is None or not 0 <= value <= MAX_EPISODE_SEED:
+        raise ValueError(f"reset: seed {seed!r} must be an integer in [0, 2**63 - 1]")
+    return value
+
+
 def _given_target(options: dict[str, Any]) -> Target | None:
     """`reset`'s `target` option (a `Target` from `make_target`) or None; an unknown option or
     a target of another type is a ValueError."""
@@ -408,18 +420,19 @@ class ShapeServoEnv(gym.Env):
         options = dict(options or {})
         if "config" in options:
             self._configure(_as_config(options.pop("config")))
-        if seed is None:
-            seed = self.cfg.seed if not self._seeded else int(self.np_random.integers(2**31))
-        elif isinstance(seed, bool) or not 0 <= int(seed) <= MAX_EPISODE_SEED:
-            raise ValueError(f"reset: seed {seed!r} must be an integer in [0, 2**63 - 1]")
-        super().reset(seed=seed)
-        self._seeded = True
-        self.episode_seed = int(seed)
-        rod = self._start_rod(options.get("start_pose"))
-        self._rod_cfg = rod
+        # Every option checked before anything changes: a refused reset leaves the env as it was.
         given = _given_target(options)
         pose = options.get("target_pose")
         pose = None if pose is None else self._pose_option("target_pose", pose)
+        rod = self._start_rod(options.get("start_pose"))
+        if seed is None:
+            seed = self.cfg.seed if not self._seeded else int(self.np_random.integers(2**31))
+        else:
+            seed = _episode_seed(seed)
+        super().reset(seed=seed)
+        self._seeded = True
+        self.episode_seed = seed
+        self._rod_cfg = rod
         self.times = StageTimes()
         self._new_camera(seed)
         # A target made earlier (`make_target`) is reused as is: the clean camera that sees it

@@ -37,7 +37,7 @@ def results_file(path: str | Path) -> Path:
     """
     p = Path(path)
     if p.is_file():
-        if p.suffix not in (".csv", ".jsonl"):
+        if p.suffix.lower() not in (".csv", ".jsonl"):
             raise UserError(
                 f"{p}: not a results file: load_results reads a compare, sweep or suite "
                 "folder, or its results.csv or results.jsonl"
@@ -71,7 +71,7 @@ def load_results(path: str | Path) -> Any:
     """
     pd = _pandas()
     file = results_file(path)
-    if file.suffix == ".jsonl":
+    if file.suffix.lower() == ".jsonl":
         rows = []
         for line in file.read_text(encoding="utf-8").splitlines():
             try:

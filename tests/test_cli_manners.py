@@ -13,6 +13,7 @@ from paths import REPO
 from typer.testing import CliRunner
 
 from rodctl.cli import app
+from rodctl.recordings import ros2 as ros2_module
 
 runner = CliRunner()
 DEFAULT = str(REPO / "configs/default.yaml")
@@ -148,3 +149,16 @@ def test_a_tolerance_that_is_not_a_finite_number_at_least_0_says_so(tmp_path, va
     res = runner.invoke(app, ["import", str(tmp_path / "x.csv"), "--tolerance", value])
     assert res.exit_code == 2
     assert f"{float(value)} is not a finite number >= 0" in res.output
+
+
+def test_an_interrupt_no_command_handles_is_named_by_its_signal_and_exits_1(tmp_path, monkeypatch):
+    """Found by a review: a SIGTERM (raised as KeyboardInterrupt('SIGTERM')) that no command
+    handled was reported as SIGINT, exit 130; one rule: interrupted is exit 1."""
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt("SIGTERM")
+
+    monkeypatch.setattr(ros2_module, "export_ros2", stopped)
+    res = runner.invoke(app, ["export", str(tmp_path), "--ros2", str(tmp_path / "bag")])
+    assert res.exit_code == 1
+    assert res.output.strip() == "error: interrupted by SIGTERM"

@@ -133,8 +133,20 @@ def test_a_target_made_once_is_the_target_every_episode_would_make():
     np.testing.assert_array_equal(obs_a["centerline"], obs_b["centerline"])
 
 
-@pytest.mark.parametrize("seed", [-1, 2**63, 2**64, True])
+@pytest.mark.parametrize("seed", [-1, 2**63, 2**64, True, 3.5, "5"])
 def test_reset_refuses_a_seed_no_config_could_give(seed):
     env = ShapeServoEnv({"rod": {"segments": 20, "engine": "quasistatic"}})
     with pytest.raises(ValueError, match=r"seed .* must be an integer in \[0, 2\*\*63 - 1\]"):
         env.reset(seed=seed)
+
+
+def test_a_refused_reset_leaves_the_env_as_it_was_and_numpy_seeds_are_taken():
+    """Found by a review: a refused option still marked the env seeded, so the next reset()
+    drew a seed instead of using the config's."""
+    env = ShapeServoEnv({"seed": 7, "rod": {"segments": 20, "engine": "quasistatic"}})
+    with pytest.raises(ValueError, match="target_pose"):
+        env.reset(options={"target_pose": [0.3]})
+    env.reset()
+    assert env.episode_seed == 7
+    env.reset(seed=np.int64(5))
+    assert env.episode_seed == 5 and type(env.episode_seed) is int

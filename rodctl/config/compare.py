@@ -280,7 +280,8 @@ class CompareConfig(StrictModel):
 
     @model_validator(mode="after")
     def _logs_to_keep(self) -> CompareConfig:
-        if self.keep_logs and not self.base.logging.writes_episode_logs:
+        # A suite's scenarios may switch the base's logging on (`set:`): checked per scenario.
+        if self.keep_logs and self.scenarios is None and not self.base.logging.writes_episode_logs:
             raise ValueError(NO_LOGS_TO_KEEP)
         return self
 
