@@ -30,6 +30,12 @@ from rodctl.records import RunHeader, RunSummary, StepRecord
 DEFAULT_PORT = 8765
 
 
+#: `wait_for_client`: the quiet time after a viewer's latest subscription before the run
+#: starts, and the longest it waits for that quiet (s).
+SUBSCRIBE_QUIET_S = 0.2
+SUBSCRIBE_SETTLE_S = 2.0
+
+
 class LiveView:
     """A Foxglove WebSocket server with the MCAP's channels, and a sink streaming a run to it.
 
@@ -63,6 +69,7 @@ class LiveView:
         self._context: Any = None
         self._channels: dict[str, Any] = {}
         self._subscribed = threading.Event()
+        self._last_subscribe = 0.0  # monotonic time of the latest subscription
         self._header: RunHeader | None = None
         self._prev: StepRecord | None = None
         self._steps = 0
@@ -88,10 +95,11 @@ class LiveView:
                 "--live needs the Foxglove SDK: pip install 'rodctl[live]' (foxglove-sdk)"
             ) from None
 
-        subscribed = self._subscribed
+        subscribed, view = self._subscribed, self
 
         class _Listener(ServerListener):
             def on_subscribe(self, client: Any, channel: Any) -> None:
+                view._last_subscribe = time.monotonic()
                 subscribed.set()
 
         # Kept: the server and the channels live in this context only as long as it does.
@@ -149,6 +157,15 @@ class LiveView:
                 return False
             if deadline is not None and time.monotonic() > deadline:
                 return False
+        # A viewer subscribes channel by channel (the server takes them one at a time): the
+        # run starts once no new subscription came for SUBSCRIBE_QUIET_S, within
+        # SUBSCRIBE_SETTLE_S, so its first step reaches every channel asked for, not only
+        # the first (seen on a loaded machine: the first /control message was lost).
+        settle_end = time.monotonic() + SUBSCRIBE_SETTLE_S
+        while time.monotonic() < settle_end:
+            if time.monotonic() - self._last_subscribe >= SUBSCRIBE_QUIET_S:
+                break
+            time.sleep(0.02)
         return True
 
     def stop(self, grace_s: float = 0.0) -> None:
