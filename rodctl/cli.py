@@ -1142,7 +1142,9 @@ _PoseTopicOpt = Annotated[
 _ToleranceOpt = Annotated[
     float,
     typer.Option(
-        "--tolerance", callback=_nonnegative, help="Bag: largest pose gap (s) around a frame."
+        "--tolerance",
+        callback=_nonnegative,
+        help="Bag, image folder or video: largest pose gap (s) around a frame.",
     ),
 ]
 _ImageTopicOpt = Annotated[
@@ -1380,16 +1382,16 @@ _ONLY_FOR = {
 
 def _refuse_options(given: set[str], path: str, what: str, names: tuple[str, ...]) -> None:
     """A UserError naming the options of `names` in `given` and the inputs they apply to."""
-    named = [n for n in names if n in given]
-    if not named:
-        return
-    wheres = dict.fromkeys(_ONLY_FOR[n] for n in named)
-    said = "; ".join(
-        ", ".join("--" + n.replace("_", "-") for n in named if _ONLY_FOR[n] == where)
-        + f" {'apply' if sum(_ONLY_FOR[n] == where for n in named) > 1 else 'applies'} to {where}"
-        for where in wheres
-    )
-    raise UserError(f"{said}; {path} is {what}")
+    groups: dict[str, list[str]] = {}  # where they apply -> the options given
+    for n in names:
+        if n in given:
+            groups.setdefault(_ONLY_FOR[n], []).append("--" + n.replace("_", "-"))
+    if groups:
+        said = "; ".join(
+            f"{', '.join(flags)} {'apply' if len(flags) > 1 else 'applies'} to {where}"
+            for where, flags in groups.items()
+        )
+        raise UserError(f"{said}; {path} is {what}")
 
 
 @app.command("import")

@@ -273,8 +273,7 @@ def _bag_error(path: str | Path, exc: Exception) -> str:
     folder = Path(path)
     if folder.is_dir() and not (folder / "metadata.yaml").is_file():
         return "no metadata.yaml in the folder: a ROS 2 bag folder has one beside its storage file"
-    first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-    return f"metadata.yaml: {first[:200]}" if (folder / "metadata.yaml").is_file() else first
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
 
 
 # --- reading tracked points and poses from a bag ------------------------------------------
