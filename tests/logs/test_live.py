@@ -4,6 +4,7 @@ same messages as run.mcap, and the server is gone when the test is done."""
 from __future__ import annotations
 
 import json
+import signal
 import struct
 import threading
 
@@ -200,6 +201,7 @@ def test_a_rerun_viewer_receives_the_recording_run_rrd_holds(tmp_path):
         [rerun_cli, "--bind", "127.0.0.1", "--port", str(port), "--save", str(received)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         env={**os.environ, "RUST_LOG": "warn"},
+        start_new_session=True,  # its own group: the `rerun` wrapper starts the server binary
     )  # fmt: skip
     try:
         url = f"rerun+http://127.0.0.1:{port}/proxy"
@@ -232,7 +234,9 @@ def test_a_rerun_viewer_receives_the_recording_run_rrd_holds(tmp_path):
         assert same.returncode == 0, same.stdout + same.stderr
         assert received.stat().st_size > 0.5 * run_rrd.stat().st_size > 10_000  # a real run
     finally:
-        server.terminate()
+        # The group, not the wrapper alone: terminating the wrapper left the server binary
+        # running after the test (one per run of the suite).
+        os.killpg(server.pid, signal.SIGTERM)
         server.wait(timeout=30)
 
 
