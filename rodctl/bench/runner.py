@@ -167,10 +167,8 @@ def _report(
     late = None
     if total and len(rows) == total:
         late, reason = reason, None
-    with stop_handlers():
+    with stop_handlers():  # a stop meanwhile is taken as late by `_finish`
         study.report(folder, rows, total, pool, progress)
-    if reason is None:
-        late = late or stop_reason()
     return reason, late
 
 

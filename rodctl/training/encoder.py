@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from rodctl.config import ExperimentConfig, dump_config
+from rodctl.config.loading import apply_override, parse_override
 from rodctl.display import task_progress
 from rodctl.errors import RunFailed, UserError
 from rodctl.features import auto as quick
@@ -334,12 +335,7 @@ def quick_config(cfg: ExperimentConfig) -> ExperimentConfig:
     """`cfg` with the quick encoder's data and training sizes (`quick_overrides`)."""
     data = cfg.model_dump(mode="json")
     for item in quick_overrides(cfg):
-        key, value = item.split("=", 1)
-        *path, leaf = key.split(".")
-        section = data
-        for name in path:
-            section = section[name]
-        section[leaf] = int(value)
+        apply_override(data, *parse_override(item), item)
     return ExperimentConfig.model_validate(data)
 
 
