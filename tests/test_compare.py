@@ -101,6 +101,8 @@ def test_a_shared_targets_file_reproduces_the_run_in_one_process(smoke_run, tmp_
     first = [{k: r[k] for k in keys} for r in _rows(smoke_run)]
     second = [{k: r[k] for k in keys} for r in _rows(again)]
     assert first == second
+    # the folder's config.yaml says what ran: the one worker asked for, not the file's two
+    assert yaml.safe_load((again / "config.yaml").read_text())["workers"] == 1
 
 
 @pytest.mark.slow

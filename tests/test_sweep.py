@@ -310,6 +310,8 @@ def test_sweep_results_summary_and_figures(smoke_sweep):
     assert all(r["outcome"] == "converged" for r in got)
     summary = json.loads((smoke_sweep / "summary.json").read_text())
     assert summary["episodes"] == {"finished": 4, "total": 4} and not summary["partial"]
+    # config.yaml says what ran: --workers' one, not the file's two
+    assert yaml.safe_load((smoke_sweep / "config.yaml").read_text())["workers"] == 1
     ranking = summary["ranking"]
     assert [g["rank"] for g in ranking] == [1, 2]
     assert all(g["episodes"] == 2 and g["success_rate"] == 1.0 for g in ranking)

@@ -39,7 +39,7 @@ from rich.table import Table
 
 from rodctl.bench.comparisons import write_compare_report
 from rodctl.bench.episodes import METRIC_COLUMNS
-from rodctl.bench.runner import make_pool, run_study, run_tasks
+from rodctl.bench.runner import make_pool, run_study, run_tasks, with_workers
 from rodctl.bench.stats import band_names, fmt, summarize, summary_rows
 from rodctl.bench.target_set import (
     CompareTarget,
@@ -320,7 +320,7 @@ def run_compare(
             (results marked partial) and meta.json says `interrupted`.
     """
     wall0 = time.perf_counter()
-    cfg = load_compare_config(config_path, overrides)
+    cfg = with_workers(load_compare_config(config_path, overrides), workers)
     configs = preflight(cfg)
     given = given_target_poses(cfg, Path(config_path).resolve().parent)
     study = CompareStudy(cfg, configs, given, wall0)

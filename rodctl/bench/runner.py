@@ -14,7 +14,9 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
+
+from pydantic import BaseModel
 
 from rodctl.bench.episodes import run_episode_task
 from rodctl.bench.journal import ResultsLog, finished_rows, start_run
@@ -73,6 +75,15 @@ class Study(Protocol):
     ) -> None:
         """Write the outputs of the finished `rows` (of `total` episodes; fewer: partial)."""
         ...
+
+
+_C = TypeVar("_C", bound=BaseModel)
+
+
+def with_workers(cfg: _C, workers: int | None) -> _C:
+    """`cfg` as the run uses it: `--workers` (`workers`, when given) replaces the config's, so
+    that the folder's config.yaml says what ran, not what the file said."""
+    return cfg if workers is None else cfg.model_copy(update={"workers": workers})
 
 
 def make_pool(

@@ -48,7 +48,7 @@ from rodctl.bench.comparisons import (
     success_pairs,
     suite_comparisons,
 )
-from rodctl.bench.runner import RunInterrupted, make_pool
+from rodctl.bench.runner import RunInterrupted, make_pool, with_workers
 from rodctl.bench.stats import band_names, summarize, summary_rows
 from rodctl.bench.target_set import given_target_poses
 from rodctl.config.compare import CompareConfig
@@ -164,7 +164,7 @@ def run_suite(
     `resume`: an earlier suite folder; scenarios that completed are kept, the others resumed.
     """
     wall0 = time.perf_counter()
-    cfg = load_compare_config(config_path, overrides)
+    cfg = with_workers(load_compare_config(config_path, overrides), workers)
     source = config_source(config_path, overrides)
     scenarios = scenario_configs(cfg, Path(config_path).resolve().parent, source)
     # Made (not started) before the suite's folder: a bad --executor, --workers or a Ray not

@@ -32,7 +32,7 @@ from pydantic import ValidationError
 from rich.table import Table
 
 from rodctl.bench.compare import method_config
-from rodctl.bench.runner import RunInterrupted, make_pool, run_study, run_tasks
+from rodctl.bench.runner import RunInterrupted, make_pool, run_study, run_tasks, with_workers
 from rodctl.bench.stats import quantiles
 from rodctl.bench.target_set import (
     CompareTarget,
@@ -304,7 +304,7 @@ def run_sweep(
         RunInterrupted: SIGINT/SIGTERM stopped it; finished episodes are written, partial.
     """
     wall0 = time.perf_counter()
-    cfg = load_sweep_config(config_path, overrides)
+    cfg = with_workers(load_sweep_config(config_path, overrides), workers)
     source = config_source(config_path, overrides)
     study = SweepStudy(cfg, source, Path(config_path).resolve().parent, wall0)
     pool = make_pool(executor, workers, cfg.workers, address)
