@@ -906,6 +906,39 @@ def test_a_misspelt_units_comment_is_refused_not_read_as_metres(tmp_path, first,
     assert "line 1: " + said in res.output, res.output
 
 
+@pytest.mark.parametrize(
+    ("first", "scale", "warned"),
+    [
+        (
+            "",
+            1000.0,
+            "the tracked rod is 400 m long (median over frames), read as metres; "
+            "if they are pixels, add a `# units: px` line",
+        ),
+        ("# units: px", 1000.0, None),
+        ("", 1.0, None),
+        ("# units: px", 1.0, "the tracked rod is 0.4 px long (median over frames), read as pixels"),
+    ],
+)
+def test_points_whose_size_fits_the_other_unit_are_warned_about(tmp_path, first, scale, warned):
+    """Found by a new-user trial: a file of pixels without `# units: px` imported as a rod
+    hundreds of metres long, without a word."""
+    xs = [0.0, 0.1, 0.2, 0.3, 0.4]
+    rows = [first] if first else []
+    rows.append("t," + ",".join(f"x{i},y{i}" for i in range(5)) + ",e0_x,e0_y,e0_theta")
+    for k in range(4):
+        pts = ",".join(f"{scale * x:g},{scale * 0.01 * k:g}" for x in xs)
+        rows.append(f"{0.1 * k:g},{pts},0.4,0,{0.05 * k:g}")
+    path = tmp_path / "rec.csv"
+    path.write_text("\n".join(rows) + "\n")
+    res = CliRunner().invoke(app, ["import", str(path), "-o", str(tmp_path / "r")])
+    assert res.exit_code == 0, res.output
+    if warned is None:
+        assert "warning" not in res.output, res.output
+    else:
+        assert f"warning: {path}: {warned}" in res.output, res.output
+
+
 def test_a_points_npz_with_an_array_it_does_not_know_is_refused(tmp_path):
     """Found by a new-user trial: `unit='px'` was ignored and the pixels imported as metres."""
     path = tmp_path / "rec.npz"

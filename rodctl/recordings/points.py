@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from rodctl.errors import UserError
+from rodctl.notices import say_once
 from rodctl.recordings.synthetic import PointsRecording
 
 __all__ = ["read_points", "write_points_csv", "write_points_npz"]
@@ -245,8 +246,29 @@ def read_points(path: str | Path) -> PointsRecording:
     else:
         raise UserError(f"{p}: a points recording is a .csv or .npz file (docs/recordings.md)")
     rec = _check(p, rec)
+    _warn_unlikely_units(p, rec)
     rec.poses[:, :, 2] = np.unwrap(rec.poses[:, :, 2], axis=0)
     return rec
+
+
+#: A tracked rod longer than this many metres, or shorter than this many pixels, is more
+#: likely in the other unit (a lab's rods are 0.1-2 m long and span tens to hundreds of px).
+_LONGEST_M, _SHORTEST_PX = 20.0, 2.0
+
+
+def _warn_unlikely_units(path: Path, rec: PointsRecording) -> None:
+    """Say so when the points' size fits the other unit better: a file of pixels without its
+    `# units: px` is read as metres, and every figure downstream is then 1000x off."""
+    length = float(np.median(np.hypot(*np.diff(rec.points, axis=1).transpose(2, 0, 1)).sum(1)))
+    if rec.units == "m" and length > _LONGEST_M:
+        said = f"the tracked rod is {length:.4g} m long (median over frames), read as metres"
+        fix = "if they are pixels, add a `# units: px` line (CSV) or a `units` array 'px' (NPZ)"
+    elif rec.units == "px" and length < _SHORTEST_PX:
+        said = f"the tracked rod is {length:.3g} px long (median over frames), read as pixels"
+        fix = "if they are metres, say `# units: m` (CSV) or `units` 'm' (NPZ)"
+    else:
+        return
+    say_once(f"points-units:{path}", f"warning: {path}: {said}; {fix} (docs/recordings.md)")
 
 
 def write_points_csv(rec: PointsRecording, path: str | Path) -> Path:
