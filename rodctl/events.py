@@ -51,9 +51,17 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, model_validator
+from pydantic import (
+    Field,
+    NonNegativeFloat,
+    NonNegativeInt,
+    PositiveFloat,
+    ValidationError,
+    model_validator,
+)
 
 from rodctl.config.base import Point2, Pose, StrictModel
+from rodctl.config.camera import CameraConfig
 from rodctl.config.events import EventState, validate_events
 from rodctl.config.run import Event
 from rodctl.errors import UserError
@@ -215,6 +223,7 @@ class ClampMove(EventConfig):
         """The fixed target stays within reach of the moved clamp."""
         state.clamp = np.asarray(self.pose, dtype=float)
         _check_reach(state, field, "pose", "the clamp pose is out of reach")
+        state.check_rod_in_front(f"{field}.pose")
 
 
 @EVENTS.register(ClampMove)
@@ -315,19 +324,29 @@ class CameraBump(EventConfig):
         }
 
     def check(self, state: EventState, field: str) -> None:
-        """The bumped camera still looks down at the plane (distance > 0, |tilt| < 90°)."""
+        """The bumped pose is one `camera` may have (distance in (0, 100] m, tilt in [0, 80)
+        deg, azimuth within +-360 deg: the camera is rebuilt from it) and has no point the rod
+        can reach behind the camera."""
+        before = {
+            "distance": state.distance,
+            "tilt_deg": state.tilt_deg,
+            "azimuth_deg": state.azimuth_deg,
+        }
         pose = self.new_pose(state.look_at, state.distance, state.tilt_deg, state.azimuth_deg)
-        if pose["distance"] <= 0:
-            raise UserError(
-                f"{field}.distance: the bumped camera distance {pose['distance']:.4g} m must be > 0"
-            )
-        if not abs(pose["tilt_deg"]) < 90:
-            raise UserError(
-                f"{field}.tilt_deg: the bumped tilt {pose['tilt_deg']:.4g} deg must be within "
-                "(-90, 90) to see the plane"
-            )
+        for key, was in before.items():
+            try:
+                CameraConfig.__pydantic_validator__.validate_assignment(
+                    CameraConfig.model_construct(), key, pose[key]
+                )
+            except ValidationError as exc:
+                why = exc.errors()[0]["msg"].replace("Input should be", "must be")
+                raise UserError(
+                    f"{field}.{key}: {getattr(self, key):g} takes camera.{key} from {was:g} "
+                    f"to {pose[key]:.6g}, and camera.{key} {why}"
+                ) from None
         state.look_at, state.distance = pose["look_at"], pose["distance"]
         state.tilt_deg, state.azimuth_deg = pose["tilt_deg"], pose["azimuth_deg"]
+        state.check_rod_in_front(field)
 
 
 @EVENTS.register(CameraBump)

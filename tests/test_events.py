@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from pydantic import TypeAdapter, ValidationError
 
-from rodctl.config.camera import CameraConfig
+from rodctl.config.camera import CameraConfig, nearest_depth
 from rodctl.config.experiment import ExperimentConfig
 from rodctl.config.rod import RodConfig
 from rodctl.errors import UserError
@@ -143,7 +143,32 @@ def test_valid_events_pass_validation() -> None:
         (
             [{"type": "camera_bump", "at_step": 5, "tilt_deg": 70}],
             "run.events[0].tilt_deg",
-            "within",
+            r"70 takes camera.tilt_deg from 25 to 95, and camera.tilt_deg must be less than 80",
+        ),
+        # Found by a new-user trial: these passed the check and the run then failed (exit 1)
+        # where the camera was rebuilt, or at its first frame with the rod behind the camera.
+        (
+            [{"type": "camera_bump", "at_step": 5, "tilt_deg": -30}],
+            "run.events[0].tilt_deg",
+            "to -5, and camera.tilt_deg must be greater than or equal to 0",
+        ),
+        (
+            [{"type": "camera_bump", "at_step": 5, "distance": 99}],
+            "run.events[0].distance",
+            "camera.distance must be less than or equal to 100",
+        ),
+        (
+            [
+                {"type": "camera_bump", "at_step": 5, "azimuth_deg": 300},
+                {"type": "camera_bump", "at_step": 6, "azimuth_deg": 300},
+            ],
+            "run.events[1].azimuth_deg",
+            "from 300 to 600",
+        ),
+        (
+            [{"type": "camera_bump", "at_step": 5, "distance": -1.19}],
+            "run.events[0]",
+            r"the rod can reach \(within rod.length = 0.5 m of the x0 end\) 0.189 m behind it",
         ),
     ],
 )
@@ -153,6 +178,38 @@ def test_impossible_events_are_refused_naming_the_field(
     with pytest.raises(UserError, match=message) as err:
         validate_events(events(*items), experiment())
     assert str(err.value).startswith(field)
+
+
+def test_a_camera_with_the_rods_reach_behind_it_is_refused() -> None:
+    """Found by a new-user trial: `--set camera.distance=0.01` ended in a traceback at the
+    first frame (the renderer cannot draw a point behind the camera)."""
+    with pytest.raises(ValidationError, match="camera: the camera .* 0.189 m behind it"):
+        ExperimentConfig.model_validate({"camera": {"distance": 0.01}})
+    with pytest.raises(ValidationError, match="only 0.00.* m in front"):
+        ExperimentConfig.model_validate({"camera": {"distance": 0.2}})
+    ExperimentConfig.model_validate({"camera": {"distance": 0.25}})  # 0.039 m in front
+    # two arms: the x0 end anywhere in its workspace, the rod within rod.length of it
+    two = {"rod": {"arms": 2}, "camera": {"distance": 0.25}, "feature": {"type": "bezier"}}
+    with pytest.raises(ValidationError, match="behind it"):
+        ExperimentConfig.model_validate(two)
+
+
+def test_the_nearest_depth_is_the_cameras_own() -> None:
+    """`nearest_depth` of a disc against the depths `Camera` gives its points."""
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        cfg = CameraConfig(
+            look_at=tuple(rng.uniform(-1, 1, 2)),
+            distance=float(rng.uniform(0.2, 3)),
+            tilt_deg=float(rng.uniform(0, 79)),
+            azimuth_deg=float(rng.uniform(-360, 360)),
+        )
+        cam, c, r = Camera(cfg), rng.uniform(-1, 1, 2), float(rng.uniform(0, 1))
+        a = np.linspace(0, 2 * np.pi, 20001)
+        disc = np.stack([c[0] + r * np.cos(a), c[1] + r * np.sin(a), 0 * a], axis=1)
+        depth = (disc @ cam.rotation.T + cam.translation)[:, 2].min()
+        got = nearest_depth(cfg.look_at, cfg.distance, cfg.tilt_deg, cfg.azimuth_deg, [c], r)
+        assert got == pytest.approx(depth, abs=1e-7)
 
 
 # ------------------------------------------------------------------ mechanics

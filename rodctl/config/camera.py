@@ -13,6 +13,7 @@ the per-pixel rod coverage an exact linear function of the colour (rodctl/vision
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal
 
 from pydantic import Field, PositiveFloat, model_validator
@@ -159,3 +160,30 @@ class CameraConfig(StrictModel):
     )
     render: RenderConfig = RenderConfig()
     extract: ExtractConfig = ExtractConfig()
+
+
+#: How far in front of the camera (m) every point the rod can reach must stay: the renderer
+#: cannot draw a point behind the camera, and one just in front of it projects to pixels of
+#: ~1e9 that OpenCV's integer drawing cannot hold.
+MIN_DEPTH_M = 0.01
+
+
+def nearest_depth(
+    look_at: tuple[float, float],
+    distance: float,
+    tilt_deg: float,
+    azimuth_deg: float,
+    centres: list[tuple[float, float]],
+    radius: float,
+) -> float:
+    """The smallest depth (m, along the optical axis) of a plane point within `radius` of the
+    convex hull of `centres`, for the camera pose given (`CameraConfig`'s geometry).
+
+    A plane point X sits at depth distance - sin(tilt) (X - look_at) . w in front of the
+    camera, w = (sin(azimuth), -cos(azimuth)) the direction the camera leans towards; over the
+    hull grown by `radius` the smallest is at a centre (a vertex) plus radius along w.
+    """
+    tilt, az = math.radians(tilt_deg), math.radians(azimuth_deg)
+    wx, wy = math.sin(az), -math.cos(az)
+    lean = max((cx - look_at[0]) * wx + (cy - look_at[1]) * wy for cx, cy in centres)
+    return distance - math.sin(tilt) * (lean + radius)

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from rodctl.config.camera import MIN_DEPTH_M, nearest_depth
 from rodctl.errors import UserError
 
 __all__ = ["EventState", "validate_events"]
@@ -35,6 +36,7 @@ class EventState:
         look_at, distance, tilt_deg, azimuth_deg: the camera pose.
         boxes: the occluders present ([u0, v0, u1, v1] px each).
         max_steps: run.max_steps.
+        arm_box: with rod.arms: 2, the x0 end's workspace (x0, x1, y0, y1) (m); else None.
     """
 
     segment: float
@@ -50,6 +52,7 @@ class EventState:
     azimuth_deg: float
     boxes: list[tuple[float, ...]] = field(default_factory=list)
     max_steps: int = 0
+    arm_box: tuple[float, float, float, float] | None = None
 
     @classmethod
     def from_config(cls, cfg: Any) -> EventState:
@@ -69,7 +72,37 @@ class EventState:
             azimuth_deg=cam.azimuth_deg,
             boxes=[tuple(float(v) for v in b) for b in cam.render.occlusions],
             max_steps=cfg.run.max_steps,
+            arm_box=(*rod.clamp_arm.workspace.x_limits, *rod.clamp_arm.workspace.y_limits)
+            if rod.arms == 2
+            else None,
         )
+
+    def rod_depth(self) -> float:
+        """The smallest depth (m) in front of the camera of a point the rod can reach: every
+        point of it lies within rod.length of the x0 end, which is the clamp (one arm) or
+        anywhere in its arm's workspace (two)."""
+        if self.arm_box is None:
+            centres = [(float(self.clamp[0]), float(self.clamp[1]))]
+        else:
+            x0, x1, y0, y1 = self.arm_box
+            centres = [(x0, y0), (x0, y1), (x1, y0), (x1, y1)]
+        return nearest_depth(
+            self.look_at, self.distance, self.tilt_deg, self.azimuth_deg, centres, self.length
+        )
+
+    def check_rod_in_front(self, where: str) -> None:
+        """Refuse (naming `where`) a camera pose that has part of the rod's reach behind it."""
+        depth = self.rod_depth()
+        if depth < MIN_DEPTH_M:
+            where_ = f"{-depth:.3g} m behind it" if depth < 0 else f"only {depth:.3g} m in front"
+            raise UserError(
+                f"{where}: the camera (distance {self.distance:.4g} m from look_at "
+                f"{list(self.look_at)}, tilt {self.tilt_deg:.4g} deg, azimuth "
+                f"{self.azimuth_deg:.4g} deg) would have points the rod can reach (within "
+                f"rod.length = {self.length:g} m of the x0 end) {where_}; every such point "
+                f"must be at least {MIN_DEPTH_M:g} m in front for the camera to draw it: move "
+                "the camera further away or tilt it less"
+            )
 
     def target_distance(self) -> float | None:
         """Distance (m) from the clamp to the fixed target pose; None without one."""

@@ -17,7 +17,7 @@ from rodctl.config.base import (
     stage_field,
 )
 from rodctl.config.camera import CameraConfig
-from rodctl.config.events import validate_events
+from rodctl.config.events import EventState, validate_events
 from rodctl.config.logging import LoggingConfig
 from rodctl.config.rod import RodConfig
 from rodctl.config.run import RunConfig
@@ -76,6 +76,17 @@ class ExperimentConfig(StrictModel):
                 f"buffered by the logs, twice) but the machine has {have / 2**30:.1f} GiB; make "
                 "the image smaller or flush the logs more often"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _camera_sees_the_rod(self) -> ExperimentConfig:
+        """No point the rod can reach lies behind the camera (the renderer cannot draw it; the
+        run failed at its first frame). Events that move the camera or the clamp are checked
+        by their own `check`."""
+        try:
+            EventState.from_config(self).check_rod_in_front("camera")
+        except UserError as exc:
+            raise ValueError(str(exc)) from None
         return self
 
     @model_validator(mode="after")
