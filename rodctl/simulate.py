@@ -14,6 +14,7 @@ writes the figures, and waits for both, before it returns.
 
 from __future__ import annotations
 
+import traceback
 from collections.abc import Callable, Sequence
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
@@ -24,7 +25,7 @@ from rodctl import signals, timeline
 from rodctl.config import ExperimentConfig
 from rodctl.env import ShapeServoEnv
 from rodctl.episode import EpisodeFailed, EpisodeResult, Outcome, run_episode
-from rodctl.errors import UserError, describe_os_error
+from rodctl.errors import RunFailed, UserError, describe_os_error
 from rodctl.figure_worker import FiguresFailed, FigureWorker, save_figures
 from rodctl.logs.base import Sink
 from rodctl.logs.sinks import (
@@ -185,6 +186,11 @@ def _run(
         if not run.discard_if_empty():
             run.finish("failed", error=str(exc))
         raise
+    except Exception as exc:  # noqa: BLE001 - the episode could not start (a reset that failed)
+        why = f"the episode could not start: {type(exc).__name__}: {exc}"
+        _best_effort(lambda: (run.path / "error.txt").write_text(traceback.format_exc()))
+        run.finish("failed", error=why)
+        raise RunFailed(f"{why} (the traceback is in {run.path / 'error.txt'})") from exc
 
 
 def _episode_error(result: EpisodeResult, stops: StopRequests, run: RunDir) -> str | None:

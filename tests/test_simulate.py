@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 
 from rodctl.cli import app
 from rodctl.config.logging import LoggingConfig
+from rodctl.env import ShapeServoEnv
 from rodctl.logs.mcap import McapSink, read_mcap
 from rodctl.replay import read_run, summary_object
 
@@ -251,3 +252,22 @@ def test_bad_target_is_a_user_error(tmp_path):
     )
     assert result.exit_code == 2, result.output
     assert "run.target.pose" in result.output and "Traceback" not in result.output
+
+
+def test_an_episode_that_cannot_start_ends_its_run_as_failed(tmp_path, monkeypatch):
+    """An exception in the first reset (here forced; a camera with the rod behind it was one
+    before its check) was a traceback, and the run folder stayed `running`."""
+
+    def broken_reset(self, *args, **kwargs):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(ShapeServoEnv, "reset", broken_reset)
+    args = ["simulate", str(REPO / "configs/default.yaml"), "--out", str(tmp_path), *FAST]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 1, result.output
+    (run,) = tmp_path.iterdir()
+    said = "the episode could not start: RuntimeError: boom"
+    assert f"error: {said} (the traceback is in {run / 'error.txt'})" in result.output
+    meta = json.loads((run / "meta.json").read_text())
+    assert (meta["status"], meta["error"]) == ("failed", said)
+    assert "broken_reset" in (run / "error.txt").read_text()
