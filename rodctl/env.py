@@ -511,7 +511,9 @@ class ShapeServoEnv(gym.Env):
             events = [*events, *notes]
         info["events"] = events
         err = info["pixel_error"]
-        reward = -err if math.isfinite(err) else -self._lost_frame_cost
+        # A frame where the rod was not wholly seen (bridged, lost: `extraction_ok` 0) costs the
+        # image diagonal whatever its bridged points' error, as the goal form's compute_reward
+        reward = -err if self.frame.ok and math.isfinite(err) else -self._lost_frame_cost
         diverged = bool(res.diverged)
         converged = self.frame.ok and err < self.cfg.run.pixel_tolerance
         terminated = diverged or bool(converged)

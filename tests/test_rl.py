@@ -144,3 +144,17 @@ def test_a_normalisation_flag_that_is_not_a_bool_is_refused(flag):
     """Found by a new-user trial: normalize_actions="no" was read as True."""
     with pytest.raises(TypeError, match=f"{flag} must be True or False, got 'no'"):
         ShapeServoRLEnv({"rod": {"segments": 20, "engine": "quasistatic"}}, **{flag: "no"})
+
+
+def test_a_frame_not_wholly_seen_costs_the_diagonal_in_every_form():
+    """Found by a new-user trial: with the rod partly hidden (a bridged frame, extraction_ok 0)
+    the core and RL forms charged the bridged points' error (-36.6), the goal form the
+    diagonal (-800), for the same step."""
+    box = "{at_step: 1, type: occluder, action: add, box: [145, 80, 175, 160]}"
+    cfg = _config(f"run.events=[{box}]")
+    diagonal = -float(np.hypot(cfg.camera.width, cfg.camera.height))
+    for env in (ShapeServoEnv(cfg), ShapeServoRLEnv(cfg), ShapeServoGoalEnv(cfg)):
+        env.reset(seed=0)
+        _, reward, _, _, info = env.step(np.zeros(3))
+        assert not info["extraction_ok"] and np.isfinite(info["pixel_error"]), type(env)
+        assert reward == pytest.approx(diagonal), type(env)
