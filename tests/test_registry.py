@@ -139,6 +139,39 @@ def test_check_stage_catches_a_stage_that_breaks_its_protocol():
         del CONTROLLERS._entries["broken_for_test"]
 
 
+def test_check_stage_catches_an_estimator_whose_info_needs_reset_first():
+    """Found by a new-user trial: an estimator that sets its state in `reset` passed, and every
+    run then failed at step 0 (the loop logs `info()` during probing, before `reset`)."""
+    from typing import Literal
+
+    import numpy as np
+
+    from rodctl.registry import ESTIMATORS
+    from rodctl.testing import StageCheckFailed
+
+    class LateConfig(StrictModel):
+        """An estimator whose state exists only after `reset`."""
+
+        type: Literal["late_for_test"] = "late_for_test"
+
+    class Late:
+        def reset(self, J0):
+            self.J = np.array(J0, dtype=float)
+
+        def update(self, ds, dr):
+            return self.J
+
+        def info(self):
+            return {"norm": float(np.abs(self.J).sum())}
+
+    ESTIMATORS.register(LateConfig)(lambda cfg, ctx: Late())
+    try:
+        with pytest.raises(StageCheckFailed, match=r"info\(\) before reset\(\) raised"):
+            check_stage("estimator", "late_for_test")
+    finally:
+        del ESTIMATORS._entries["late_for_test"]
+
+
 @pytest.mark.parametrize("reg", _of("event"), ids=lambda r: r.type)
 def test_every_event_type_validates_and_applies_its_example(reg):
     """Each event type gives an `example`; it is valid in a config (`run.events`, the union of

@@ -32,7 +32,10 @@ class JacobianEstimator(Protocol):
         ...
 
     def info(self) -> dict[str, float]:
-        """Scalar diagnostics for the log (e.g. adaptive factor, innovation statistic)."""
+        """Scalar diagnostics for the log (e.g. adaptive factor, innovation statistic).
+
+        Called for every step's record from the first frame on, so also before `reset`
+        (during the probing moves that give J0): return {} (or the initial values) then."""
         ...
 
 

@@ -129,8 +129,9 @@ def check_stage(
     Checks, by kind:
         feature: `encode` gives (dim,) finite values for several centerlines, `encode_batch`
             (when present) gives the same rows; `dim` and `units` are declared.
-        estimator: after `reset(J0)`, `update(ds, dr)` on moves of a known linear map gives a
-            (p, q) finite estimate each step and `info()` a dict.
+        estimator: `info()` gives a dict before `reset` too (the loop logs it during probing);
+            after `reset(J0)`, `update(ds, dr)` on moves of a known linear map gives a (p, q)
+            finite estimate each step and `info()` a dict.
         controller: after `reset()`, `command(s, s*, J, r)` gives a (q,) finite command.
         all: a second stage built from the same config gives bit-identical outputs.
     `report.notes` (not failures: a stage may have reasons) says when an estimate moved away
@@ -206,6 +207,18 @@ def _run_estimator(cfg: Any, ctx: BuildContext, report: StageReport, steps: int,
     rng = np.random.default_rng(seed + 1)
     j_true = np.asarray(ctx.oracle(), dtype=float)
     j0 = j_true + rng.normal(0.0, 10.0, shape)
+    # The loop logs info() from the first frame on, through the probing moves, before reset
+    try:
+        early = obj.info()
+    except Exception as exc:
+        raise _fail(
+            "estimator",
+            name,
+            f"info() before reset() raised {exc!r}; the loop logs it from the first frame, "
+            "during the probing moves that give J0 (return {} until reset)",
+        ) from exc
+    if not isinstance(early, dict):
+        raise _fail("estimator", name, "info() before reset() must return a dict")
     obj.reset(j0)
     out = []
     for _ in range(steps):
