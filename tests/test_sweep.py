@@ -248,6 +248,14 @@ def test_random_search_draws_a_list_element_by_element_and_normalizes_it(tmp_pat
             r"parameters\.estimator\.nope: include_base",
         ),
         ({"paramters": {}}, "paramters: unknown key"),
+        # Found by a new-user trial: these made every point (gigabytes, a MemoryError) before
+        # the count was checked, or counted each episode twice.
+        ({"search": "random", "samples": 10**8}, "samples: Input should be less than or equal"),
+        (
+            {"parameters": {f"a.k{i}": {"values": list(range(10))} for i in range(5)}},
+            r"the grid has 100000 points \(10 x 10 x 10 x 10 x 10 values\); at most 10000",
+        ),
+        ({"seeds": [0, 0]}, r"seeds must be distinct, got \[0, 0\]"),
     ],
 )
 def test_bad_sweep_configs_name_the_key(tmp_path, change, match):

@@ -10,6 +10,7 @@ noise), so points differ only by the swept values.
 
 from __future__ import annotations
 
+import math
 import re
 from typing import Annotated, Any, ClassVar, Literal
 
@@ -143,7 +144,9 @@ class SweepConfig(StrictModel):
     search: Literal["grid", "random"] = Field(
         "grid", description="grid: every combination of `values`; random: `samples` draws."
     )
-    samples: PositiveInt | None = Field(None, description="Random search: number of points.")
+    samples: PositiveInt | None = Field(
+        None, le=MAX_POINTS, description="Random search: number of points."
+    )
     include_base: bool = Field(
         False,
         description="Random search: point 0 is the base's own values of the swept keys (the "
@@ -219,8 +222,16 @@ class SweepConfig(StrictModel):
                 raise ValueError("`samples` is for search: random; a grid runs every point")
             if self.include_base:
                 raise ValueError("`include_base` is for search: random (a grid lists its values)")
+            sizes = [len(p.values or []) for p in self.parameters.values()]
+            if math.prod(sizes) > MAX_POINTS:  # counted before any point is made
+                raise ValueError(
+                    f"the grid has {math.prod(sizes)} points ({' x '.join(map(str, sizes))} "
+                    f"values); at most {MAX_POINTS} (split it, or use search: random)"
+                )
         elif self.samples is None:
             raise ValueError("search: random needs `samples` (the number of points to draw)")
+        if len(set(self.seeds)) != len(self.seeds):  # each seed's episodes would count twice
+            raise ValueError(f"seeds must be distinct, got {self.seeds}")
         if self.base.run.target.pose is not None:
             raise ValueError(
                 "base.run.target.pose is set, but the sweep chooses the targets: use "
