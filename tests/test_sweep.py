@@ -14,7 +14,13 @@ from paths import REPO
 from typer.testing import CliRunner
 
 from rodctl.bench.runner import RunInterrupted
-from rodctl.bench.sweep import load_sweep_config, rank_groups, run_sweep, sweep_points
+from rodctl.bench.sweep import (
+    _summary_table,
+    load_sweep_config,
+    rank_groups,
+    run_sweep,
+    sweep_points,
+)
 from rodctl.cli import app
 from rodctl.config import ConfigError
 from rodctl.errors import UserError
@@ -300,6 +306,25 @@ def test_ranking_success_first_then_steps_missing_last():
     ranked = rank_groups(groups, ["success_rate", "steps_median"])
     assert [g["point"] for g in ranked] == [2, 1, 0, 3]
     assert [g["rank"] for g in ranked] == [1, 2, 3, 4]
+
+
+def test_the_summary_table_shows_every_metric_it_is_ranked_by():
+    """Found by a new-user trial: ranked by steps_mean, the table showed only median steps, and
+    rank 1 (median 21, mean 17.3) looked worse than rank 2 (median 19, mean 18)."""
+    base = {"method": "m", "converged": 3, "episodes": 3, "errors": 0}
+    groups = [
+        {**base, "point": 0, "success_rate": 1.0, "steps_median": 19.0, "steps_mean": 18.0},
+        {**base, "point": 1, "success_rate": 1.0, "steps_median": 21.0, "steps_mean": 17.33},
+    ]
+    for g in groups:
+        g.update(final_pixel_error_median=0.5, smoothness_median=0.1)
+    rank_by = ["success_rate", "steps_mean"]
+    header, lines = _summary_table(rank_groups(groups, rank_by), [], rank_by)
+    assert header[:6] == ["rank", "point", "method", "success", "steps_mean", "steps"]
+    assert [line[1:6] for line in lines] == [
+        ["1", "m", "3/3 (100%)", "17.33", "21.0"],
+        ["0", "m", "3/3 (100%)", "18", "19.0"],
+    ]
 
 
 @pytest.fixture(scope="module")
