@@ -15,7 +15,7 @@ from paths import REPO
 
 from rodctl.bench.compare import episode_tasks, load_compare_config, preflight, run_compare
 from rodctl.bench.episodes import run_episode_task
-from rodctl.bench.stats import OUTCOMES, summarize
+from rodctl.bench.stats import OUTCOMES, summarize, summary_rows
 from rodctl.bench.sweep import load_sweep_config
 from rodctl.bench.target_set import make_targets
 from rodctl.config import ConfigError
@@ -189,6 +189,13 @@ def test_summary_statistics():
     assert a["bands"]["hard"]["success_rate"] == 1.0 and b["bands"]["hard"]["success_rate"] == 0.0
     assert b["bands"]["hard"]["steps_median"] is None
     assert math.isclose(a["final_pixel_error_median"], 0.55)
+    # The table keeps a median's half step (found by a new-user trial: 6.5 [6.25-6.75] was
+    # shown as 6 [6-7], and 7.5 as 8)
+    half = [{**r, "method": "c", "steps_to_converge": 6 + r["target"]} for r in rows[:2]]
+    _, lines = summary_rows(summarize(half, ["c"], ["easy", "hard"]), ["easy", "hard"])
+    assert lines[0][2:4] == ["6.5 [6.25-6.75]", "6.5 [6.25-6.75]"]
+    _, lines = summary_rows(s, ["easy", "hard"])
+    assert lines[0][2:4] == ["20 [15-25]", "10 [10-10]"]
 
 
 def _write(tmp_path, data, name="c.yaml"):

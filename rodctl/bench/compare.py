@@ -40,7 +40,7 @@ from rich.table import Table
 from rodctl.bench.comparisons import write_compare_report
 from rodctl.bench.episodes import METRIC_COLUMNS
 from rodctl.bench.runner import make_pool, run_study, run_tasks, with_workers
-from rodctl.bench.stats import band_names, fmt, summarize, summary_rows
+from rodctl.bench.stats import band_names, fmt, fmt_steps, summarize, summary_rows
 from rodctl.bench.target_set import (
     CompareTarget,
     given_target_poses,
@@ -493,8 +493,9 @@ def terminal_table(summary: dict, title: str) -> Any:
         table.add_row(
             m,
             f"{fmt(None if rate is None else 100 * rate)}%",
-            f"{fmt(st['steps_median'])} [{fmt(st['steps_q25'])}-{fmt(st['steps_q75'])}]",
-            fmt(st["paired_steps_median"]),
+            f"{fmt_steps(st['steps_median'])} [{fmt_steps(st['steps_q25'])}-"
+            f"{fmt_steps(st['steps_q75'])}]",
+            fmt_steps(st["paired_steps_median"]),
             fmt(st["smoothness_median"], ".3f"),
             fmt(st["final_pixel_error_median"], ".2f"),
             f"{o['stalled']}/{o.get('pinned', 0)}/{o['step_limit']}/{fails}",

@@ -82,6 +82,14 @@ def fmt(v: Any, spec: str = ".0f") -> str:
     return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
 
 
+def fmt_steps(v: Any) -> str:
+    """A median or quartile of step counts: whole numbers as such, else its fraction (6.5,
+    23.75: quartiles of counts are quarters), not rounded to a whole step (`.0f` showed the
+    median 6.5 as 6 and 7.5 as 8)."""
+    text = fmt(v, ".2f")
+    return text.rstrip("0").rstrip(".") if "." in text else text
+
+
 def summary_rows(summary: dict, bands: Sequence[str]) -> tuple[list[str], list[list[str]]]:
     """The summary table as a header and string rows (shared by the terminal and summary.md).
 
@@ -107,15 +115,16 @@ def summary_rows(summary: dict, bands: Sequence[str]) -> tuple[list[str], list[l
             [
                 m,
                 f"{s['converged']}/{s['episodes']} ({fmt(None if rate is None else 100 * rate)}%)",
-                f"{fmt(s['steps_median'])} [{fmt(s['steps_q25'])}-{fmt(s['steps_q75'])}]",
-                f"{fmt(s['paired_steps_median'])} [{fmt(s['paired_steps_q25'])}-"
-                f"{fmt(s['paired_steps_q75'])}]",
+                f"{fmt_steps(s['steps_median'])} [{fmt_steps(s['steps_q25'])}-"
+                f"{fmt_steps(s['steps_q75'])}]",
+                f"{fmt_steps(s['paired_steps_median'])} [{fmt_steps(s['paired_steps_q25'])}-"
+                f"{fmt_steps(s['paired_steps_q75'])}]",
                 fmt(s["smoothness_median"], ".3f"),
                 fmt(s["path_length_median"], ".3f"),
                 fmt(s["final_pixel_error_median"], ".2f"),
                 *[
                     f"{fmt(None if bs['success_rate'] is None else 100 * bs['success_rate'])}% / "
-                    f"{fmt(bs['steps_median'])}"
+                    f"{fmt_steps(bs['steps_median'])}"
                     for bs in (s["bands"][b] for b in bands)
                 ],
                 f"{o['stalled']}/{o.get('pinned', 0)}/{o['step_limit']}/"
