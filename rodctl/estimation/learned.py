@@ -44,6 +44,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -222,6 +223,8 @@ class RbfJacobianModel:
 
         if not path.is_file():
             raise UserError(f"{path}: learned Jacobian model not found")
+        if not zipfile.is_zipfile(path):  # numpy would read it as a pickle and suggest that
+            raise bad("not an .npz archive (the model.npz `rodctl train-model` writes)")
         try:
             with np.load(path, allow_pickle=False) as npz:
                 meta = json.loads(str(npz["meta"]))

@@ -108,6 +108,13 @@ def test_the_model_round_trips_and_a_crafted_file_is_refused(tmp_path):
         RbfJacobianModel.load(bad)
     with pytest.raises(UserError, match="not found"):
         RbfJacobianModel.load(tmp_path / "missing.npz")
+    # Found by a new-user trial: a YAML given as the model was said to hold pickled data,
+    # "load it unsafely using allow_pickle"
+    text = tmp_path / "config.yaml"
+    text.write_text("estimator: {type: learned}\n")
+    with pytest.raises(UserError, match="not an .npz archive") as err:
+        RbfJacobianModel.load(text)
+    assert "pickle" not in str(err.value)
 
 
 def test_a_config_without_a_trained_model_says_how_to_train_one():
