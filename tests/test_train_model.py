@@ -54,3 +54,26 @@ def test_train_model_refuses_a_config_without_the_learned_estimator(tmp_path):
     assert res.exit_code == 2
     assert "estimator.type=learned" in res.output
     assert not list(tmp_path.iterdir())  # no run directory for bad input
+
+
+def test_a_small_collection_says_what_it_changed(tmp_path, monkeypatch):
+    """Found by a new-user trial: 10 samples trained without a word a model with no
+    validation and 10 centres instead of the configured ones."""
+    monkeypatch.chdir(REPO)
+    small = [*TINY, "--set", "estimator.data.samples=10"]
+    res = CliRunner().invoke(
+        app, ["train-model", "configs/yu2023.yaml", "-q", "-o", str(tmp_path), *small]
+    )
+    assert res.exit_code == 0, res.output
+    assert (
+        "warning: 10 samples in 1 walk(s) of estimator.data.chunk = 20: no walk is held out: "
+        "metrics.json's validation is null" in res.output
+    )
+    assert "the model has 4 centres" not in res.output  # 4 asked for, 10 distinct states
+    run = Path(res.output.strip().splitlines()[-1])
+    assert json.loads((run / "metrics.json").read_text())["validation"] is None
+    again = [*TINY, "--set", "estimator.data.samples=10", "--set", "estimator.training.centres=50"]
+    res = CliRunner().invoke(
+        app, ["train-model", "configs/yu2023.yaml", "-q", "-o", str(tmp_path), *again]
+    )
+    assert "the model has 10 centres, not the 50 of estimator.training.centres" in res.output

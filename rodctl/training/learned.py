@@ -36,6 +36,7 @@ from rodctl.estimation.learned import (
     state_vector,
 )
 from rodctl.estimation.probing import fit_jacobian
+from rodctl.notices import say_once
 from rodctl.registry import FEATURES, BuildContext, load_plugins
 from rodctl.runs import RunDir, rng, seed_sequence, write_json_atomic
 from rodctl.sim import RodSim
@@ -318,6 +319,7 @@ def train_model_from_walks(cfg: ExperimentConfig, walks: list[dict[str, Any]]) -
     model.length_scaling = tcfg.length_scaling
     model.fingerprint = model_fingerprint(cfg)
     model.config_yaml = dump_config(cfg)
+    _warn_small_data(est, len(pairs), n_val if val else 0, len(model.centres))
     model.metrics = {
         "train": prediction_errors(model, data),
         "validation": prediction_errors(model, _stack(val)) if val else None,
@@ -328,6 +330,33 @@ def train_model_from_walks(cfg: ExperimentConfig, walks: list[dict[str, Any]]) -
         "feature_units": getattr(feature, "units", ""),
     }
     return model
+
+
+def _warn_small_data(est: LearnedEstimatorConfig, walks: int, held: int, centres: int) -> None:
+    """Say what a small collection changed: no validation (one walk), a held-out share far from
+    `validation_fraction` (whole walks are held out), fewer centres than asked for (k-means
+    keeps at most one per distinct training state)."""
+    data, tcfg = est.data, est.training
+    said = []
+    if held == 0:
+        said.append("no walk is held out: metrics.json's validation is null")
+    elif held / walks > 1.5 * tcfg.validation_fraction:
+        said.append(
+            f"{held} of {walks} walks ({100 * held / walks:.0f} %) are held out for validation, "
+            f"not the {100 * tcfg.validation_fraction:.0f} % of "
+            "estimator.training.validation_fraction (whole walks are held out)"
+        )
+    if centres < tcfg.centres:
+        said.append(
+            f"the model has {centres} centres, not the {tcfg.centres} of "
+            f"estimator.training.centres (only {centres} distinct training states)"
+        )
+    if said:
+        text = (
+            f"warning: {data.samples} samples in {walks} walk(s) of estimator.data.chunk = "
+            f"{data.chunk}: {'; '.join(said)}. Collect more (estimator.data.samples) to avoid this."
+        )
+        say_once(text, text)
 
 
 def _r_scale(cfg: ExperimentConfig) -> np.ndarray:
