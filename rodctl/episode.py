@@ -208,6 +208,7 @@ def run_episode(
     base = _servo_env(env)
     wall0 = time.perf_counter()
     obs, info = env.reset(seed=base.config.seed if seed is None else seed, options=options)
+    _check_observation(env, obs)
     # base.config after reset: `options` may have replaced it
     stop_rule = stop_rule or StopRule.from_config(base.config)
     stop_rule.reset()
@@ -329,6 +330,28 @@ def _servo_env(env: gym.Env) -> ServoEnv:
             "(it needs `config`, `task` and `stage_times()`, as rodctl.env.ShapeServoEnv has)"
         )
     return base
+
+
+#: The observation keys a method reads (`Method.act`; `target` too when present).
+OBSERVATION_KEYS = ("centerline", "extraction_ok", "gripper", "applied")
+
+
+def _check_observation(env: gym.Env, obs: Any) -> None:
+    """Refuse, before anything is logged, an env whose wrappers changed the observation so
+    that a method cannot read it (flattened, filtered, stacked)."""
+    missing = [k for k in OBSERVATION_KEYS if k not in obs] if isinstance(obs, dict) else None
+    line = obs.get("centerline") if isinstance(obs, dict) else None
+    if missing is None or missing or np.ndim(line) != 2:
+        what = (
+            f"a {type(obs).__name__}, not a dict" if missing is None
+            else f"without {', '.join(missing)}" if missing
+            else f"with a centerline of shape {np.shape(line)}, not (N, 2)"
+        )  # fmt: skip
+        raise TypeError(
+            f"run_episode: {type(env).__name__}'s observation is {what}; a method reads "
+            f"{', '.join(OBSERVATION_KEYS)} (and target) as ShapeServoEnv gives them, so a "
+            "wrapper that flattens, filters or stacks the observation cannot be run by one"
+        )
 
 
 def _numbers(v: np.ndarray) -> str:

@@ -6,7 +6,12 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
-from gymnasium.wrappers import TimeLimit
+from gymnasium.wrappers import (
+    FilterObservation,
+    FlattenObservation,
+    FrameStackObservation,
+    TimeLimit,
+)
 from paths import REPO
 
 import rodctl  # noqa: F401 - importing rodctl registers the environment
@@ -113,3 +118,21 @@ def test_an_env_that_is_not_a_servo_env_is_refused_before_it_is_reset():
 
     with pytest.raises(TypeError, match="Other is not a ServoEnv"):
         run_episode(gym.wrappers.OrderEnforcing(Other()), method=None)
+
+
+@pytest.mark.parametrize(
+    ("wrap", "said"),
+    [
+        (FlattenObservation, "observation is a ndarray, not a dict"),
+        (lambda e: FilterObservation(e, ["centerline", "target"]), "without extraction_ok"),
+        (lambda e: FrameStackObservation(e, 2), r"centerline of shape \(2, 24, 2\)"),
+    ],
+)
+def test_a_wrapper_that_hides_what_a_method_reads_is_named(cfg, wrap, said):
+    """Found by a new-user trial: these failed inside the method ('numpy.ndarray' object has
+    no attribute 'get', KeyError: 'applied', a shape error), after the logs were opened."""
+    sink = _Frames()
+    env = wrap(gym.make("rodctl/ShapeServo-v0", config=cfg))
+    with pytest.raises(TypeError, match=said):
+        run_episode(env, Method.from_config(cfg), sinks=[sink])
+    assert sink.frames == []  # refused before anything was logged
