@@ -497,9 +497,15 @@ class ShapeServoEnv(gym.Env):
         """
         if self.sim is None:
             raise RuntimeError("call reset() before step()")
+        u = np.asarray(action, dtype=float)
+        if u.shape != (self.q,):  # numpy's own message was a reshape error, or none for (3, 1)
+            axes = "[dx, dy, dtheta]" if self.q == Q else "[dx, dy, dtheta] of each end"
+            raise ValueError(f"step: the action must have shape ({self.q},), {axes}; got {u.shape}")
+        if not np.isfinite(u).all():  # refused before anything changes, like the sim does
+            raise ValueError(f"step: the action {u.tolist()} is not finite (a NaN or inf)")
         events = self._apply_events(self.steps + 1)
         t = time.perf_counter()
-        res = self.sim.apply(np.asarray(action, dtype=float))
+        res = self.sim.apply(u)
         self.times.sim += time.perf_counter() - t
         self.steps += 1
         self.frame = self._look()

@@ -89,6 +89,26 @@ def test_a_pose_option_that_is_not_a_pose_is_a_value_error_naming_it(name, pose,
         env.reset(options={name: pose})
 
 
+@pytest.mark.parametrize(
+    ("action", "said"),
+    [
+        ([0.01, 0.0], r"must have shape \(3,\), \[dx, dy, dtheta\]; got \(2,\)"),
+        ([[0.01], [0.0], [0.0]], r"got \(3, 1\)"),
+        ([float("inf"), 0.0, 0.0], r"\[inf, 0.0, 0.0\] is not finite"),
+    ],
+)
+def test_an_action_that_is_not_a_move_is_a_value_error_naming_it(action, said):
+    """Found by a new-user trial: a (2,) action was numpy's reshape error and a (3, 1) one was
+    taken silently; a refused action changes nothing."""
+    env = ShapeServoEnv({"rod": {"segments": 20, "engine": "quasistatic"}})
+    env.reset(seed=0)
+    before = env.sim.gripper_pose.copy()
+    with pytest.raises(ValueError, match=f"step: .*{said}"):
+        env.step(action)
+    assert env.steps == 0
+    np.testing.assert_array_equal(env.sim.gripper_pose, before)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", ["sync", "async"])
 def test_vector_env_rolls_out_two_envs(mode):
