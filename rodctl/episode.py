@@ -340,7 +340,7 @@ def _check_observation(env: gym.Env, obs: Any) -> None:
     """Refuse, before anything is logged, an env whose wrappers changed the observation so
     that a method cannot read it (flattened, filtered, stacked)."""
     missing = [k for k in OBSERVATION_KEYS if k not in obs] if isinstance(obs, dict) else None
-    line = obs.get("centerline") if isinstance(obs, dict) else None
+    line: Any = obs.get("centerline") if isinstance(obs, dict) else None
     if missing is None or missing or np.ndim(line) != 2:
         what = (
             f"a {type(obs).__name__}, not a dict" if missing is None

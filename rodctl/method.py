@@ -268,7 +268,14 @@ class Method:
         t = time.perf_counter()
         assert self.task is not None and self.s is not None  # start() and _first() set them
         r = np.asarray(obs["gripper"], dtype=float) - self.task.home_pose
-        u = np.asarray(self.controller.command(self.s, self.s_target, self.J, r), dtype=float)
+        raw = self.controller.command(self.s, self.s_target, self.J, r)
+        u = np.asarray(raw if raw is not None else np.nan, dtype=float)
+        if raw is None or u.shape != (self.q,):  # a plug-in's bug, not a divergence
+            got = "None" if raw is None else f"an array of shape {u.shape}"
+            raise ValueError(
+                f"controller {self.configs['controller'].type!r}: command(s, s*, J, r) returned "
+                f"{got}, not a ({self.q},) command"
+            )
         self.times.control += time.perf_counter() - t
         return u
 

@@ -275,3 +275,39 @@ def test_the_builtin_module_list_is_the_modules_that_register():
     assert found - listed == set(), "register types but are not in _BUILTIN_MODULES"
     assert listed - found == set(), "listed in _BUILTIN_MODULES but register nothing"
     assert len(listed) == len(registry_module._BUILTIN_MODULES), "listed twice"
+
+
+def test_a_controller_that_returns_none_is_named_not_called_diverged():
+    """Found by a new-user trial: a plug-in controller returning None was reported as
+    'diverged: the controller's command u = [nan] is not finite'."""
+    from typing import Literal
+
+    from rodctl.config import load_config
+    from rodctl.env import ShapeServoEnv
+    from rodctl.episode import EpisodeFailed, run_episode
+    from rodctl.method import Method
+    from rodctl.registry import CONTROLLERS
+
+    class NoneConfig(StrictModel):
+        """A controller that forgets to return its command."""
+
+        type: Literal["none_for_test"] = "none_for_test"
+
+    class Forgets:
+        def reset(self):
+            pass
+
+        def command(self, s, s_target, J, r):
+            return None
+
+    CONTROLLERS.register(NoneConfig)(lambda cfg, ctx: Forgets())
+    try:
+        sets = ["feature.type=bezier", "controller.type=none_for_test", "rod.segments=20"]
+        sets += ["rod.engine=quasistatic", "logging.mcap=false", "logging.rerun=false"]
+        cfg = load_config(REPO / "configs/default.yaml", sets)
+        with pytest.raises(EpisodeFailed) as err:
+            run_episode(ShapeServoEnv(cfg), Method.from_config(cfg))
+        said = "controller 'none_for_test': command(s, s*, J, r) returned None, not a (3,) command"
+        assert err.value.result.error == f"ValueError: {said}"
+    finally:
+        del CONTROLLERS._entries["none_for_test"]
