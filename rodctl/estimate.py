@@ -411,7 +411,8 @@ class EstimateResult:
     def rows(self) -> list[dict[str, Any]]:
         """results.csv rows: the references first, then one per estimator."""
         z = float(np.median(self.zero)) if len(self.zero) else math.nan
-        h = float(np.nanmedian(self.hindsight)) if len(self.hindsight) else math.nan
+        finite = self.hindsight[np.isfinite(self.hindsight)]  # all NaN: a short recording
+        h = float(np.median(finite)) if len(finite) else math.nan
 
         def row(name: str, outcome: str, e: np.ndarray, wall: float, note: str) -> dict:
             good = e[np.isfinite(e)]
@@ -605,6 +606,12 @@ def write_results(result: EstimateResult, out: Path) -> list[Path]:
     return [res, steps]
 
 
+def _finite_median(values: np.ndarray) -> float:
+    """The median of the finite values, NaN when there is none (`nanmedian` warns then)."""
+    kept = values[np.isfinite(values)]
+    return float(np.median(kept)) if len(kept) else math.nan
+
+
 def write_plots(result: EstimateResult, out: Path) -> list[Path]:
     """errors.png (each estimator's and reference's one-step error per pair, log scale, with a
     running median) and medians.png (a box of each one's errors, the median marked), in `out`.
@@ -633,9 +640,8 @@ def write_plots(result: EstimateResult, out: Path) -> list[Path]:
             "ls": "--" if k < 2 else "-",
         }
         ax.plot(steps[good], e[good], lw=0.5, alpha=0.25, color=style["color"])
-        run = np.array(
-            [np.nanmedian(e[max(0, i - win) : i + win + 1]) for i in range(len(e))]
-        )  # running median over 2 win + 1 pairs
+        # running median over 2 win + 1 pairs
+        run = np.array([_finite_median(e[max(0, i - win) : i + win + 1]) for i in range(len(e))])
         ok = np.isfinite(run) & (run > 0)
         ax.plot(steps[ok], run[ok], lw=1.4, label=name, **style)
     ax.set_yscale("log")

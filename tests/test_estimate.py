@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -654,3 +655,24 @@ def test_a_checkpoint_that_is_not_an_encoder_file_is_named_as_such(tmp_path):
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 2, res.output
     assert "not an encoder checkpoint" in res.output and "torch" not in res.output
+
+
+def test_a_recording_without_a_finite_hindsight_error_warns_nothing(tmp_path):
+    """Found by a new-user trial: a short dual-arm run printed numpy's 'All-NaN slice
+    encountered' from the hindsight reference; it is NaN in results.csv, without a warning."""
+    from rodctl.estimate import EstimateResult, Pairs, write_plots
+
+    n = 4
+    pairs = Pairs(
+        init_ds=np.zeros((3, 2)), init_dr=np.eye(3), ds=np.ones((n, 2)), dr=np.ones((n, 3)),
+        steps=np.arange(n), feature="points",
+    )  # fmt: skip
+    result = EstimateResult(
+        pairs=pairs, runs=[], zero=np.ones(n), hindsight=np.full(n, np.nan), J_ls=None,
+        settings={},
+    )  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rows = result.rows()
+        write_plots(result, tmp_path)
+    assert np.isnan(rows[1]["median_error"])
