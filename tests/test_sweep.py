@@ -443,3 +443,27 @@ def test_set_adds_a_sweep_parameter_the_file_does_not_sweep_yet():
     assert (tolerance.low, tolerance.high) == (0.5, 2.0)
     with pytest.raises(ConfigError, match=r"rod\.lenth: unknown key"):
         load_sweep_config(SMOKE, ["parameters.rod.lenth.values=[0.4]"])
+
+
+def test_include_base_takes_the_methods_own_setting_and_refuses_one_they_differ_on(tmp_path):
+    """Found by a new-user trial: with `methods`, point 0 ran every method at the base's value,
+    not its own (p0 = 10 for a method set to 500), and a key only the methods set (the Bezier
+    degree of Bezier methods over a base without it) was refused."""
+    data = _smoke()
+    data.update(search="random", samples=1, include_base=True)
+    data["base"]["feature"] = {"type": "fourier"}
+    stages = {"estimator": {"type": "akf", "p0": 500.0}, "controller": {"type": "pinv"}}
+    data["methods"] = {
+        "a": {"feature": {"type": "bezier", "degree": 3}, **stages},
+        "b": {"feature": {"type": "bezier", "degree": 3}, **stages},
+    }
+    data["parameters"] = {
+        "estimator.p0": {"low": 1.0, "high": 10.0},
+        "feature.degree": {"values": [4, 5]},
+    }
+    point = sweep_points(load_sweep_config(_write(tmp_path, data)))[0]
+    assert point == {"estimator.p0": 500.0, "feature.degree": 3}
+    data["methods"]["b"]["estimator"] = {"type": "akf", "p0": 10.0}
+    said = r"estimator\.p0: include_base .* the methods set it differently \(a 500\.0, b 10\.0\)"
+    with pytest.raises(ConfigError, match=said):
+        load_sweep_config(_write(tmp_path, data))

@@ -100,27 +100,49 @@ def sweep_points(cfg: SweepConfig) -> list[dict[str, Any]]:
 
 
 def _base_point(cfg: SweepConfig) -> dict[str, Any]:
-    """The base's own value of every swept key (`include_base`: the current setting).
+    """The current setting of every swept key (`include_base`): each method's own value (the
+    base's, with no `methods`), which must be the same for all, since a point is one setting.
 
     Raises:
-        ConfigError: a swept key the base does not set (named).
+        ConfigError: a swept key a method does not set, or one the methods set differently
+            (named).
     """
-    data = cfg.base.model_dump(mode="json")
+    methods = _method_data(cfg)
     point = {}
     for key in cfg.parameters:
-        node: Any = data
-        for part in key.split("."):
-            if isinstance(node, dict) and part in node:
-                node = node[part]
-            elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
-                node = node[int(part)]
-            else:
-                raise ConfigError(
-                    f"parameters.{key}: include_base takes the base's value, but the base has "
-                    "no such key"
-                )
-        point[key] = node
+        own = {name: _lookup(data, key) for name, data in methods.items()}
+        lacking = [name for name, v in own.items() if v is _MISSING]
+        if lacking:
+            who = "the base has" if cfg.methods is None else f"method {lacking[0]} has"
+            raise ConfigError(
+                f"parameters.{key}: include_base takes the current value, but {who} no such key"
+            )
+        values = {json.dumps(jsonable(v), sort_keys=True) for v in own.values()}
+        if len(values) > 1:
+            said = ", ".join(f"{name} {json.dumps(jsonable(v))}" for name, v in own.items())
+            raise ConfigError(
+                f"parameters.{key}: include_base makes point 0 the current setting, one for "
+                f"every method, but the methods set it differently ({said}); sweep them "
+                "separately, or leave include_base out"
+            )
+        point[key] = next(iter(own.values()))
     return point
+
+
+_MISSING = object()
+
+
+def _lookup(data: Any, key: str) -> Any:
+    """The value at a dotted `key` of plain config data (list items by index), or _MISSING."""
+    node = data
+    for part in key.split("."):
+        if isinstance(node, dict) and part in node:
+            node = node[part]
+        elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
+            node = node[int(part)]
+        else:
+            return _MISSING
+    return node
 
 
 def _draw(p: ParameterConfig, gen: np.random.Generator) -> Any:
