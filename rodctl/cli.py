@@ -13,6 +13,7 @@ import os
 import sys
 from collections.abc import Callable
 from contextlib import nullcontext
+from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 import typer
@@ -824,7 +825,10 @@ def _finish_batch(
     folder and exits 1 (results kept)."""
     from rodctl.bench.runner import RunInterrupted
 
-    if kwargs["resume"] and "out" in _given_on_command_line(ctx):
+    resume = kwargs["resume"]
+    same_parent = resume and Path(kwargs["out"]).resolve() == Path(resume).resolve().parent
+    if resume and "out" in _given_on_command_line(ctx) and not same_parent:
+        # the first run's command with --resume added gives its own -o: that one is fine
         raise UserError(
             f"--resume continues {kwargs['resume']} in its own folder; -o/--out "
             f"({kwargs['out']}) does not apply to it: leave it out"

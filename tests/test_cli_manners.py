@@ -128,6 +128,15 @@ def test_an_option_that_would_be_silently_ignored_is_refused(args, said, tmp_pat
     assert not any(tmp_path.iterdir())  # refused before any run folder
 
 
+def test_resume_takes_the_first_runs_own_out_folder(tmp_path):
+    """Found by a new-user trial: the first run's command with --resume added was refused for
+    its -o, though it names the folder the run is in."""
+    run = tmp_path / "20261204-000000_compare-smoke"
+    res = runner.invoke(app, ["compare", SMOKE, "-o", str(tmp_path), "--resume", str(run)])
+    assert res.exit_code == 2 and "own folder" not in res.output, res.output
+    assert f"--resume {run}" in res.output  # refused for what it is: no such run folder
+
+
 def test_train_encoder_dataset_that_is_not_a_regular_file_says_so(tmp_path):
     """A FIFO (or a device) given as --dataset exists: "no such file" was wrong."""
     pytest.importorskip("torch")
