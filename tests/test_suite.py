@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -152,7 +153,7 @@ def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
     assert b"scenarios finished" in err
     meta = json.loads((suite / "meta.json").read_text())
     assert meta["status"] == "interrupted", meta
-    cut = [Path(f) for f in meta["scenarios"].values()]  # the cut scenario's folder is known
+    cut = [suite / f for f in meta["scenarios"].values()]  # the cut scenario's folder is known
     kept = {f: len([r for r in journal(f) if r["outcome"] != "interrupted"]) for f in cut}
     assert sum(kept.values()) >= 2
     res = CliRunner().invoke(app, ["compare", SMOKE, "-q", "--resume", str(suite)])
@@ -188,9 +189,13 @@ def test_a_killed_suite_resumes_its_cut_scenario_in_the_same_folder(tmp_path):
     (suite,) = [p for p in out.iterdir() if p.is_dir()]
     meta = json.loads((suite / "meta.json").read_text())
     assert meta["status"] == "running", meta  # nobody could say otherwise
-    (cut,) = [Path(f) for f in meta["scenarios"].values()]  # recorded when it started
+    (name,) = meta["scenarios"].values()  # recorded when it started, inside the suite's folder
+    assert not Path(name).is_absolute()
     killed_wall = meta["wall_s"]  # the killed run's time up to then, which --resume adds to
     assert killed_wall > 0
+    # the suite moved elsewhere (copied to another disk or machine) resumes as well
+    suite = Path(shutil.move(suite, tmp_path / "moved"))
+    cut = suite / name
     before = {(r["method"], r["target"]) for r in journal(cut) if r["outcome"] != "interrupted"}
     assert len(before) >= 2
     res = CliRunner().invoke(app, ["compare", SMOKE, "-q", "--resume", str(suite)])

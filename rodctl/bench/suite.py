@@ -171,7 +171,7 @@ def run_suite(
     # installed is refused leaving nothing behind.
     made = make_pool(executor, workers, cfg.workers, address)
     run = _reopen(resume) if resume is not None else _create(out, cfg)
-    folders: dict[str, str] = dict(run.meta.get("scenarios", {}))
+    folders = {k: str(_inside(run.path, v)) for k, v in run.meta.get("scenarios", {}).items()}
     before = float(run.meta.get("wall_s", 0.0))  # earlier invocations' share (--resume)
 
     def wall() -> float:
@@ -274,9 +274,28 @@ def _record_scenario(
     run: RunDir, folders: dict[str, str], name: str, wall: Callable[[], float], folder: Path
 ) -> None:
     folders[name] = str(folder)
-    run.meta["scenarios"] = folders
+    # relative to the suite's folder, so that a suite moved or copied elsewhere still resumes
+    run.meta["scenarios"] = {k: _relative(run.path, v) for k, v in folders.items()}
     run.meta["wall_s"] = wall()  # what a killed suite's --resume adds to
     run.write_meta()
+
+
+def _relative(suite: Path, folder: str) -> str:
+    """`folder` as meta.json records it: relative to the suite's folder when inside it."""
+    try:
+        return str(Path(folder).resolve().relative_to(suite.resolve()))
+    except ValueError:
+        return folder
+
+
+def _inside(suite: Path, folder: str) -> Path:
+    """A scenario folder from meta.json: relative to the suite's folder; an absolute one (as
+    suites before recorded them) found under the suite's scenarios/ when the suite moved."""
+    path = Path(folder)
+    if not path.is_absolute():
+        return suite / path
+    moved = suite / "scenarios" / path.name
+    return moved if not path.exists() and moved.exists() else path
 
 
 def _completed(folder: Path) -> bool:
