@@ -375,12 +375,18 @@ def test_resume_of_a_finished_sweep_runs_nothing_and_a_changed_one_is_refused(
     smoke_sweep, tmp_path
 ):
     before = rows(smoke_sweep)
+    first_wall = json.loads((smoke_sweep / "meta.json").read_text())["wall_s"]
     again = run_sweep(
         str(SMOKE), [], str(tmp_path), progress=False, workers=1, resume=str(smoke_sweep)
     )
     assert again == smoke_sweep
     assert len(journal(smoke_sweep)) == 4  # nothing ran again
     assert rows(again) == before
+    # the wall time counts the first invocation too (found by a new-user trial: it said 0 s)
+    wall = json.loads((smoke_sweep / "meta.json").read_text())["wall_s"]
+    assert wall > first_wall > 0
+    said = re.search(r"Wall time (\d+) s", (smoke_sweep / "summary.md").read_text())
+    assert said and int(said.group(1)) >= int(first_wall)
     with pytest.raises(UserError, match=r"config changed.*targets\.count"):
         run_sweep(
             str(SMOKE),

@@ -435,8 +435,9 @@ def write_summary_md(
         f"{summary['methods'][next(iter(cfg.methods))]['episodes']} targets per method, seed "
         f"{cfg.seed}; step budget {run.max_steps} (probing included), success = mean pixel "
         f"error < {run.pixel_tolerance} px on the {cfg.base.camera.points}-point centerline; "
-        f"speed limit {list(cfg.base.rod.max_step)} per step. Wall time {wall:.0f} s on "
-        f"{workers} worker(s).",
+        f"speed limit {list(cfg.base.rod.max_step)} per step. Wall time {wall:.0f} s to this "
+        f"summary on {workers} worker(s) (a resumed run's earlier invocations included; "
+        "meta.json's wall_s counts the figures too).",
         "",
         "Steps: steps to converge over converged episodes, median [IQR]; *paired*: only the "
         f"{summary['common_targets']} targets every method converged on. Smoothness: summed "

@@ -12,6 +12,7 @@ meta.json ends `completed`, `interrupted` or `failed` (with why) whatever happen
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
@@ -55,6 +56,9 @@ class Study(Protocol):
 
     #: The command, as meta.json and `--resume` name it ("compare", "sweep").
     command: str
+    #: When the run began (`time.perf_counter()`); `run_study` moves it back by a resumed run's
+    #: earlier invocations (meta.json's `wall_s`), so its wall times count them too.
+    wall0: float
 
     @property
     def config(self) -> Any:
@@ -122,6 +126,8 @@ def run_study(
         RunFailed: an OS error (a full or read-only disk), in one line.
     """
     run = start_run(out, study.config, study.command, study.hashed, resume, executor)
+    if resume is not None:  # what the earlier invocations took (0 before it was recorded)
+        study.wall0 -= float(run.meta.get("wall_s") or 0.0)
     if on_start is not None:
         on_start(run.path)
     log = ResultsLog(run.path / "results.jsonl")
@@ -154,6 +160,7 @@ def run_study(
             raise RunFailed(failure) from None
         raise
     finally:
+        run.meta["wall_s"] = time.perf_counter() - study.wall0  # the report's time included
         with stop_handlers():  # a stop while meta.json is made final is late, not lost
             _finish(run, log, status, reason, failure, len(rows), total, late)
         if bad_input and resume is None and not rows:

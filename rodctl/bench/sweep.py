@@ -485,11 +485,13 @@ def _summary_md(
             "",
         ]
     return text + [
-        f"{cfg.search} search, {summary['points']} points x {n_methods} method(s) x seeds "
-        f"{cfg.seeds} x {sum(len(t) for t in targets.values())} targets; ranked by "
+        f"{cfg.search} search, {summary['points']} points x {n_methods} method(s) x "
+        f"{sum(len(t) for t in targets.values())} targets in all (seeds {cfg.seeds}, each its "
+        "own target set); ranked by "
         f"{', '.join(cfg.rank_by)} (success rate: higher is better; others lower). Steps: "
-        f"median steps to converge over converged episodes. Wall time {wall:.0f} s on "
-        f"{summary['workers']} {summary['executor']} worker(s).",
+        f"median steps to converge over converged episodes. Wall time {wall:.0f} s to this "
+        f"summary on {summary['workers']} {summary['executor']} worker(s) (a resumed run's "
+        "earlier invocations included; meta.json's wall_s counts the figures too).",
         "",
         table,
         "",
