@@ -125,11 +125,7 @@ def run_study(
         RunInterrupted: SIGINT/SIGTERM stopped the run; the finished rows are reported.
         RunFailed: an OS error (a full or read-only disk), in one line.
     """
-    run = start_run(out, study.config, study.command, study.hashed, resume, executor)
-    if resume is not None:  # what the earlier invocations took (0 before it was recorded)
-        study.wall0 -= float(run.meta.get("wall_s") or 0.0)
-    if on_start is not None:
-        on_start(run.path)
+    run = _begin(study, out, resume, executor, on_start)
     log = ResultsLog(run.path / "results.jsonl")
     status, reason, rows, total = "failed", None, [], 0
     late: str | None = None
@@ -167,6 +163,23 @@ def run_study(
             # Bad input found once the folder existed (an unreachable target): nothing ran,
             # so nothing is left, as for bad input found before (docs/reliability.md).
             run.discard_if_empty()
+
+
+def _begin(
+    study: Study,
+    out: str,
+    resume: str | None,
+    executor: str | None,
+    on_start: Callable[[Path], None] | None,
+) -> RunDir:
+    """The run's folder, made (or the `resume` one reopened, its earlier invocations' wall
+    time added to the study's), and `on_start` told of it."""
+    run = start_run(out, study.config, study.command, study.hashed, resume, executor)
+    if resume is not None:  # what the earlier invocations took (0 before it was recorded)
+        study.wall0 -= float(run.meta.get("wall_s") or 0.0)
+    if on_start is not None:
+        on_start(run.path)
+    return run
 
 
 def _report(
