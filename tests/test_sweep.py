@@ -414,6 +414,10 @@ def test_an_interrupted_sweep_keeps_what_finished_and_resumes_to_the_same_table(
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["partial"] and 1 <= summary["episodes"]["finished"] < 4
     assert (folder / "summary.md").read_text().count("PARTIAL") == 1
+    # points ranked on different numbers of episodes are said to be (found by a new-user trial)
+    counts = sorted({g["episodes"] for g in summary["ranking"]})
+    uneven = f"finished different numbers of episodes ({', '.join(map(str, counts))})"
+    assert (uneven in (folder / "summary.md").read_text()) == (len(counts) > 1)
     finished = len(rows(folder))
     resumed = run_sweep(
         str(SMOKE), [], str(tmp_path), progress=False, workers=1, resume=str(folder)

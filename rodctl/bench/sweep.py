@@ -479,9 +479,16 @@ def _summary_md(
     finished, total = summary["episodes"]["finished"], summary["episodes"]["total"]
     text = [f"# rodctl sweep: {cfg.name}", ""]
     if summary["partial"]:
+        counts = sorted({g["episodes"] for g in summary["ranking"]})
+        uneven = (
+            f" The points finished different numbers of episodes ({', '.join(map(str, counts))})"
+            ", so their ranks compare partly different targets."
+            if len(counts) > 1
+            else ""
+        )
         text += [
             f"**PARTIAL**: interrupted; {finished} of {total} episodes finished and are "
-            "counted here. `rodctl sweep CONFIG --resume FOLDER` finishes it.",
+            f"counted here.{uneven} `rodctl sweep CONFIG --resume FOLDER` finishes it.",
             "",
         ]
     return text + [
