@@ -153,6 +153,8 @@ def test_a_stopped_suite_says_interrupted_and_resume_finishes_it(tmp_path):
     assert b"scenarios finished" in err
     meta = json.loads((suite / "meta.json").read_text())
     assert meta["status"] == "interrupted", meta
+    assert meta["error"] == "interrupted by SIGTERM"  # as a compare says it (it was absent)
+    assert meta["scenarios_finished"]["total"] == 3
     cut = [suite / f for f in meta["scenarios"].values()]  # the cut scenario's folder is known
     kept = {f: len([r for r in journal(f) if r["outcome"] != "interrupted"]) for f in cut}
     assert sum(kept.values()) >= 2

@@ -178,6 +178,7 @@ def run_suite(
         return before + time.perf_counter() - wall0
 
     status = "failed"
+    extra: dict[str, Any] = {}  # meta.json's why and how far, for an interrupted suite
     try:
         # Quick encoders (`checkpoint: auto`) are trained before the pool starts, so that the
         # training sees the environment it always saw (not the workers' one-thread settings).
@@ -200,12 +201,24 @@ def run_suite(
         return run.path
     except (KeyboardInterrupt, RunInterrupted) as exc:
         # The suite's folder is what --resume takes, not the cut scenario's.
-        status = "interrupted"
-        reason = exc.reason if isinstance(exc, RunInterrupted) else str(exc) or "SIGINT"
-        done = sum(_completed(Path(f)) for f in folders.values())
-        raise RunInterrupted(run.path, reason, done, len(scenarios), "scenarios") from None
+        status, extra = "interrupted", _stopped(exc, folders, len(scenarios))
+        done = extra["scenarios_finished"]["finished"]
+        raise RunInterrupted(run.path, extra["reason"], done, len(scenarios), "scenarios") from None
     finally:
-        run.finish(status, wall_s=wall())
+        extra.pop("reason", None)
+        run.finish(status, wall_s=wall(), **extra)
+
+
+def _stopped(exc: BaseException, folders: dict[str, str], total: int) -> dict[str, Any]:
+    """What meta.json says of an interrupted suite, as a compare's does: why (`error`) and how
+    far it got; `reason` (the signal) for the caller."""
+    reason = exc.reason if isinstance(exc, RunInterrupted) else str(exc) or "SIGINT"
+    done = sum(_completed(Path(f)) for f in folders.values())
+    return {
+        "reason": reason,
+        "error": f"interrupted by {reason}",
+        "scenarios_finished": {"finished": done, "total": total},
+    }
 
 
 def _suite_report(
