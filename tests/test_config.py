@@ -153,6 +153,16 @@ def test_malformed_set(override, repo):
     assert "--set" in out or "seed" in out
 
 
+def test_an_index_into_a_list_the_file_does_not_set_says_to_set_the_list(repo):
+    """Found by a new-user trial: `rod.max_step.0=0.02` with no rod.max_step in the file was
+    'Input should be a valid tuple' (a mapping {"0": 0.02} had been made)."""
+    out = _fail(
+        ["config", "show", str(repo / "configs/default.yaml"), "--set", "rod.max_step.0=0.02"]
+    )
+    assert "the config does not set rod.max_step, so there is no list to index" in out
+    assert load_config(None, ["rod.max_step=[0.02, 0.01, 0.05]"]).rod.max_step[0] == 0.02
+
+
 def test_config_error_is_a_user_error():
     with pytest.raises(ConfigError):
         load_config(None, ["rod.length=0"])

@@ -263,6 +263,11 @@ def apply_override(
                 node[part] = value
             else:
                 nxt = node.get(part)
+                if nxt is None and parts[i].isdigit():  # {"0": v} would be no list at all
+                    raise ConfigError(
+                        f"--set {text!r}: the config does not set {where}, so there is no "
+                        f"list to index; set the whole value (--set {where}=[...])"
+                    )
                 if nxt is None:
                     nxt = node[part] = {}
                 node = nxt
