@@ -7,6 +7,7 @@ import json
 import re
 import signal
 
+import numpy as np
 import pytest
 import yaml
 from batch_helpers import journal, rows, send_self_after
@@ -477,3 +478,23 @@ def test_include_base_takes_the_methods_own_setting_and_refuses_one_they_differ_
     said = r"estimator\.p0: include_base .* the methods set it differently \(a 500\.0, b 10\.0\)"
     with pytest.raises(ConfigError, match=said):
         load_sweep_config(_write(tmp_path, data))
+
+
+def test_a_list_valued_knob_is_drawn_one_panel_per_element(tmp_path):
+    """Found by a new-user trial: a random sweep over controller.weights drew each 7-float
+    list as a category label (cut off at the edge) joined by lines in draw order."""
+    import matplotlib.image
+
+    from rodctl.bench.sweep import metric_figure
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for _ in range(6):
+        w = [float(x) for x in rng.dirichlet(np.ones(7))]
+        rows += [
+            {"method": m, "controller.weights": w, "outcome": "converged", "steps_to_converge": 9}
+            for m in ("a", "b")
+        ]
+    path = metric_figure(rows, "controller.weights", "steps_mean", ["a", "b"], tmp_path / "w.png")
+    height, width = matplotlib.image.imread(path).shape[:2]
+    assert (width, height) == (round(4 * 3.2 * 110), round((2 * 2.6 + 0.4) * 110))  # 2 x 4 panels

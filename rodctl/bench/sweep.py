@@ -570,6 +570,8 @@ def metric_figure(
     numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in values)
     if numeric:
         values = sorted(values)
+    if _numeric_lists(values):
+        return _elements_figure(rows, key, metric, methods, values, path)
     fig = Figure(figsize=(6.4, 4.2), layout="constrained")
     ax = fig.subplots()
     for m in methods:
@@ -593,6 +595,60 @@ def metric_figure(
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(f"{metric} against {key}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def _numeric_lists(values: list[Any]) -> bool:
+    """Whether every value is a list of numbers, all of one length (a weight vector)."""
+    return bool(values) and all(
+        isinstance(v, list)
+        and len(v) == len(values[0]) > 0
+        and all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+        for v in values
+    )
+
+
+def _elements_figure(
+    rows: list[dict[str, Any]],
+    key: str,
+    metric: str,
+    methods: list[str],
+    values: list[list[float]],
+    path: Path,
+) -> Path:
+    """`metric` of each (point, method) group against each element of a list-valued key, one
+    panel per element, as points (a list drawn element by element has no order to join them
+    in; its values as tick labels did not fit)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    n = len(values[0])
+    cols = min(n, 4)
+    fig = Figure(figsize=(3.2 * cols, 2.6 * math.ceil(n / cols) + 0.4), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(math.ceil(n / cols), cols, squeeze=False)).ravel()
+    for m_i, m in enumerate(methods):
+        ys = [
+            group_stats([r for r in rows if r["method"] == m and r.get(key) == v])[metric]
+            for v in values
+        ]
+        y = [np.nan if v is None else v for v in ys]
+        for j in range(n):
+            axes[j].scatter([v[j] for v in values], y, s=14, color=f"C{m_i}", label=m)
+    for j, ax in enumerate(axes):
+        if j >= n:
+            ax.set_visible(False)
+            continue
+        ax.set_xlabel(f"{key}[{j}]", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(True, alpha=0.3)
+        if metric == "success_rate":
+            ax.set_ylim(-0.05, 1.05)
+    axes[0].set_ylabel(metric.replace("_", " "))
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"{metric} against each element of {key}", fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
     fig.savefig(path, dpi=110)
