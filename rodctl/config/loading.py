@@ -227,6 +227,16 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     return [p.strip() for p in parts], value
 
 
+def _refuse_index_into_nothing(part: str, where: str, text: str) -> None:
+    """A list index under a key the config does not set: a mapping {"0": v} made there would
+    be no list at all (pydantic: 'Input should be a valid tuple')."""
+    if part.isdigit():
+        raise ConfigError(
+            f"--set {text!r}: the config does not set {where}, so there is no list to index; "
+            f"set the whole value (--set {where}=[...])"
+        )
+
+
 def apply_override(
     data: dict[str, Any],
     parts: list[str],
@@ -263,12 +273,8 @@ def apply_override(
                 node[part] = value
             else:
                 nxt = node.get(part)
-                if nxt is None and parts[i].isdigit():  # {"0": v} would be no list at all
-                    raise ConfigError(
-                        f"--set {text!r}: the config does not set {where}, so there is no "
-                        f"list to index; set the whole value (--set {where}=[...])"
-                    )
                 if nxt is None:
+                    _refuse_index_into_nothing(parts[i], where, text)
                     nxt = node[part] = {}
                 node = nxt
         elif isinstance(node, list):
