@@ -289,6 +289,9 @@ def test_sigterm_to_compare_stops_the_pool_keeps_results_and_resume_finishes_it(
     assert 2 <= len(kept) < 12
     assert json.loads((run.folder / "results.json").read_text())["partial"] is True
     assert (run.folder / "summary.md").read_text().startswith("**PARTIAL**")
+    # the study's target count, not what the first method finished (found by a new-user trial)
+    n_targets = len(yaml.safe_load((run.folder / "targets.yaml").read_text())["targets"])
+    assert f"{n_targets} targets per method" in (run.folder / "summary.md").read_text()
     cut = [r for r in journal(run.folder) if r["outcome"] == "interrupted"]
     assert cut, "a running episode should have been cut"
     for row in cut:

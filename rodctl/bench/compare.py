@@ -266,7 +266,9 @@ class CompareStudy:
         )
         header, lines = summary_rows(summary, bands)
         md = folder / "summary.md"
-        write_summary_md(md, cfg, header, lines, summary, wall, workers, self.fig_target)
+        write_summary_md(
+            md, cfg, header, lines, summary, wall, workers, self.fig_target, len(self.targets)
+        )
         if partial:
             _mark_partial(md, len(rows), len(self.targets) * len(cfg.methods))
         if rows:
@@ -426,13 +428,15 @@ def write_summary_md(
     wall: float,
     workers: int,
     fig_target: int,
+    targets: int,
 ) -> None:
-    """summary.md: the table, what each method is, and how the benchmark was run."""
+    """summary.md: the table, what each method is, and how the benchmark was run (`targets`:
+    the study's, whatever a partial run finished of them)."""
     run = cfg.base.run
     text = [
         f"# rodctl compare: {cfg.name}",
         "",
-        f"{summary['methods'][next(iter(cfg.methods))]['episodes']} targets per method, seed "
+        f"{targets} targets per method, seed "
         f"{cfg.seed}; step budget {run.max_steps} (probing included), success = mean pixel "
         f"error < {run.pixel_tolerance} px on the {cfg.base.camera.points}-point centerline; "
         f"speed limit {list(cfg.base.rod.max_step)} per step. Wall time {wall:.0f} s to this "
